@@ -1,0 +1,90 @@
+"""Rigid-body dynamics quantities of the nominal model, all from Pinocchio.
+
+Equation (3) of the paper: M(q) q̈ + h(q, q̇) + Φ̃ = Sᵀ τ + J_cᵀ λ_c.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from .robot import RobotDescription
+
+
+@dataclass
+class DynamicsTerms:
+    """Terms of eq. (3) at one state: M (nv×nv), h (nv), foot Jacobians (n_feet×3×nv)."""
+
+    mass_matrix: np.ndarray
+    nonlinear_effects: np.ndarray
+    foot_jacobians: np.ndarray
+
+
+def selection_matrix(robot: RobotDescription) -> np.ndarray:
+    """S (n_j × nv) with S v = joint velocities; Sᵀ τ maps joint torques to generalized forces."""
+    return np.hstack([np.zeros((robot.n_joints, 6)), np.eye(robot.n_joints)])
+
+
+class RigidBodyDynamics:
+    """Nominal dynamics of a robot description. Holds its own pinocchio.Data (not thread-safe)."""
+
+    def __init__(self, robot: RobotDescription) -> None:
+        self.robot = robot
+        self.model = robot.model
+        self.data = robot.model.createData()
+
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        """M(q), symmetric (CRBA fills the upper triangle only)."""
+        M = pin.crba(self.model, self.data, q)
+        return np.triu(M) + np.triu(M, 1).T
+
+    def nonlinear_effects(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """h(q, q̇): Coriolis, centrifugal and gravity generalized forces."""
+        return pin.nonLinearEffects(self.model, self.data, q, v).copy()
+
+    def inverse_dynamics(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """M(q) q̈ + h(q, q̇) by RNEA."""
+        return pin.rnea(self.model, self.data, q, v, a).copy()
+
+    def foot_positions(self, q: np.ndarray) -> np.ndarray:
+        """World positions of the feet, (n_feet × 3) [m]."""
+        pin.framesForwardKinematics(self.model, self.data, q)
+        return np.array([self.data.oMf[f].translation for f in self.robot.foot_frame_ids])
+
+    def foot_jacobians(self, q: np.ndarray) -> np.ndarray:
+        """Linear foot Jacobians in the world-aligned frame, (n_feet × 3 × nv)."""
+        pin.computeJointJacobians(self.model, self.data, q)
+        pin.updateFramePlacements(self.model, self.data)
+        return self._foot_jacobians()
+
+    def _foot_jacobians(self) -> np.ndarray:
+        return np.array(
+            [
+                pin.getFrameJacobian(self.model, self.data, f, pin.LOCAL_WORLD_ALIGNED)[:3]
+                for f in self.robot.foot_frame_ids
+            ]
+        )
+
+    def foot_velocities(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """World-aligned linear foot velocities, (n_feet × 3) [m/s]."""
+        return np.einsum("fij,j->fi", self.foot_jacobians(q), v)
+
+    def foot_acceleration_drift(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """J̇ q̇ of each foot's linear (classical) acceleration, (n_feet × 3) [m/s²]."""
+        pin.forwardKinematics(self.model, self.data, q, v, np.zeros(self.model.nv))
+        pin.updateFramePlacements(self.model, self.data)
+        return np.array(
+            [
+                pin.getFrameClassicalAcceleration(self.model, self.data, f, pin.LOCAL_WORLD_ALIGNED).linear
+                for f in self.robot.foot_frame_ids
+            ]
+        )
+
+    def terms(self, q: np.ndarray, v: np.ndarray) -> DynamicsTerms:
+        """M, h and the foot Jacobians at one state in one pass."""
+        pin.computeAllTerms(self.model, self.data, q, v)
+        pin.updateFramePlacements(self.model, self.data)
+        M = self.data.M
+        M = np.triu(M) + np.triu(M, 1).T
+        return DynamicsTerms(M, self.data.nle.copy(), self._foot_jacobians())

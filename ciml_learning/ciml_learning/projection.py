@@ -1,0 +1,72 @@
+"""Null-space projection and the contact-invariant basis (paper §II-III).
+
+    P_c = I − J_c⁺ J_c           projector onto the null space of the contact constraints,
+                                 P_c J_cᵀ = 0 (Aghili 2005), so λ_c drops out of eq. (3).
+    J'ᵀ = [J_0ᵀ, J_1ᵀ, …]        contact-invariant basis, J_0 = [I_6, 0], J_i the linear
+                                 foot Jacobians; Φ̃ = J'ᵀ Φ̃'  (eq. 8).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+DEFAULT_GAMMA = 0.02
+"""Smallest singular value [m/rad] kept in a leg's joint block ∂p_foot/∂q_leg.
+
+HyQ's leg blocks have singular values of 0.1–0.6 m/rad away from a straight knee, so
+the basis is exact there; at a straight knee the smallest one goes to zero and is
+clamped to γ (paper §VI regularises the same block with γI₃), which bounds the
+foot entries of Φ̃' at |Φ̃| / γ instead of letting them diverge.
+"""
+
+
+def contact_jacobian(foot_jacobians: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+    """Stack the linear Jacobians of the feet in contact: J_c (3·n_c × nv)."""
+    contacts = np.asarray(contacts, dtype=bool)
+    nv = foot_jacobians.shape[-1]
+    if not contacts.any():
+        return np.zeros((0, nv))
+    return foot_jacobians[contacts].reshape(-1, nv)
+
+
+def projector(J_c: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
+    """P_c = I − J_c⁺ J_c (nv × nv), the orthogonal projector onto null(J_c)."""
+    nv = J_c.shape[1]
+    if J_c.shape[0] == 0:
+        return np.eye(nv)
+    return np.eye(nv) - np.linalg.pinv(J_c, rcond=rcond) @ J_c
+
+
+def contact_invariant_basis(
+    foot_jacobians: np.ndarray, leg_joints: tuple[tuple[int, ...], ...], gamma: float = DEFAULT_GAMMA
+) -> np.ndarray:
+    """J' (nv × nv): rows [J_0; J_1; …; J_nf], eq. (8), with leg blocks regularised.
+
+    J' is block lower-triangular with I₆ in the base block, so it is invertible iff
+    every leg's joint block B_i = ∂p_i/∂q_leg,i is. Singular values of B_i below
+    `gamma` are raised to `gamma` (exact wherever σ_min(B_i) ≥ γ).
+    """
+    n_feet, _, nv = foot_jacobians.shape
+    basis = np.zeros((nv, nv))
+    basis[:6, :6] = np.eye(6)
+    for i in range(n_feet):
+        rows = slice(6 + 3 * i, 9 + 3 * i)
+        basis[rows] = foot_jacobians[i]
+        cols = 6 + np.asarray(leg_joints[i])
+        block = foot_jacobians[i][:, cols]
+        U, s, Vt = np.linalg.svd(block)
+        if s[-1] < gamma:
+            basis[rows.start : rows.stop, cols] = (U * np.maximum(s, gamma)) @ Vt
+    return basis
+
+
+def basis_columns(contacts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Column indices of J'ᵀ that are constrained (feet in contact) and unconstrained.
+
+    Base columns (0–5) are always unconstrained; foot i owns columns 6+3i … 8+3i.
+    Returns (constrained, unconstrained) index arrays.
+    """
+    contacts = np.asarray(contacts, dtype=bool)
+    foot_cols = [np.arange(6 + 3 * i, 9 + 3 * i) for i in range(len(contacts))]
+    constrained = np.concatenate([c for c, on in zip(foot_cols, contacts) if on] or [np.zeros(0, int)])
+    unconstrained = np.concatenate([np.arange(6)] + [c for c, on in zip(foot_cols, contacts) if not on])
+    return constrained.astype(int), unconstrained.astype(int)

@@ -1,0 +1,27 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "ciml_sim"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    package_data={package_name: ["py.typed"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", glob("config/*.yaml")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="CIML developers",
+    maintainer_email="ciml@example.com",
+    description="MuJoCo HyQ bridge with configurable unmodelled effects; headless recording.",
+    license="BSD-3-Clause",
+    entry_points={
+        "console_scripts": [
+        ],
+    },
+)

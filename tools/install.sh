@@ -1,0 +1,69 @@
+#!/usr/bin/env bash
+# Installs everything CIML needs into ./.venv, idempotently:
+#   system tools (apt, only when missing) -> venv + pinned wheels -> ciml_msgs (rosidl, CMake)
+#   -> the three ament_python packages (editable) -> ros2-run layout (lib/<pkg>/<exe>).
+# Each step is skipped when the files it depends on have not changed (hash stamps).
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="$ROOT/.venv"
+PY="$VENV/bin/python"
+STAMPS="$VENV/.ciml-stamps"
+log() { printf '[install] %s\n' "$*"; }
+
+need_apt=()
+command -v python3 >/dev/null || need_apt+=(python3)
+python3 -c 'import ensurepip, venv' 2>/dev/null || need_apt+=(python3-venv)
+command -v cmake >/dev/null || need_apt+=(cmake)
+command -v g++ >/dev/null || need_apt+=(g++)
+command -v make >/dev/null || need_apt+=(make)
+python3 -c 'import sysconfig,os,sys; sys.exit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"],"Python.h")))' \
+  || need_apt+=(python3-dev)
+if ((${#need_apt[@]})); then
+  log "installing system packages: ${need_apt[*]}"
+  if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
+  $SUDO apt-get update -qq && $SUDO apt-get install -y -qq "${need_apt[@]}"
+fi
+
+hash_of() { cat "$@" | sha256sum | cut -c1-16; }
+stamp_ok() { [ -f "$STAMPS/$1" ] && [ "$(cat "$STAMPS/$1")" = "$2" ]; }
+stamp_set() { mkdir -p "$STAMPS"; echo "$2" > "$STAMPS/$1"; }
+
+if [ ! -x "$PY" ]; then
+  log "creating venv $VENV"
+  python3 -m venv "$VENV"
+fi
+
+h=$(hash_of "$ROOT/requirements.txt" "$ROOT/constraints.txt")
+if ! stamp_ok wheels "$h"; then
+  log "installing pinned wheels (ROS 2 Jazzy, pinocchio, GPy, proxsuite, rosbags, mujoco, ...)"
+  "$PY" -m pip install -q --upgrade pip
+  "$PY" -m pip install -q -r "$ROOT/requirements.txt" -c "$ROOT/constraints.txt"
+  # The message wheels' exported CMake targets name include folders of the machine that
+  # built them; point them at this interpreter's and this venv's numpy (ROS_WHEELS.md, step 3).
+  "$PY" "$ROOT/tools/fix_cmake_exports.py" "$VENV"
+  stamp_set wheels "$h"
+fi
+
+h=$(hash_of "$ROOT"/ciml_msgs/CMakeLists.txt "$ROOT"/ciml_msgs/package.xml "$ROOT"/ciml_msgs/msg/*.msg "$STAMPS/wheels")
+if ! stamp_ok msgs "$h"; then
+  log "building ciml_msgs (rosidl) into the venv"
+  BUILD="$ROOT/build/ciml_msgs"
+  rm -rf "$BUILD"; mkdir -p "$BUILD"
+  (cd "$BUILD" && \
+   CMAKE_PREFIX_PATH="$VENV" AMENT_PREFIX_PATH="$VENV" PATH="$VENV/bin:$PATH" \
+   cmake "$ROOT/ciml_msgs" -DCMAKE_INSTALL_PREFIX="$VENV" -DPython3_EXECUTABLE="$PY" \
+         -DBUILD_TESTING=OFF -DCMAKE_BUILD_TYPE=Release > cmake.log 2>&1 && \
+   CMAKE_PREFIX_PATH="$VENV" AMENT_PREFIX_PATH="$VENV" PATH="$VENV/bin:$PATH" \
+   make -j"$(nproc)" install > make.log 2>&1) || { log "ciml_msgs build failed, see $BUILD/*.log"; tail -30 "$BUILD"/*.log; exit 1; }
+  stamp_set msgs "$h"
+fi
+
+h=$(hash_of "$ROOT"/ciml_*/setup.py "$ROOT"/ciml_*/setup.cfg "$ROOT"/ciml_*/package.xml "$STAMPS/wheels")
+if ! stamp_ok pkgs "$h"; then
+  log "installing ciml_learning, ciml_control, ciml_sim (editable)"
+  "$PY" -m pip install -q --no-deps --no-build-isolation \
+    -e "$ROOT/ciml_learning" -e "$ROOT/ciml_control" -e "$ROOT/ciml_sim"
+  "$PY" "$ROOT/tools/ament_layout.py" "$VENV" ciml_learning ciml_control ciml_sim
+  stamp_set pkgs "$h"
+fi
+log "ready: $VENV"

@@ -1,22 +1,34 @@
-"""Give each installed ament_python package the layout ``ros2 run`` resolves.
+"""Give each editable-installed ament_python package the layout ``ros2 run`` resolves.
 
-``ros2 run PKG EXE`` looks for ``<prefix>/lib/PKG/EXE``. pip puts console scripts into
-``<venv>/bin``; this links each console script of PKG into ``<venv>/lib/PKG/``.
-The package marker and package.xml are installed by setup.py's data_files.
+An editable pip install installs neither setup.py's data_files nor scripts under
+``lib/<pkg>``. This does both, in the venv (an ament prefix):
+- ``share/ament_index/resource_index/packages/<pkg>`` (the package marker),
+- ``share/<pkg>/package.xml`` and ``share/<pkg>/config/*.yaml``,
+- ``lib/<pkg>/<exe>``: a link to each console script of the package in ``bin/``.
 """
+import glob
 import os
+import shutil
 import sys
 from importlib.metadata import distribution
 
 
-def main(venv: str, packages: list[str]) -> int:
+def main(root: str, venv: str, packages: list[str]) -> int:
     for pkg in packages:
-        dist = distribution(pkg)
+        src = os.path.join(root, pkg)
+        index = os.path.join(venv, "share", "ament_index", "resource_index", "packages")
+        os.makedirs(index, exist_ok=True)
+        shutil.copyfile(os.path.join(src, "resource", pkg), os.path.join(index, pkg))
+        share = os.path.join(venv, "share", pkg)
+        shutil.rmtree(share, ignore_errors=True)
+        os.makedirs(os.path.join(share, "config"))
+        shutil.copyfile(os.path.join(src, "package.xml"), os.path.join(share, "package.xml"))
+        for cfg in glob.glob(os.path.join(src, "config", "*.yaml")):
+            shutil.copy(cfg, os.path.join(share, "config"))
         dest = os.path.join(venv, "lib", pkg)
-        os.makedirs(dest, exist_ok=True)
-        for old in os.listdir(dest):  # drop executables no longer registered
-            os.unlink(os.path.join(dest, old))
-        for ep in dist.entry_points:
+        shutil.rmtree(dest, ignore_errors=True)  # drop executables no longer registered
+        os.makedirs(dest)
+        for ep in distribution(pkg).entry_points:
             if ep.group != "console_scripts":
                 continue
             target = os.path.join(venv, "bin", ep.name)
@@ -27,4 +39,4 @@ def main(venv: str, packages: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1], sys.argv[2:]))
+    sys.exit(main(sys.argv[1], sys.argv[2], sys.argv[3:]))

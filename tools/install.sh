@@ -63,7 +63,7 @@ if ! stamp_ok pkgs "$h"; then
   log "installing ciml_learning, ciml_control, ciml_sim (editable)"
   "$PY" -m pip install -q --no-deps --no-build-isolation \
     -e "$ROOT/ciml_learning" -e "$ROOT/ciml_control" -e "$ROOT/ciml_sim"
-  "$PY" "$ROOT/tools/ament_layout.py" "$VENV" ciml_learning ciml_control ciml_sim
+  "$PY" "$ROOT/tools/ament_layout.py" "$ROOT" "$VENV" ciml_learning ciml_control ciml_sim
   stamp_set pkgs "$h"
 fi
 log "ready: $VENV"

@@ -1,0 +1,280 @@
+"""rosbag2 bags with rosbags: the typestore, writing MCAP bags, reading robot logs.
+
+- The typestore is ROS 2 Jazzy's plus ciml_msgs registered from the .msg files
+  themselves (the installed share/ciml_msgs/msg, else the source tree): one source.
+- Writing: messages are rclpy objects serialised by rclpy (byte-identical to what the
+  live graph publishes) and stored with rosbags' MCAP writer; no DDS is involved.
+- Reading: samples are ordered by header.stamp, never by receive time (DESIGN §7);
+  truncated or incomplete bags become one-line BagErrors.
+"""
+from __future__ import annotations
+
+import glob
+import os
+import sys
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from . import topics
+from .conversions import (
+    ConversionError,
+    contact_state_arrays,
+    joint_state_arrays,
+    odometry_arrays,
+    stamp_to_ns,
+    torque_command_arrays,
+)
+from .errors import CimlError
+from .robot import RobotDescription
+
+
+class BagError(CimlError):
+    """A bag cannot be read or does not hold a usable robot log."""
+
+
+def msg_dir() -> str:
+    """Folder holding ciml_msgs' .msg files: an ament prefix (AMENT_PREFIX_PATH, this venv), else the source tree."""
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p] + [sys.prefix]
+    candidates = [os.path.join(p, "share", "ciml_msgs", "msg") for p in prefixes]
+    candidates.append(os.path.join(os.path.dirname(__file__), "..", "..", "ciml_msgs", "msg"))
+    for d in candidates:
+        if glob.glob(os.path.join(d, "*.msg")):
+            return os.path.abspath(d)
+    raise BagError("ciml_msgs .msg files not found; run make install")
+
+
+@lru_cache(maxsize=1)
+def typestore():
+    """ROS 2 Jazzy typestore with every ciml_msgs type registered from its .msg text."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    types = {}
+    for path in sorted(glob.glob(os.path.join(msg_dir(), "*.msg"))):
+        name = f"ciml_msgs/msg/{Path(path).stem}"
+        types.update(get_types_from_msg(Path(path).read_text(encoding="utf-8"), name))
+    store.register(types)
+    return store
+
+
+class BagWriter:
+    """Write rclpy messages into a new rosbag2 MCAP bag (atomically: temp dir + rename)."""
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        self.path = Path(path)
+        if self.path.exists():
+            raise BagError(f"{self.path} exists already; choose a new --out")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._tmp = self.path.with_name(f".{self.path.name}.partial")
+        if self._tmp.exists():
+            import shutil
+
+            shutil.rmtree(self._tmp)
+        self._writer = Writer(self._tmp, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._connections: dict[str, object] = {}
+        self.counts: dict[str, int] = {}
+
+    def __enter__(self) -> "BagWriter":
+        self._writer.open()
+        return self
+
+    def write(self, topic: str, stamp_ns: int, msg, msgtype: str | None = None) -> None:
+        """Append one rclpy message; `msgtype` defaults to the graph's type of `topic`."""
+        from rclpy.serialization import serialize_message
+
+        conn = self._connections.get(topic)
+        if conn is None:
+            msgtype = msgtype or topics.topic_type(topic)
+            conn = self._writer.add_connection(topic, msgtype, typestore=typestore())
+            self._connections[topic] = conn
+        self._writer.write(conn, int(stamp_ns), serialize_message(msg))
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self._writer.close()
+        if exc_type is None:
+            # the bag folder's own name is recorded nowhere inside, so renaming is safe
+            os.replace(self._tmp, self.path)
+            mcap = list(self.path.glob("*.mcap"))
+            meta = self.path / "metadata.yaml"
+            text = meta.read_text()
+            for m in mcap:
+                old = m.name
+                new = f"{self.path.name}_0.mcap"
+                if old != new:
+                    m.rename(self.path / new)
+                    text = text.replace(old, new)
+            meta.write_text(text)
+        else:
+            import shutil
+
+            shutil.rmtree(self._tmp, ignore_errors=True)
+
+
+def _open_reader(paths: Sequence[str | os.PathLike]):
+    from rosbags.highlevel import AnyReader, AnyReaderError
+
+    paths = [Path(p) for p in paths]
+    for p in paths:
+        if not p.exists():
+            raise BagError(f"bag not found: {p}")
+    try:
+        reader = AnyReader(paths, default_typestore=typestore())
+        reader.open()
+    except AnyReaderError as err:
+        raise BagError(
+            f"cannot read bag {', '.join(map(str, paths))}: {err} — if it was cut short, try "
+            "'ros2 bag reindex' (db3) or 'mcap recover' (MCAP)"
+        ) from err
+    except FileNotFoundError as err:
+        raise BagError(
+            f"bag {', '.join(map(str, paths))} has no metadata.yaml ({err.filename}); "
+            "recreate it with 'ros2 bag reindex'"
+        ) from err
+    return reader
+
+
+def list_topics(path: str | os.PathLike) -> dict[str, str]:
+    """Topic → message type of one bag."""
+    reader = _open_reader([path])
+    try:
+        return {c.topic: c.msgtype for c in reader.connections}
+    finally:
+        reader.close()
+
+
+def read_messages(path: str | os.PathLike, wanted: Iterable[str]) -> dict[str, list[tuple[int, object]]]:
+    """Messages of the wanted topics of one bag as (header stamp [ns], msg), sorted by stamp.
+
+    Raises BagError for a truncated bag; a missing topic gives an empty list.
+    """
+    from rosbags.highlevel import AnyReaderError
+
+    wanted = set(wanted)
+    reader = _open_reader([path])
+    out: dict[str, list[tuple[int, object]]] = {t: [] for t in wanted}
+    try:
+        conns = [c for c in reader.connections if c.topic in wanted]
+        for conn, log_ns, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            header = getattr(msg, "header", None)
+            stamp = stamp_to_ns(header.stamp) if header is not None else log_ns
+            out[conn.topic].append((stamp, msg))
+    except (AnyReaderError, EOFError, ValueError, KeyError) as err:
+        raise BagError(
+            f"bag {path} is truncated or corrupt ({type(err).__name__}: {err}); "
+            "try 'mcap recover' (MCAP) or 'ros2 bag reindex' (db3)"
+        ) from err
+    finally:
+        reader.close()
+    for msgs in out.values():
+        msgs.sort(key=lambda m: m[0])  # stable: equal sim-time stamps keep bag order
+    return out
+
+
+@dataclass
+class SensorLog:
+    """A robot log as arrays, one row per joint-state sample, in the robot's orders.
+
+    q: (N × nq) Pinocchio configuration (base from /base_state); v: (N × nv), base twist
+    in the base frame; tau: measured torques; u: total commanded torques (joint loop,
+    TorqueCommand.msg); contacts: (N × n_feet).
+    """
+
+    bag: str
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    tau: np.ndarray
+    u: np.ndarray
+    contacts: np.ndarray
+    rejected: dict[str, int] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+def _hold_index(src_t: np.ndarray, t: np.ndarray, max_age_ns: int) -> np.ndarray:
+    """For each t, the latest src sample at or before t (−1 if none or older than max_age)."""
+    idx = np.searchsorted(src_t, t, side="right") - 1
+    ok = idx >= 0
+    ok[ok] &= (t[ok] - src_t[idx[ok]]) <= max_age_ns
+    idx[~ok] = -1
+    return idx
+
+
+def load_sensor_log(robot: RobotDescription, path: str | os.PathLike, max_age_s: float = 0.02) -> SensorLog:
+    """Read the four sensor topics of a bag into a SensorLog (no /sim/ topic is read).
+
+    Samples are taken at the joint-state stamps; base state, contacts and command are
+    the latest at or before each stamp (zero-order hold, at most `max_age_s` old).
+    Non-finite or malformed messages are dropped and counted in `rejected`; a missing
+    topic, an empty log, or decreasing stamps raise BagError.
+    """
+    data = read_messages(path, topics.SENSOR_TOPICS)
+    for t in topics.SENSOR_TOPICS:
+        if not data[t]:
+            raise BagError(f"bag {path} has no messages on {t}; a robot log needs {list(topics.SENSOR_TOPICS)}")
+    rejected: dict[str, int] = {}
+
+    def convert(topic, fn):
+        stamps, rows = [], []
+        for stamp, msg in data[topic]:
+            try:
+                rows.append(fn(msg))
+                stamps.append(stamp)
+            except ConversionError as err:
+                if "do not match the robot" in str(err):
+                    raise BagError(f"bag {path}, {topic}: {err}") from err
+                rejected[topic] = rejected.get(topic, 0) + 1
+        return np.asarray(stamps, dtype=np.int64), rows
+
+    tj, joints = convert(topics.JOINT_STATES, lambda m: joint_state_arrays(robot, m))
+    tb, base = convert(topics.BASE_STATE, odometry_arrays)
+    tc, contacts = convert(topics.CONTACT_STATE, lambda m: contact_state_arrays(robot, m))
+    tu, cmds = convert(topics.TORQUE_COMMAND, lambda m: torque_command_arrays(robot, m))
+    if len(tj) == 0:
+        raise BagError(f"bag {path}: no valid joint-state sample")
+    # duplicated stamps: keep the last one of each
+    keep = np.append(tj[1:] != tj[:-1], True)
+    tj, joints = tj[keep], [j for j, k in zip(joints, keep) if k]
+    max_age = int(max_age_s * 1e9)
+    ib, ic, iu = (_hold_index(ts, tj, max_age) for ts in (tb, tc, tu))
+    ok = (ib >= 0) & (ic >= 0) & (iu >= 0)
+    if (~ok).any():
+        rejected["stale_or_missing"] = int((~ok).sum())
+    if not ok.any():
+        raise BagError(f"bag {path}: no joint-state sample has a base state, contact state and command within {max_age_s} s")
+    n = int(ok.sum())
+    nq, nv, nj = robot.nq, robot.nv, robot.n_joints
+    q = np.empty((n, nq))
+    v = np.empty((n, nv))
+    tau = np.empty((n, nj))
+    u = np.empty((n, nj))
+    con = np.empty((n, robot.n_feet), dtype=bool)
+    for k, i in enumerate(np.flatnonzero(ok)):
+        qj, qdj, tj_ = joints[i]
+        pos, quat, twist = base[ib[i]]
+        q[k, :3], q[k, 3:7], q[k, 7:] = pos, quat, qj
+        v[k, :6], v[k, 6:] = twist, qdj
+        tau[k] = tj_
+        cmd = cmds[iu[i]]
+        u[k] = cmd.total(qj, qdj, robot.torque_limits)
+        con[k] = contacts[ic[i]]
+    return SensorLog(bag=str(path), t=tj[ok] * 1e-9, q=q, v=v, tau=tau, u=u, contacts=con, rejected=rejected)
+
+
+def iter_bag_messages(path: str | os.PathLike) -> Iterator[tuple[str, int, bytes, str]]:
+    """All messages of a bag as (topic, log time [ns], raw CDR, type), in log-time order (for replay)."""
+    reader = _open_reader([path])
+    try:
+        for conn, log_ns, raw in reader.messages():
+            yield conn.topic, log_ns, bytes(raw), conn.msgtype
+    finally:
+        reader.close()

@@ -1,0 +1,234 @@
+"""Message ↔ numpy conversion, by joint and foot name (never by index alone).
+
+Readers accept rclpy messages and rosbags messages alike (same field names).
+Writers build rclpy message objects; bags store them CDR-serialised by rclpy, so
+live topics and recorded bags carry byte-identical messages.
+Every reader rejects non-finite values and wrong names with a ConversionError.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import CimlError
+from .robot import RobotDescription
+
+
+class ConversionError(CimlError):
+    """A message cannot be turned into a valid sample (wrong names, sizes or non-finite values)."""
+
+
+def stamp_to_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def _stamp(ns: int):
+    from builtin_interfaces.msg import Time
+
+    return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+
+
+def _header(ns: int, frame_id: str = ""):
+    from std_msgs.msg import Header
+
+    return Header(stamp=_stamp(ns), frame_id=frame_id)
+
+
+def _finite(name: str, *arrays: np.ndarray) -> None:
+    for a in arrays:
+        if a.size and not np.all(np.isfinite(a)):
+            raise ConversionError(f"{name}: non-finite value")
+
+
+def _vector(values, n: int, what: str) -> np.ndarray:
+    a = np.asarray(values, dtype=float)
+    if a.shape != (n,):
+        raise ConversionError(f"{what}: expected {n} values, got {a.size}")
+    return a
+
+
+def commanded_torque(
+    feedforward: np.ndarray,
+    feedback_linearization: np.ndarray,
+    position_target: np.ndarray,
+    velocity_target: np.ndarray,
+    stiffness: np.ndarray,
+    damping: np.ndarray,
+    q_measured: np.ndarray,
+    qd_measured: np.ndarray,
+    limits: np.ndarray,
+) -> np.ndarray:
+    """Total joint torque command u of the low-level joint loop [Nm] (TorqueCommand.msg).
+
+    u = u_ff + u_fb,lin + K_p (q_target − q) + K_d (q̇_target − q̇), clipped to ±limits.
+    The bridge's 1 kHz loop and the learning side (Γ = τ − u, eq. 14) both use this.
+    """
+    u = (
+        feedforward
+        + feedback_linearization
+        + stiffness * (position_target - q_measured)
+        + damping * (velocity_target - qd_measured)
+    )
+    return np.clip(u, -limits, limits)
+
+
+# --- sensor_msgs/JointState -------------------------------------------------------
+
+
+def joint_state_msg(robot: RobotDescription, stamp_ns: int, q: np.ndarray, qd: np.ndarray, tau: np.ndarray):
+    from sensor_msgs.msg import JointState
+
+    return JointState(
+        header=_header(stamp_ns),
+        name=list(robot.joint_names),
+        position=q.tolist(),
+        velocity=qd.tolist(),
+        effort=tau.tolist(),
+    )
+
+
+def joint_state_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(q, q̇, τ_measured) in the robot's joint order."""
+    perm = robot.joint_permutation(list(msg.name))
+    n = len(msg.name)
+    q = _vector(msg.position, n, "joint_states.position")[perm]
+    qd = _vector(msg.velocity, n, "joint_states.velocity")[perm]
+    tau = _vector(msg.effort, n, "joint_states.effort")[perm]
+    _finite("joint_states", q, qd, tau)
+    return q, qd, tau
+
+
+# --- nav_msgs/Odometry (base) ------------------------------------------------------
+
+
+def odometry_msg(stamp_ns: int, position: np.ndarray, quaternion_xyzw: np.ndarray, linear: np.ndarray, angular: np.ndarray):
+    """Base state; twist in the base frame (child_frame_id), as nav_msgs/Odometry defines."""
+    from geometry_msgs.msg import Point, Pose, PoseWithCovariance, Quaternion, Twist, TwistWithCovariance, Vector3
+    from nav_msgs.msg import Odometry
+
+    x, y, z, w = (float(c) for c in quaternion_xyzw)
+    return Odometry(
+        header=_header(stamp_ns, "world"),
+        child_frame_id="base",
+        pose=PoseWithCovariance(
+            pose=Pose(position=Point(x=float(position[0]), y=float(position[1]), z=float(position[2])),
+                      orientation=Quaternion(x=x, y=y, z=z, w=w))
+        ),
+        twist=TwistWithCovariance(
+            twist=Twist(linear=Vector3(x=float(linear[0]), y=float(linear[1]), z=float(linear[2])),
+                        angular=Vector3(x=float(angular[0]), y=float(angular[1]), z=float(angular[2])))
+        ),
+    )
+
+
+def odometry_arrays(msg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(base position (3), quaternion xyzw (4, normalised), base twist [linear, angular] (6))."""
+    p = msg.pose.pose.position
+    o = msg.pose.pose.orientation
+    t = msg.twist.twist
+    pos = np.array([p.x, p.y, p.z], dtype=float)
+    quat = np.array([o.x, o.y, o.z, o.w], dtype=float)
+    twist = np.array([t.linear.x, t.linear.y, t.linear.z, t.angular.x, t.angular.y, t.angular.z], dtype=float)
+    _finite("base_state", pos, quat, twist)
+    norm = np.linalg.norm(quat)
+    if not 0.9 < norm < 1.1:
+        raise ConversionError(f"base_state: orientation quaternion has norm {norm:.3f}, expected 1")
+    return pos, quat / norm, twist
+
+
+# --- ciml_msgs/ContactState --------------------------------------------------------
+
+
+def contact_state_msg(robot: RobotDescription, stamp_ns: int, contacts: np.ndarray):
+    from ciml_msgs.msg import ContactState
+
+    return ContactState(header=_header(stamp_ns), foot_names=list(robot.foot_frames),
+                        in_contact=[bool(c) for c in contacts])
+
+
+def contact_state_arrays(robot: RobotDescription, msg) -> np.ndarray:
+    names = list(msg.foot_names)
+    flags = np.asarray(msg.in_contact, dtype=bool)
+    if flags.shape != (len(names),):
+        raise ConversionError(f"contact_state: {len(names)} foot names but {flags.size} flags")
+    return flags[robot.foot_permutation(names)]
+
+
+# --- ciml_msgs/TorqueCommand -------------------------------------------------------
+
+
+@dataclass
+class TorqueCommandArrays:
+    """TorqueCommand content in the robot's joint order."""
+
+    mode: int
+    feedforward: np.ndarray
+    feedback_linearization: np.ndarray
+    position_target: np.ndarray
+    velocity_target: np.ndarray
+    stiffness: np.ndarray
+    damping: np.ndarray
+
+    def total(self, q: np.ndarray, qd: np.ndarray, limits: np.ndarray) -> np.ndarray:
+        return commanded_torque(self.feedforward, self.feedback_linearization, self.position_target,
+                                self.velocity_target, self.stiffness, self.damping, q, qd, limits)
+
+
+def torque_command_msg(robot: RobotDescription, stamp_ns: int, cmd: TorqueCommandArrays):
+    from ciml_msgs.msg import TorqueCommand
+
+    return TorqueCommand(
+        header=_header(stamp_ns),
+        mode=int(cmd.mode),
+        joint_names=list(robot.joint_names),
+        feedforward=cmd.feedforward.tolist(),
+        feedback_linearization=cmd.feedback_linearization.tolist(),
+        position_target=cmd.position_target.tolist(),
+        velocity_target=cmd.velocity_target.tolist(),
+        stiffness=cmd.stiffness.tolist(),
+        damping=cmd.damping.tolist(),
+    )
+
+
+def torque_command_arrays(robot: RobotDescription, msg) -> TorqueCommandArrays:
+    perm = robot.joint_permutation(list(msg.joint_names))
+    n = len(msg.joint_names)
+    fields = {}
+    for f in ("feedforward", "feedback_linearization", "position_target", "velocity_target", "stiffness", "damping"):
+        fields[f] = _vector(getattr(msg, f), n, f"torque_command.{f}")[perm]
+    _finite("torque_command", *fields.values())
+    if np.any(fields["stiffness"] < 0) or np.any(fields["damping"] < 0):
+        raise ConversionError("torque_command: negative stiffness or damping")
+    return TorqueCommandArrays(mode=int(msg.mode), **fields)
+
+
+# --- ciml_msgs/ModelError ----------------------------------------------------------
+
+
+def model_error_msg(
+    robot: RobotDescription,
+    stamp_ns: int,
+    source: str,
+    rbd_error: np.ndarray,
+    rbd_observed: np.ndarray,
+    actuation_error: np.ndarray,
+    actuation_observed: np.ndarray,
+    rbd_variance: np.ndarray | None = None,
+    actuation_variance: np.ndarray | None = None,
+):
+    from ciml_msgs.msg import ModelError
+
+    nr, na = len(robot.rbd_error_names), robot.n_joints
+    return ModelError(
+        header=_header(stamp_ns),
+        source=source,
+        rbd_names=list(robot.rbd_error_names),
+        rbd_error=np.asarray(rbd_error, float).tolist(),
+        rbd_observed=[bool(b) for b in rbd_observed],
+        rbd_variance=(np.zeros(nr) if rbd_variance is None else np.asarray(rbd_variance, float)).tolist(),
+        actuation_names=list(robot.joint_names),
+        actuation_error=np.asarray(actuation_error, float).tolist(),
+        actuation_observed=[bool(b) for b in actuation_observed],
+        actuation_variance=(np.zeros(na) if actuation_variance is None else np.asarray(actuation_variance, float)).tolist(),
+    )

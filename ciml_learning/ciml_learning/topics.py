@@ -1,0 +1,54 @@
+"""Topic names and message types of the CIML graph (DESIGN.md §3) — defined once.
+
+Live nodes, `ciml record` and the bag readers all take names from here, so a bag
+recorded headless has exactly the live graph's topics and types.
+"""
+from __future__ import annotations
+
+JOINT_STATES = "/joint_states"
+BASE_STATE = "/base_state"
+CONTACT_STATE = "/contact_state"
+TORQUE_COMMAND = "/torque_command"
+CLOCK = "/clock"
+FILTERED_STATE = "/filtered_state"
+MODEL_ERROR_MEASURED = "/model_error/measured"
+MODEL_ERROR_PREDICTED = "/model_error/predicted"
+MODEL_UPDATE = "/model_update"
+REFERENCE = "/reference"
+DIAGNOSTICS = "/diagnostics"
+
+SIM_PREFIX = "/sim/"
+"""Simulation-only ground truth. Never read by learning or diagnosis code."""
+SIM_ACCELERATION = "/sim/acceleration"
+SIM_CONTACT_FORCES = "/sim/contact_forces"
+SIM_EFFECT_PREFIX = "/sim/effect/"
+
+TYPES: dict[str, str] = {
+    JOINT_STATES: "sensor_msgs/msg/JointState",
+    BASE_STATE: "nav_msgs/msg/Odometry",
+    CONTACT_STATE: "ciml_msgs/msg/ContactState",
+    TORQUE_COMMAND: "ciml_msgs/msg/TorqueCommand",
+    CLOCK: "rosgraph_msgs/msg/Clock",
+    FILTERED_STATE: "ciml_msgs/msg/RobotState",
+    MODEL_ERROR_MEASURED: "ciml_msgs/msg/ModelError",
+    MODEL_ERROR_PREDICTED: "ciml_msgs/msg/ModelError",
+    MODEL_UPDATE: "ciml_msgs/msg/ModelUpdate",
+    REFERENCE: "ciml_msgs/msg/RobotReference",
+    DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
+    SIM_ACCELERATION: "ciml_msgs/msg/GeneralizedForce",
+    SIM_CONTACT_FORCES: "ciml_msgs/msg/ContactForces",
+}
+
+SENSOR_TOPICS: tuple[str, ...] = (JOINT_STATES, BASE_STATE, CONTACT_STATE, TORQUE_COMMAND)
+"""What a robot log must contain to learn from it (no force sensors needed)."""
+
+
+def topic_type(topic: str) -> str:
+    """Message type of a topic; every /sim/effect/<label> is a GeneralizedForce."""
+    if topic.startswith(SIM_EFFECT_PREFIX):
+        return "ciml_msgs/msg/GeneralizedForce"
+    return TYPES[topic]
+
+
+def is_ground_truth(topic: str) -> bool:
+    return topic.startswith(SIM_PREFIX)

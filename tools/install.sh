@@ -61,8 +61,10 @@ fi
 h=$(hash_of "$ROOT"/ciml_*/setup.py "$ROOT"/ciml_*/setup.cfg "$ROOT"/ciml_*/package.xml "$STAMPS/wheels")
 if ! stamp_ok pkgs "$h"; then
   log "installing ciml_learning, ciml_control, ciml_sim (editable)"
+  mkdir -p "$ROOT/build"
   "$PY" -m pip install -q --no-deps --no-build-isolation \
-    -e "$ROOT/ciml_learning" -e "$ROOT/ciml_control" -e "$ROOT/ciml_sim"
+    -e "$ROOT/ciml_learning" -e "$ROOT/ciml_control" -e "$ROOT/ciml_sim" > "$ROOT/build/pip-editable.log" 2>&1 \
+    || { cat "$ROOT/build/pip-editable.log"; exit 1; }
   "$PY" "$ROOT/tools/ament_layout.py" "$ROOT" "$VENV" ciml_learning ciml_control ciml_sim
   stamp_set pkgs "$h"
 fi

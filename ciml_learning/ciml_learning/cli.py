@@ -7,6 +7,7 @@ yet exits 2 saying so.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Callable
 
@@ -94,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("play", help="publish a bag onto the live ROS graph with its recorded timing")
     s.add_argument("--bag", required=True)
     s.add_argument("--rate", type=float, default=1.0)
-    s.set_defaults(func=_not_implemented)
+    s.set_defaults(func=_run("ciml_learning.commands", "play"))
 
     s = sub.add_parser("bench", help="speed and memory benchmarks (JSON)")
     s.add_argument("--out", required=True, help="bench .json")
@@ -104,6 +105,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # DDS stays on this machine unless the user explicitly widens it (e.g. SUBNET).
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -3,6 +3,7 @@ health counters on /diagnostics. Nodes stay thin adapters around pure modules.
 """
 from __future__ import annotations
 
+import os
 from collections import Counter
 from collections.abc import Callable, Sequence
 
@@ -26,7 +27,12 @@ OK, WARN, ERROR = 0, 1, 2
 
 
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> None:
-    """rclpy.init → spin → clean shutdown (the ros2/demos skeleton)."""
+    """rclpy.init → spin → clean shutdown (the ros2/demos skeleton).
+
+    DDS discovery defaults to this machine only; set ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET
+    explicitly to talk to other hosts.
+    """
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     rclpy.init(args=args)
     node = None
     try:

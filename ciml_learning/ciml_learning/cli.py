@@ -100,7 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("bench", help="speed and memory benchmarks (JSON)")
     s.add_argument("--out", required=True, help="bench .json")
     s.add_argument("--only", nargs="+", help="run only these benchmarks")
-    s.set_defaults(func=_not_implemented)
+    s.set_defaults(func=_run("ciml_learning.commands", "bench"))
     return p
 
 

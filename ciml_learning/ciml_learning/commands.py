@@ -13,3 +13,10 @@ def play(args: argparse.Namespace) -> int:
     counts = play_bag(args.bag, rate=args.rate)
     print(json.dumps({"published": counts}))
     return 0
+
+
+def bench(args: argparse.Namespace) -> int:
+    from .bench import run
+
+    run(args.only, args.out)
+    return 0

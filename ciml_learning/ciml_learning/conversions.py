@@ -23,7 +23,7 @@ def stamp_to_ns(stamp) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
-def _stamp(ns: int):
+def stamp_msg(ns: int):
     from builtin_interfaces.msg import Time
 
     return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
@@ -32,7 +32,7 @@ def _stamp(ns: int):
 def _header(ns: int, frame_id: str = ""):
     from std_msgs.msg import Header
 
-    return Header(stamp=_stamp(ns), frame_id=frame_id)
+    return Header(stamp=stamp_msg(ns), frame_id=frame_id)
 
 
 def _finite(name: str, *arrays: np.ndarray) -> None:

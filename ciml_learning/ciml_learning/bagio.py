@@ -200,9 +200,10 @@ class SensorLog:
         return len(self.t)
 
 
-def _hold_index(src_t: np.ndarray, t: np.ndarray, max_age_ns: int) -> np.ndarray:
-    """For each t, the latest src sample at or before t (−1 if none or older than max_age)."""
-    idx = np.searchsorted(src_t, t, side="right") - 1
+def _hold_index(src_t: np.ndarray, t: np.ndarray, max_age_ns: int, strict: bool = False) -> np.ndarray:
+    """For each t, the latest src sample at or before t (strictly before with `strict`);
+    −1 if there is none or it is older than max_age."""
+    idx = np.searchsorted(src_t, t, side="left" if strict else "right") - 1
     ok = idx >= 0
     ok[ok] &= (t[ok] - src_t[idx[ok]]) <= max_age_ns
     idx[~ok] = -1
@@ -212,8 +213,9 @@ def _hold_index(src_t: np.ndarray, t: np.ndarray, max_age_ns: int) -> np.ndarray
 def load_sensor_log(robot: RobotDescription, path: str | os.PathLike, max_age_s: float = 0.02) -> SensorLog:
     """Read the four sensor topics of a bag into a SensorLog (no /sim/ topic is read).
 
-    Samples are taken at the joint-state stamps; base state, contacts and command are
-    the latest at or before each stamp (zero-order hold, at most `max_age_s` old).
+    Samples are taken at the joint-state stamps; base state and contacts are the latest
+    at or before each stamp, the command the latest strictly before it (zero-order hold,
+    at most `max_age_s` old); u is the joint loop's total torque under that command.
     Non-finite or malformed messages are dropped and counted in `rejected`; a missing
     topic, an empty log, or decreasing stamps raise BagError.
     """
@@ -245,7 +247,10 @@ def load_sensor_log(robot: RobotDescription, path: str | os.PathLike, max_age_s:
     keep = np.append(tj[1:] != tj[:-1], True)
     tj, joints = tj[keep], [j for j, k in zip(joints, keep) if k]
     max_age = int(max_age_s * 1e9)
-    ib, ic, iu = (_hold_index(ts, tj, max_age) for ts in (tb, tc, tu))
+    ib, ic = (_hold_index(ts, tj, max_age) for ts in (tb, tc))
+    # The torque in /joint_states at t was produced under the command in force before t:
+    # a command stamped t was computed from that very sample and acts after it.
+    iu = _hold_index(tu, tj, max_age, strict=True)
     ok = (ib >= 0) & (ic >= 0) & (iu >= 0)
     if (~ok).any():
         rejected["stale_or_missing"] = int((~ok).sum())

@@ -29,7 +29,7 @@ def stamp_msg(ns: int):
     return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
 
 
-def _header(ns: int, frame_id: str = ""):
+def header_msg(ns: int, frame_id: str = ""):
     from std_msgs.msg import Header
 
     return Header(stamp=stamp_msg(ns), frame_id=frame_id)
@@ -80,7 +80,7 @@ def joint_state_msg(robot: RobotDescription, stamp_ns: int, q: np.ndarray, qd: n
     from sensor_msgs.msg import JointState
 
     return JointState(
-        header=_header(stamp_ns),
+        header=header_msg(stamp_ns),
         name=list(robot.joint_names),
         position=q.tolist(),
         velocity=qd.tolist(),
@@ -109,7 +109,7 @@ def odometry_msg(stamp_ns: int, position: np.ndarray, quaternion_xyzw: np.ndarra
 
     x, y, z, w = (float(c) for c in quaternion_xyzw)
     return Odometry(
-        header=_header(stamp_ns, "world"),
+        header=header_msg(stamp_ns, "world"),
         child_frame_id="base",
         pose=PoseWithCovariance(
             pose=Pose(position=Point(x=float(position[0]), y=float(position[1]), z=float(position[2])),
@@ -143,7 +143,7 @@ def odometry_arrays(msg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def contact_state_msg(robot: RobotDescription, stamp_ns: int, contacts: np.ndarray):
     from ciml_msgs.msg import ContactState
 
-    return ContactState(header=_header(stamp_ns), foot_names=list(robot.foot_frames),
+    return ContactState(header=header_msg(stamp_ns), foot_names=list(robot.foot_frames),
                         in_contact=[bool(c) for c in contacts])
 
 
@@ -179,7 +179,7 @@ def torque_command_msg(robot: RobotDescription, stamp_ns: int, cmd: TorqueComman
     from ciml_msgs.msg import TorqueCommand
 
     return TorqueCommand(
-        header=_header(stamp_ns),
+        header=header_msg(stamp_ns),
         mode=int(cmd.mode),
         joint_names=list(robot.joint_names),
         feedforward=cmd.feedforward.tolist(),
@@ -221,7 +221,7 @@ def model_error_msg(
 
     nr, na = len(robot.rbd_error_names), robot.n_joints
     return ModelError(
-        header=_header(stamp_ns),
+        header=header_msg(stamp_ns),
         source=source,
         rbd_names=list(robot.rbd_error_names),
         rbd_error=np.asarray(rbd_error, float).tolist(),

@@ -15,7 +15,9 @@ DEFAULT_GAMMA = 0.02
 HyQ's leg blocks have singular values of 0.1–0.6 m/rad away from a straight knee, so
 the basis is exact there; at a straight knee the smallest one goes to zero and is
 clamped to γ (paper §VI regularises the same block with γI₃), which bounds the
-foot entries of Φ̃' at |Φ̃| / γ instead of letting them diverge.
+foot entries of Φ̃' at |Φ̃| / γ instead of letting them diverge. The same clamping
+makes the separation of a *stance* leg's entries approximate while that leg is
+near-singular (its regularised basis columns then differ slightly from J_cᵀ).
 """
 
 
@@ -36,27 +38,33 @@ def projector(J_c: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
     return np.eye(nv) - np.linalg.pinv(J_c, rcond=rcond) @ J_c
 
 
+def contact_invariant_bases(
+    foot_jacobians: np.ndarray, leg_joints: tuple[tuple[int, ...], ...], gamma: float = DEFAULT_GAMMA
+) -> np.ndarray:
+    """J' (N × nv × nv) for a batch of foot Jacobians (N × n_feet × 3 × nv), eq. (8).
+
+    J' = [J_0; J_1; …; J_nf] is block lower-triangular with I₆ in the base block, so it
+    is invertible iff every leg's joint block B_i = ∂p_i/∂q_leg,i is. Singular values
+    of B_i below `gamma` are raised to `gamma` (exact wherever σ_min(B_i) ≥ γ).
+    """
+    n, n_feet, _, nv = foot_jacobians.shape
+    basis = np.zeros((n, nv, nv))
+    basis[:, :6, :6] = np.eye(6)
+    for i in range(n_feet):
+        r0 = 6 + 3 * i
+        basis[:, r0:r0 + 3, :] = foot_jacobians[:, i]
+        cols = 6 + np.asarray(leg_joints[i])
+        U, s, Vt = np.linalg.svd(foot_jacobians[:, i][:, :, cols])
+        for k in np.flatnonzero(s[:, -1] < gamma):
+            basis[k, r0:r0 + 3, cols] = ((U[k] * np.maximum(s[k], gamma)) @ Vt[k]).T
+    return basis
+
+
 def contact_invariant_basis(
     foot_jacobians: np.ndarray, leg_joints: tuple[tuple[int, ...], ...], gamma: float = DEFAULT_GAMMA
 ) -> np.ndarray:
-    """J' (nv × nv): rows [J_0; J_1; …; J_nf], eq. (8), with leg blocks regularised.
-
-    J' is block lower-triangular with I₆ in the base block, so it is invertible iff
-    every leg's joint block B_i = ∂p_i/∂q_leg,i is. Singular values of B_i below
-    `gamma` are raised to `gamma` (exact wherever σ_min(B_i) ≥ γ).
-    """
-    n_feet, _, nv = foot_jacobians.shape
-    basis = np.zeros((nv, nv))
-    basis[:6, :6] = np.eye(6)
-    for i in range(n_feet):
-        rows = slice(6 + 3 * i, 9 + 3 * i)
-        basis[rows] = foot_jacobians[i]
-        cols = 6 + np.asarray(leg_joints[i])
-        block = foot_jacobians[i][:, cols]
-        U, s, Vt = np.linalg.svd(block)
-        if s[-1] < gamma:
-            basis[rows.start : rows.stop, cols] = (U * np.maximum(s, gamma)) @ Vt
-    return basis
+    """J' (nv × nv) of one sample; see contact_invariant_bases."""
+    return contact_invariant_bases(foot_jacobians[None], leg_joints, gamma)[0]
 
 
 def basis_columns(contacts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,200 @@
+"""Signal conditioning of the paper (§III-C): a 31-tap linear-phase FIR low-pass for
+q, q̇, τ, u, and the same low-pass convolved with a central difference for q̈.
+
+Both filters are linear-phase with the same delay, (31 − 1)/2 = 15 samples (60 ms at
+250 Hz), so every filtered signal refers to the same instant. Offline the filters are
+applied centred (zero phase) over a whole log; online the same taps run causally and
+the output belongs to the instant `delay` samples ago — identical numbers.
+
+Design (scipy.signal.firls, least squares): passband 0–5 Hz (gain within 1 %),
+stopband from 20 Hz (≥ 20 dB attenuation), −2 dB at 10 Hz: the paper's 10 Hz low-pass
+with a flat passband for gait harmonics. The derivative filter is the 29-tap version of
+the low-pass convolved with [1, 0, −1]/(2Δt): 31 taps, antisymmetric.
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.ndimage
+import scipy.signal
+
+N_TAPS = 31
+PASSBAND_HZ = 5.0
+STOPBAND_HZ = 20.0
+PASSBAND_WEIGHT = 20.0
+
+
+def lowpass_taps(fs: float, n_taps: int = N_TAPS, passband: float = PASSBAND_HZ, stopband: float = STOPBAND_HZ) -> np.ndarray:
+    """Linear-phase low-pass FIR taps (odd length), unit DC gain."""
+    if n_taps % 2 == 0:
+        raise ValueError("n_taps must be odd for a linear-phase filter with an integer delay")
+    taps = scipy.signal.firls(n_taps, [0, passband, stopband, fs / 2], [1, 1, 0, 0], fs=fs,
+                              weight=[PASSBAND_WEIGHT, 1])
+    return taps / taps.sum()
+
+
+def derivative_taps(fs: float, n_taps: int = N_TAPS) -> np.ndarray:
+    """Low-pass differentiator: (n_taps − 2)-tap low-pass ⊛ central difference, [1/s]."""
+    return np.convolve(lowpass_taps(fs, n_taps - 2), [1.0, 0.0, -1.0]) * fs / 2.0
+
+
+def delay_samples(n_taps: int = N_TAPS) -> int:
+    return (n_taps - 1) // 2
+
+
+def filter_offline(x: np.ndarray, taps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Zero-phase filtering along axis 0; returns (y, valid) with the edges marked invalid.
+
+    y[n] = Σ_k taps[k] x[n + d − k], d = delay; the first and last d samples lack a
+    full window and are invalid (their values are still finite, from edge padding).
+    """
+    x = np.asarray(x, dtype=float)
+    d = (len(taps) - 1) // 2
+    y = scipy.ndimage.convolve1d(x, taps, axis=0, mode="nearest")
+    valid = np.ones(len(x), dtype=bool)
+    valid[:d] = False
+    valid[len(x) - d:] = False
+    return y, valid
+
+
+class OnlineFilter:
+    """Causal streaming version of filter_offline for a vector signal.
+
+    push(x) returns the filtered value for the instant `delay` samples before x (or None
+    during warm-up); it equals filter_offline's output at that instant.
+    """
+
+    def __init__(self, taps: np.ndarray) -> None:
+        self.taps = np.asarray(taps, dtype=float)
+        self.delay = (len(self.taps) - 1) // 2
+        self._window: deque[np.ndarray] = deque(maxlen=len(self.taps))
+
+    def reset(self) -> None:
+        self._window.clear()
+
+    def push(self, x: np.ndarray) -> np.ndarray | None:
+        self._window.append(np.asarray(x, dtype=float))
+        if len(self._window) < len(self.taps):
+            return None
+        # window[-1] is newest: y = Σ taps[k] x[n − k]
+        return np.tensordot(self.taps[::-1], np.asarray(self._window), axes=(0, 0))
+
+
+def contact_change_mask(contacts: np.ndarray, half_window: int = delay_samples()) -> np.ndarray:
+    """True where no contact flag changes within ±half_window samples (usable for training).
+
+    Impacts make the velocity discontinuous, so filtered accelerations near a touchdown
+    or lift-off are wrong (paper §III-C).
+    """
+    contacts = np.asarray(contacts, dtype=bool)
+    n = len(contacts)
+    change = np.zeros(n, dtype=bool)
+    if n > 1:
+        change[1:] = np.any(contacts[1:] != contacts[:-1], axis=1)
+    bad = np.zeros(n, dtype=bool)
+    for k in np.flatnonzero(change):
+        # the change happens between k−1 and k; both sides within half a window are affected
+        bad[max(0, k - half_window): min(n, k + half_window)] = True
+    return ~bad
+
+
+def quaternion_continuity(quat_xyzw: np.ndarray) -> np.ndarray:
+    """Flip quaternion signs so consecutive samples are in the same hemisphere (for filtering)."""
+    q = np.array(quat_xyzw, dtype=float)
+    for k in range(1, len(q)):
+        if np.dot(q[k], q[k - 1]) < 0:
+            q[k] = -q[k]
+    return q
+
+
+@dataclass
+class FilteredLog:
+    """A log after conditioning, in Pinocchio conventions, one row per sample.
+
+    q (N × nq): low-passed joints and base position, low-passed normalised base quaternion;
+    v, a (N × nv): low-passed velocities and their filtered derivative (base twist in the
+    base frame); tau, u (N × n_j): low-passed torques; tau_dot: filtered derivative of τ;
+    contacts (N × n_feet); valid: usable for training; invalid_counts: why samples were not.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    tau: np.ndarray
+    tau_dot: np.ndarray
+    u: np.ndarray
+    contacts: np.ndarray
+    valid: np.ndarray
+    invalid_counts: dict[str, int]
+    segment: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+def filter_state_log(
+    t: np.ndarray,
+    q: np.ndarray,
+    v: np.ndarray,
+    tau: np.ndarray,
+    u: np.ndarray,
+    contacts: np.ndarray,
+    fs: float = 250.0,
+    max_gap_factor: float = 1.5,
+) -> FilteredLog:
+    """Offline (zero-phase) conditioning of a whole log (paper §III-C).
+
+    The log is split into segments at time gaps > max_gap_factor/fs (and at non-finite
+    samples); each segment is filtered separately and its edges are invalid. Samples near
+    contact changes are invalid for training. Nothing non-finite reaches the output:
+    rows that were non-finite are marked invalid and hold finite placeholder values.
+    """
+    t = np.asarray(t, dtype=float)
+    n = len(t)
+    if n == 0:
+        raise ValueError("empty log")
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("time stamps must increase strictly")
+    raw = [np.asarray(x, dtype=float) for x in (q, v, tau, u)]
+    finite = np.all(np.isfinite(np.hstack([r.reshape(n, -1) for r in raw])), axis=1) & np.isfinite(t)
+    gap = np.zeros(n, dtype=bool)
+    gap[1:] = np.diff(t) > max_gap_factor / fs
+    starts = np.flatnonzero(gap | np.r_[True, ~finite[:-1]] | ~finite)
+    lp = lowpass_taps(fs)
+    dp = derivative_taps(fs)
+    out_q, out_v, out_a = np.zeros_like(raw[0]), np.zeros_like(raw[1]), np.zeros_like(raw[1])
+    out_tau, out_tau_dot, out_u = np.zeros_like(raw[2]), np.zeros_like(raw[2]), np.zeros_like(raw[3])
+    valid = finite.copy()
+    counts = {"non_finite": int((~finite).sum()), "time_gap_segments": int(gap.sum()), "filter_edges": 0,
+              "contact_change": 0}
+    segment = np.zeros(n, dtype=int)
+    bounds = list(starts) + [n]
+    for s_i, (s, e) in enumerate(zip(bounds[:-1], bounds[1:])):
+        segment[s:e] = s_i
+        if e <= s:
+            continue
+        if not finite[s]:
+            out_q[s:e] = np.nan_to_num(raw[0][s:e])
+            out_q[s:e, 3:7] = [0, 0, 0, 1]
+            continue
+        seg = slice(s, e)
+        qs = raw[0][seg].copy()
+        qs[:, 3:7] = quaternion_continuity(qs[:, 3:7])
+        fq, ok = filter_offline(qs, lp)
+        fq[:, 3:7] /= np.linalg.norm(fq[:, 3:7], axis=1, keepdims=True)
+        out_q[seg] = fq
+        out_v[seg], _ = filter_offline(raw[1][seg], lp)
+        out_a[seg], _ = filter_offline(raw[1][seg], dp)
+        out_tau[seg], _ = filter_offline(raw[2][seg], lp)
+        out_tau_dot[seg], _ = filter_offline(raw[2][seg], dp)
+        out_u[seg], _ = filter_offline(raw[3][seg], lp)
+        counts["filter_edges"] += int((~ok & valid[seg]).sum())
+        valid[seg] &= ok
+    cmask = contact_change_mask(contacts)
+    counts["contact_change"] = int((~cmask & valid).sum())
+    valid &= cmask
+    return FilteredLog(t=t, q=out_q, v=out_v, a=out_a, tau=out_tau, tau_dot=out_tau_dot, u=out_u,
+                       contacts=np.asarray(contacts, dtype=bool), valid=valid, invalid_counts=counts, segment=segment)

@@ -1,0 +1,85 @@
+"""The paper's FIR filters: passband accuracy, stopband attenuation, delay, online = offline."""
+import numpy as np
+import pytest
+import scipy.signal
+
+from ciml_learning.filters import (
+    OnlineFilter,
+    contact_change_mask,
+    delay_samples,
+    derivative_taps,
+    filter_offline,
+    filter_state_log,
+    lowpass_taps,
+)
+
+FS = 250.0
+
+
+@pytest.mark.parametrize("freq", [0.5, 1.0, 2.0, 3.0])
+def test_derivative_of_a_slow_sinusoid_within_one_percent_and_zero_phase(freq):
+    t = np.arange(3000) / FS
+    x = np.sin(2 * np.pi * freq * t + 0.3)
+    y, valid = filter_offline(x, derivative_taps(FS))
+    true = 2 * np.pi * freq * np.cos(2 * np.pi * freq * t + 0.3)
+    assert np.max(np.abs(y[valid] - true[valid])) <= 0.01 * 2 * np.pi * freq
+
+
+def test_lowpass_passes_gait_band_and_attenuates_above_20_hz():
+    taps = lowpass_taps(FS)
+    assert len(taps) == 31 and len(derivative_taps(FS)) == 31
+    f = np.array([0.5, 1, 2, 4])
+    _, h = scipy.signal.freqz(taps, worN=f, fs=FS)
+    assert np.all(np.abs(np.abs(h) - 1) < 0.01)
+    f_stop = np.linspace(20, FS / 2, 200)
+    _, h = scipy.signal.freqz(taps, worN=f_stop, fs=FS)
+    assert np.max(20 * np.log10(np.abs(h))) <= -20.0
+    _, hd = scipy.signal.freqz(derivative_taps(FS), worN=f_stop, fs=FS)
+    assert np.max(20 * np.log10(np.abs(hd) / (2 * np.pi * f_stop))) <= -20.0
+
+
+def test_linear_phase_delay_is_half_the_window():
+    assert delay_samples() == 15
+    taps = lowpass_taps(FS)
+    np.testing.assert_allclose(taps, taps[::-1])  # symmetric ⇒ linear phase, delay (N−1)/2
+    d = derivative_taps(FS)
+    np.testing.assert_allclose(d, -d[::-1])
+
+
+def test_online_equals_offline_after_the_delay():
+    rng = np.random.default_rng(0)
+    x = np.cumsum(rng.normal(size=(400, 5)), axis=0)
+    for taps in (lowpass_taps(FS), derivative_taps(FS)):
+        y, valid = filter_offline(x, taps)
+        f = OnlineFilter(taps)
+        outs = [f.push(row) for row in x]
+        assert all(o is None for o in outs[:30])
+        for k in range(30, 400):
+            np.testing.assert_allclose(outs[k], y[k - f.delay], atol=1e-9)
+
+
+def test_contact_change_mask_marks_half_a_window_each_side():
+    c = np.ones((100, 4), dtype=bool)
+    c[50:, 1] = False
+    ok = contact_change_mask(c, half_window=15)
+    assert not ok[35:65].any()
+    assert ok[:35].all() and ok[65:].all()
+
+
+def test_state_log_flags_non_finite_gaps_and_edges():
+    n = 500
+    t = np.arange(n) / FS
+    t[300:] += 0.1  # a time gap
+    q = np.zeros((n, 19))
+    q[:, 6] = 1.0
+    v = np.zeros((n, 18))
+    tau = np.zeros((n, 12))
+    tau[100, 3] = np.nan
+    log = filter_state_log(t, q, v, tau, tau.copy(), np.ones((n, 4), bool))
+    assert not log.valid[100] and log.invalid_counts["non_finite"] == 1
+    assert log.invalid_counts["time_gap_segments"] == 1
+    assert not log.valid[:15].any() and not log.valid[285:315].any()
+    for arr in (log.q, log.v, log.a, log.tau, log.u):
+        assert np.all(np.isfinite(arr))
+    with pytest.raises(ValueError, match="increase"):
+        filter_state_log(t[::-1], q, v, tau, tau, np.ones((n, 4), bool))

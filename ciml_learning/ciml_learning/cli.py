@@ -58,7 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("extract", help="filter logs and extract contact-invariant model errors")
     s.add_argument("--bag", nargs="+", required=True)
     s.add_argument("--out", required=True, help="targets .npz")
-    s.set_defaults(func=_not_implemented)
+    s.set_defaults(func=_run("ciml_learning.commands", "extract"))
 
     s = sub.add_parser("train", help="learn the model error from bags")
     s.add_argument("--bag", nargs="+", required=True)

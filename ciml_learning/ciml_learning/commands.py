@@ -20,3 +20,14 @@ def bench(args: argparse.Namespace) -> int:
 
     run(args.only, args.out)
     return 0
+
+
+def extract(args: argparse.Namespace) -> int:
+    from .cli import robot_from_args
+    from .pipeline import load_dataset
+
+    robot = robot_from_args(args)
+    ds = load_dataset(robot, args.bag)
+    ds.targets.save(args.out, robot, {"bags": ds.bags, "rejected": ds.rejected})
+    print(json.dumps({"out": args.out, "samples": len(ds.targets.t), "valid": ds.n_valid, "rejected": ds.rejected}))
+    return 0

@@ -66,6 +66,26 @@ def combined_error(basis: np.ndarray, phi_prime: np.ndarray, gamma: np.ndarray, 
     return basis.T @ phi_prime - S.T @ gamma
 
 
+def _operator_blocks(foot_jacobians: np.ndarray, basis: np.ndarray, contacts: np.ndarray):
+    """Per contact configuration: (sample indices, unconstrained entries, (Q_uᵀ J_uᵀ)⁻¹ Q_uᵀ)."""
+    n, n_feet, _, nv = foot_jacobians.shape
+    contacts = np.asarray(contacts, dtype=bool)
+    configs, inverse = np.unique(contacts, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    for ci, config in enumerate(configs):
+        idx = np.flatnonzero(inverse == ci)
+        constrained, unconstrained = basis_columns(config)
+        JuT = np.transpose(basis[idx][:, unconstrained, :], (0, 2, 1))  # N × nv × n_u
+        if len(constrained) == 0:
+            QuT = np.broadcast_to(np.eye(nv), (len(idx), nv, nv))
+        else:
+            JcT = np.transpose(foot_jacobians[idx][:, config].reshape(len(idx), -1, nv), (0, 2, 1))
+            Q, _ = np.linalg.qr(JcT, mode="complete")
+            QuT = np.transpose(Q[:, :, JcT.shape[2]:], (0, 2, 1))  # orthonormal basis of null(J_c)
+        # Q_uᵀ J_uᵀ is square and invertible (module docstring)
+        yield idx, unconstrained, np.linalg.solve(QuT @ JuT, QuT)
+
+
 def observation_operators(
     foot_jacobians: np.ndarray, basis: np.ndarray, contacts: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -75,28 +95,25 @@ def observation_operators(
     O_k is linear in r, so the diagnosis passes candidate generalized forces through
     the very same operator as the measured error.
     """
-    n, n_feet, _, nv = foot_jacobians.shape
-    contacts = np.asarray(contacts, dtype=bool)
+    n, _, _, nv = foot_jacobians.shape
     ops = np.zeros((n, nv, nv))
     mask = np.zeros((n, nv), dtype=bool)
-    configs, inverse = np.unique(contacts, axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    for ci, config in enumerate(configs):
-        idx = np.flatnonzero(inverse == ci)
-        constrained, unconstrained = basis_columns(config)
-        JuT = np.transpose(basis[idx][:, unconstrained, :], (0, 2, 1))  # N × nv × n_u
-        if len(constrained) == 0:
-            Qu = np.broadcast_to(np.eye(nv), (len(idx), nv, nv))
-        else:
-            JcT = np.transpose(foot_jacobians[idx][:, config].reshape(len(idx), -1, nv), (0, 2, 1))  # N × nv × 3nc
-            Q, _ = np.linalg.qr(JcT, mode="complete")
-            Qu = Q[:, :, JcT.shape[2]:]  # orthonormal basis of null(J_c)
-        QuT = np.transpose(Qu, (0, 2, 1))
-        A = QuT @ JuT  # square, invertible (see module docstring)
-        sol = np.linalg.solve(A, QuT)  # (Q_uᵀ J_uᵀ)⁻¹ Q_uᵀ : n_u × nv
+    for idx, unconstrained, sol in _operator_blocks(foot_jacobians, basis, contacts):
         ops[np.ix_(idx, unconstrained, np.arange(nv))] = sol
         mask[np.ix_(idx, unconstrained)] = True
     return ops, mask
+
+
+def observe(foot_jacobians: np.ndarray, basis: np.ndarray, contacts: np.ndarray,
+            generalized_force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. (11) applied to a batch of generalized forces (N × nv): (Φ̃' (N × 18), mask)."""
+    n, _, _, nv = foot_jacobians.shape
+    phi = np.zeros((n, nv))
+    mask = np.zeros((n, nv), dtype=bool)
+    for idx, unconstrained, sol in _operator_blocks(foot_jacobians, basis, contacts):
+        phi[np.ix_(idx, unconstrained)] = np.einsum("nij,nj->ni", sol, generalized_force[idx])
+        mask[np.ix_(idx, unconstrained)] = True
+    return phi, mask
 
 
 @dataclass
@@ -165,8 +182,7 @@ def extract(
     id_terms, jac = dynamics_batch(robot, q, v, a)
     residual = np.asarray(tau, float) @ S - id_terms
     basis = contact_invariant_bases(jac, robot.leg_joints, gamma)
-    ops, mask = observation_operators(jac, basis, contacts)
-    phi = np.einsum("nij,nj->ni", ops, residual)
+    phi, mask = observe(jac, basis, contacts, residual)
     ok = np.all(np.isfinite(phi), axis=1)
     phi[~ok] = 0.0
     mask[~ok] = False

@@ -54,9 +54,11 @@ def contact_invariant_bases(
         r0 = 6 + 3 * i
         basis[:, r0:r0 + 3, :] = foot_jacobians[:, i]
         cols = 6 + np.asarray(leg_joints[i])
-        U, s, Vt = np.linalg.svd(foot_jacobians[:, i][:, :, cols])
-        for k in np.flatnonzero(s[:, -1] < gamma):
-            basis[k, r0:r0 + 3, cols] = ((U[k] * np.maximum(s[k], gamma)) @ Vt[k]).T
+        blocks = foot_jacobians[:, i][:, :, cols]
+        low = np.flatnonzero(np.linalg.svd(blocks, compute_uv=False)[:, -1] < gamma)
+        for k in low:  # rare: full SVD only where needed
+            U, s, Vt = np.linalg.svd(blocks[k])
+            basis[k, r0:r0 + 3, cols] = ((U * np.maximum(s, gamma)) @ Vt).T
     return basis
 
 

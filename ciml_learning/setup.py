@@ -23,6 +23,8 @@ setup(
     entry_points={
         "console_scripts": [
             "ciml = ciml_learning.cli:main",
+            "state_filter = ciml_learning.nodes.state_filter:main",
+            "error_extractor = ciml_learning.nodes.error_extractor:main",
         ],
     },
 )

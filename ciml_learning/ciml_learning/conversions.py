@@ -232,3 +232,55 @@ def model_error_msg(
         actuation_observed=[bool(b) for b in actuation_observed],
         actuation_variance=(np.zeros(na) if actuation_variance is None else np.asarray(actuation_variance, float)).tolist(),
     )
+
+
+# --- ciml_msgs/RobotState (filtered state) ------------------------------------------
+
+
+def _pose(position: np.ndarray, quat: np.ndarray):
+    from geometry_msgs.msg import Point, Pose, Quaternion
+
+    return Pose(position=Point(x=float(position[0]), y=float(position[1]), z=float(position[2])),
+                orientation=Quaternion(x=float(quat[0]), y=float(quat[1]), z=float(quat[2]), w=float(quat[3])))
+
+
+def _twist(six: np.ndarray, accel: bool = False):
+    from geometry_msgs.msg import Accel, Twist, Vector3
+
+    lin = Vector3(x=float(six[0]), y=float(six[1]), z=float(six[2]))
+    ang = Vector3(x=float(six[3]), y=float(six[4]), z=float(six[5]))
+    return Accel(linear=lin, angular=ang) if accel else Twist(linear=lin, angular=ang)
+
+
+def _six(msg) -> np.ndarray:
+    return np.array([msg.linear.x, msg.linear.y, msg.linear.z, msg.angular.x, msg.angular.y, msg.angular.z], float)
+
+
+def robot_state_msg(robot: RobotDescription, stamp_ns: int, q: np.ndarray, v: np.ndarray, a: np.ndarray,
+                    tau: np.ndarray, u: np.ndarray, contacts: np.ndarray, valid: bool):
+    """Filtered full state (Pinocchio q, v, q̈) as ciml_msgs/RobotState."""
+    from ciml_msgs.msg import RobotState
+
+    return RobotState(
+        header=header_msg(stamp_ns, "world"), joint_names=list(robot.joint_names),
+        base_pose=_pose(q[:3], q[3:7]), base_twist=_twist(v[:6]), base_acceleration=_twist(a[:6], accel=True),
+        position=q[7:].tolist(), velocity=v[6:].tolist(), acceleration=a[6:].tolist(),
+        effort_measured=np.asarray(tau, float).tolist(), effort_commanded=np.asarray(u, float).tolist(),
+        foot_names=list(robot.foot_frames), in_contact=[bool(c) for c in contacts], valid=bool(valid))
+
+
+def robot_state_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, ...]:
+    """(q, v, q̈, τ, u, contacts, valid) in the robot's orders from a RobotState."""
+    perm = robot.joint_permutation(list(msg.joint_names))
+    n = len(msg.joint_names)
+    p, o = msg.base_pose.position, msg.base_pose.orientation
+    q = np.concatenate([[p.x, p.y, p.z], [o.x, o.y, o.z, o.w], _vector(msg.position, n, "position")[perm]])
+    v = np.concatenate([_six(msg.base_twist), _vector(msg.velocity, n, "velocity")[perm]])
+    a = np.concatenate([_six(msg.base_acceleration), _vector(msg.acceleration, n, "acceleration")[perm]])
+    tau = _vector(msg.effort_measured, n, "effort_measured")[perm]
+    u = _vector(msg.effort_commanded, n, "effort_commanded")[perm]
+    _finite("filtered_state", q, v, a, tau, u)
+    flags = np.asarray(msg.in_contact, dtype=bool)
+    if flags.shape != (len(msg.foot_names),):
+        raise ConversionError("filtered_state: foot names and contact flags differ in length")
+    return q, v, a, tau, u, flags[robot.foot_permutation(list(msg.foot_names))], bool(msg.valid)

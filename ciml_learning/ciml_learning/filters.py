@@ -198,3 +198,69 @@ def filter_state_log(
     valid &= cmask
     return FilteredLog(t=t, q=out_q, v=out_v, a=out_a, tau=out_tau, tau_dot=out_tau_dot, u=out_u,
                        contacts=np.asarray(contacts, dtype=bool), valid=valid, invalid_counts=counts, segment=segment)
+
+
+@dataclass
+class FilteredSample:
+    """One online-filtered sample, aligned to time t (= newest input time − delay)."""
+
+    t: float
+    q: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    tau: np.ndarray
+    tau_dot: np.ndarray
+    u: np.ndarray
+    contacts: np.ndarray
+    valid: bool
+
+
+class OnlineStateFilter:
+    """Causal counterpart of filter_state_log for live data (the state_filter node).
+
+    push() takes one raw sample and returns the filtered sample of `delay` samples ago
+    (None while warming up). Its numbers equal filter_state_log's at interior samples.
+    A time gap > max_gap_factor/fs or a non-finite sample restarts the warm-up.
+    """
+
+    def __init__(self, fs: float = 250.0, max_gap_factor: float = 1.5) -> None:
+        self.fs = fs
+        self.max_gap = max_gap_factor / fs
+        self._lp = lowpass_taps(fs)
+        self._dp = derivative_taps(fs)
+        self.delay = delay_samples(len(self._lp))
+        self.reset()
+
+    def reset(self) -> None:
+        self._low = OnlineFilter(self._lp)
+        self._der = OnlineFilter(self._dp)
+        self._history: deque = deque(maxlen=len(self._lp))  # (t, contacts, quat sign ref)
+        self._last_quat: np.ndarray | None = None
+        self._last_t: float | None = None
+
+    def push(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray, u: np.ndarray,
+             contacts: np.ndarray) -> FilteredSample | None:
+        raw = np.concatenate([q, v, tau, u])
+        if not np.all(np.isfinite(raw)) or not np.isfinite(t):
+            self.reset()
+            raise ValueError("non-finite sample")
+        if self._last_t is not None and (t <= self._last_t or t - self._last_t > self.max_gap):
+            self.reset()
+        q = np.array(q, dtype=float)
+        if self._last_quat is not None and np.dot(q[3:7], self._last_quat) < 0:
+            q[3:7] = -q[3:7]  # hemisphere continuity, as quaternion_continuity
+        self._last_quat = q[3:7].copy()
+        self._last_t = t
+        nq, nv, nj = len(q), len(v), len(tau)
+        low = self._low.push(np.concatenate([q, v, tau, u]))
+        der = self._der.push(np.concatenate([v, tau]))
+        self._history.append((t, np.asarray(contacts, dtype=bool).copy()))
+        if low is None:
+            return None
+        t_out, c_out = self._history[self.delay]
+        flags = np.array([c for _, c in self._history])
+        valid = bool(np.all(flags == flags[0]))  # no contact change within ±delay
+        qf = low[:nq].copy()
+        qf[3:7] /= np.linalg.norm(qf[3:7])
+        return FilteredSample(t=t_out, q=qf, v=low[nq:nq + nv], a=der[:nv], tau=low[nq + nv:nq + nv + nj],
+                              tau_dot=der[nv:], u=low[nq + nv + nj:], contacts=c_out, valid=valid)

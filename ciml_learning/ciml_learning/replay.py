@@ -25,7 +25,7 @@ def message_class(msgtype: str):
 
 
 def play_bag(path: str, rate: float = 1.0, exclude_prefixes: Iterable[str] = (), node_name: str = "ciml_play",
-             progress: bool = True) -> dict[str, int]:
+             progress: bool = True, wait_subscribers: float = 3.0) -> dict[str, int]:
     """Publish every message of the bag at its recorded time; return counts per topic."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -43,10 +43,15 @@ def play_bag(path: str, rate: float = 1.0, exclude_prefixes: Iterable[str] = (),
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         pubs = {
-            t: node.create_publisher(message_class(ty), t, SENSOR_QOS if t in topics.SENSOR_TOPICS else COMMAND_QOS)
+            t: node.create_publisher(message_class(ty), t, SENSOR_QOS if t in topics.MEASUREMENT_TOPICS else COMMAND_QOS)
             for t, ty in types.items()
         }
-        time.sleep(0.5)  # let discovery match subscribers before the first message
+        # give discovery up to `wait_subscribers` s to match subscribers before the first message
+        deadline = time.monotonic() + wait_subscribers
+        while time.monotonic() < deadline and not all(p.get_subscription_count() for p in pubs.values()
+                                                      if types[p.topic_name] and p.topic_name in topics.MEASUREMENT_TOPICS):
+            executor.spin_once(timeout_sec=0.05)
+        time.sleep(0.3)
         start_wall = None
         start_log = None
         bar = None

@@ -83,3 +83,30 @@ def test_state_log_flags_non_finite_gaps_and_edges():
         assert np.all(np.isfinite(arr))
     with pytest.raises(ValueError, match="increase"):
         filter_state_log(t[::-1], q, v, tau, tau, np.ones((n, 4), bool))
+
+
+def test_online_state_filter_matches_offline_log():
+    from ciml_learning.filters import OnlineStateFilter
+
+    rng = np.random.default_rng(3)
+    n = 300
+    t = np.arange(n) / FS
+    q = np.zeros((n, 19))
+    q[:, 6] = 1.0
+    q[:, 7:] = np.cumsum(rng.normal(scale=0.01, size=(n, 12)), axis=0)
+    v = rng.normal(size=(n, 18))
+    tau = rng.normal(size=(n, 12))
+    u = rng.normal(size=(n, 12))
+    c = np.ones((n, 4), dtype=bool)
+    c[150:, 0] = False
+    off = filter_state_log(t, q, v, tau, u, c)
+    f = OnlineStateFilter(FS)
+    outs = [f.push(t[k], q[k], v[k], tau[k], u[k], c[k]) for k in range(n)]
+    for k in range(30, n):
+        s = outs[k]
+        i = k - 15
+        assert s.t == t[i]
+        np.testing.assert_allclose(s.q, off.q[i], atol=1e-9)
+        np.testing.assert_allclose(s.a, off.a[i], atol=1e-9)
+        np.testing.assert_allclose(s.u, off.u[i], atol=1e-9)
+        assert s.valid == off.valid[i]

@@ -1,0 +1,132 @@
+"""`state_filter`: raw sensor topics → /filtered_state (paper §III-C, online filter).
+
+Thin adapter around ciml_learning.filters.OnlineStateFilter. Each /joint_states sample
+is paired with the latest base state and contact state at or before it and the latest
+command strictly before it (the one the measured torque was produced under); stale
+partners, wrong joint names, non-finite values and out-of-order stamps are rejected
+and counted on /diagnostics. Output is aligned to the filter's delay (60 ms at 250 Hz).
+"""
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from ciml_msgs.msg import ContactState, RobotState, TorqueCommand
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+
+from .. import conversions as cv
+from .. import topics
+from ..errors import CimlError
+from ..filters import OnlineStateFilter
+from ..robot import load_robot
+from ..ros_common import COMMAND_QOS, SENSOR_QOS, Health, declare, run_node
+
+
+
+def _latest(history, stamp: int, strict: bool = False):
+    """Latest (stamp, value) in history at or before (strictly before) stamp, else None."""
+    for s, value in reversed(history):
+        if s < stamp or (s == stamp and not strict):
+            return s, value
+    return None
+
+
+class StateFilterNode(Node):
+    def __init__(self) -> None:
+        super().__init__("state_filter")
+        fs = declare(self, "rate", 250.0, "Rate of /joint_states the filter is designed for [Hz]", 50.0, 2000.0)
+        self.max_age = declare(self, "max_age", 0.02, "Oldest base/contact/command sample paired with a joint sample [s]", 0.001, 1.0)
+        urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
+        self.robot = load_robot(urdf or None)
+        self.filter = OnlineStateFilter(fs)
+        self.health = Health(self)
+        self.base: deque = deque(maxlen=16)
+        self.contacts: deque = deque(maxlen=16)
+        self.commands: deque = deque(maxlen=16)
+        self.pending: deque = deque(maxlen=64)
+        self.last_stamp = -1
+        self.pub = self.create_publisher(RobotState, topics.FILTERED_STATE, COMMAND_QOS)
+        self.create_subscription(JointState, topics.JOINT_STATES, self.on_joints, SENSOR_QOS)
+        self.create_subscription(Odometry, topics.BASE_STATE, self.on_base, SENSOR_QOS)
+        self.create_subscription(ContactState, topics.CONTACT_STATE, self.on_contacts, SENSOR_QOS)
+        self.create_subscription(TorqueCommand, topics.TORQUE_COMMAND, self.on_command, COMMAND_QOS)
+
+    def _convert(self, what: str, fn, msg):
+        try:
+            return fn(msg)
+        except CimlError as err:
+            self.health.count(f"rejected_{what}", f"{what} rejected: {err}")
+            return None
+
+    def _store(self, history: deque, msg, value) -> None:
+        if value is not None:
+            history.append((cv.stamp_to_ns(msg.header.stamp), value))
+            self.drain()
+
+    def on_base(self, msg) -> None:
+        self._store(self.base, msg, self._convert("base_state", cv.odometry_arrays, msg))
+
+    def on_contacts(self, msg) -> None:
+        self._store(self.contacts, msg, self._convert("contact_state", lambda m: cv.contact_state_arrays(self.robot, m), msg))
+
+    def on_command(self, msg) -> None:
+        self._store(self.commands, msg, self._convert("torque_command", lambda m: cv.torque_command_arrays(self.robot, m), msg))
+
+    def on_joints(self, msg) -> None:
+        stamp = cv.stamp_to_ns(msg.header.stamp)
+        newest = self.pending[-1][0] if self.pending else self.last_stamp
+        if stamp <= newest:
+            self.health.count("out_of_order_stamps", "joint_states stamp did not increase")
+            return
+        self._store(self.pending, msg, self._convert("joint_states", lambda m: cv.joint_state_arrays(self.robot, m), msg))
+
+    def drain(self) -> None:
+        """Process joint samples in stamp order once their partners are final.
+
+        Topics are not ordered relative to each other over DDS, so a joint sample waits
+        until a base state, a contact state and a command stamped at or after it have
+        arrived (then the command in force before it is known), or until it is older
+        than max_age behind the newest joint sample (then it is dropped as stale).
+        """
+        max_age = int(self.max_age * 1e9)
+        while self.pending:
+            stamp, joints = self.pending[0]
+            complete = all(h and h[-1][0] >= stamp for h in (self.base, self.contacts, self.commands))
+            if not complete:
+                if self.pending[-1][0] - stamp <= max_age:
+                    return
+                self.pending.popleft()
+                self.health.count("stale_or_missing_partner", "no fresh base state, contact state or command")
+                continue
+            self.pending.popleft()
+            base = _latest(self.base, stamp)
+            contacts = _latest(self.contacts, stamp)
+            command = _latest(self.commands, stamp, strict=True)
+            if any(p is None or stamp - p[0] > max_age for p in (base, contacts, command)):
+                self.health.count("stale_or_missing_partner", "no fresh base state, contact state or command")
+                continue
+            self.process(stamp, joints, base[1], contacts[1], command[1])
+
+    def process(self, stamp: int, joints, base, contacts, command) -> None:
+        self.last_stamp = stamp
+        qj, qdj, tau = joints
+        pos, quat, twist = base
+        q = np.concatenate([pos, quat, qj])
+        v = np.concatenate([twist, qdj])
+        u = command.total(qj, qdj, self.robot.torque_limits)
+        try:
+            out = self.filter.push(stamp * 1e-9, q, v, tau, u, contacts)
+        except ValueError as err:
+            self.health.count("rejected_samples", str(err))
+            return
+        if out is None:
+            return
+        ns = int(round(out.t * 1e9))
+        self.pub.publish(cv.robot_state_msg(self.robot, ns, out.q, out.v, out.a, out.tau, out.u, out.contacts, out.valid))
+
+
+def main(args=None) -> None:
+    run_node(StateFilterNode, args)

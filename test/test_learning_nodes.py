@@ -29,7 +29,11 @@ def test_replayed_bag_through_nodes_matches_offline_extraction(tmp_path):
     try:
         import time
 
-        time.sleep(2.0)  # discovery
+        # both nodes up and discovered (their imports take a while) before the replay starts
+        assert listener.wait_for(lambda: listener.node.count_publishers("/model_error/measured") >= 1
+                                 and listener.node.count_subscribers("/filtered_state") >= 1
+                                 and listener.node.count_subscribers("/joint_states") >= 1, timeout=30)
+        time.sleep(1.0)
         subprocess.run([os.path.join(BIN, "ciml"), "play", "--bag", str(bag)], check=True, capture_output=True,
                        timeout=60)
         listener.wait_for(lambda: len(listener.messages["/model_error/measured"]) > 500, timeout=10)

@@ -3,10 +3,9 @@
 An editable pip install installs neither setup.py's data_files nor scripts under
 ``lib/<pkg>``. This does both, in the venv (an ament prefix):
 - ``share/ament_index/resource_index/packages/<pkg>`` (the package marker),
-- ``share/<pkg>/package.xml`` and ``share/<pkg>/config/*.yaml``,
+- ``share/<pkg>/package.xml`` and ``share/<pkg>/config/`` (parameters, scenarios),
 - ``lib/<pkg>/<exe>``: a link to each console script of the package in ``bin/``.
 """
-import glob
 import os
 import shutil
 import sys
@@ -21,10 +20,10 @@ def main(root: str, venv: str, packages: list[str]) -> int:
         shutil.copyfile(os.path.join(src, "resource", pkg), os.path.join(index, pkg))
         share = os.path.join(venv, "share", pkg)
         shutil.rmtree(share, ignore_errors=True)
-        os.makedirs(os.path.join(share, "config"))
+        os.makedirs(share)
+        if os.path.isdir(os.path.join(src, "config")):
+            shutil.copytree(os.path.join(src, "config"), os.path.join(share, "config"))
         shutil.copyfile(os.path.join(src, "package.xml"), os.path.join(share, "package.xml"))
-        for cfg in glob.glob(os.path.join(src, "config", "*.yaml")):
-            shutil.copy(cfg, os.path.join(share, "config"))
         dest = os.path.join(venv, "lib", pkg)
         shutil.rmtree(dest, ignore_errors=True)  # drop executables no longer registered
         os.makedirs(dest)

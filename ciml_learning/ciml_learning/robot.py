@@ -174,6 +174,21 @@ class RobotDescription:
     def neutral_configuration(self) -> np.ndarray:
         return pin.neutral(self.model)
 
+    @cached_property
+    def standing_joints(self) -> np.ndarray:
+        """A crouched standing posture (joint order): each leg's hip flexed and knee bent so
+        the foot is under the hip. Derived per leg from the limits: HAA at 0, HFE and KFE at
+        ±0.7 / ∓1.4 rad with the signs that keep the knee inside its limits."""
+        lo, hi = self.position_limits
+        q = np.zeros(self.n_joints)
+        for leg in self.leg_joints:
+            haa, hfe, kfe = leg
+            knee_sign = 1.0 if hi[kfe] > -lo[kfe] else -1.0  # the side the knee can bend to
+            q[haa] = np.clip(0.0, lo[haa], hi[haa])
+            q[kfe] = np.clip(knee_sign * 1.4, lo[kfe], hi[kfe])
+            q[hfe] = np.clip(-knee_sign * 0.7, lo[hfe], hi[hfe])
+        return q
+
 
 def load_robot(urdf_path: str | None = None, foot_frames: tuple[str, ...] | list[str] | None = None) -> RobotDescription:
     """Load a point-foot quadruped with a free-flyer root; HyQ by default.

@@ -1,0 +1,1 @@
+"""CIML control: inverse-dynamics QP controller with learned model error, gait references."""

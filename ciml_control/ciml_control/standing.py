@@ -1,0 +1,56 @@
+"""A standing controller: joint PD on a fixed posture plus gravity compensation with the
+weight shared by the stance feet (least-norm contact forces of the static balance).
+
+Used for the `stand` motion and as the controller's safe fallback. Static balance,
+eq. (3) with q̈ = 0, q̇ = 0: Sᵀu + J_cᵀλ = g(q). The base rows fix the contact forces
+(least-norm solution), the joint rows then give u.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ciml_learning.dynamics import RigidBodyDynamics
+from ciml_learning.projection import contact_jacobian
+from ciml_learning.robot import RobotDescription
+
+DEFAULT_KP = 300.0  # [Nm/rad] HyQ-like joint stiffness
+DEFAULT_KD = 8.0    # [Nm s/rad]
+
+
+@dataclass
+class JointCommand:
+    """Everything a TorqueCommand carries, joint order of the robot."""
+
+    feedforward: np.ndarray
+    feedback_linearization: np.ndarray
+    q_target: np.ndarray
+    qd_target: np.ndarray
+    kp: np.ndarray
+    kd: np.ndarray
+
+
+def gravity_compensation(dyn: RigidBodyDynamics, q: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+    """Joint torques that hold the robot still at q with the given stance feet [Nm]."""
+    nv = dyn.robot.nv
+    g = dyn.nonlinear_effects(q, np.zeros(nv))
+    Jc = contact_jacobian(dyn.foot_jacobians(q), contacts)
+    if Jc.shape[0] == 0:
+        return g[6:].copy()
+    lam = np.linalg.lstsq(Jc[:, :6].T, g[:6], rcond=None)[0]
+    return g[6:] - Jc[:, 6:].T @ lam
+
+
+class StandingController:
+    def __init__(self, robot: RobotDescription, kp: float = DEFAULT_KP, kd: float = DEFAULT_KD) -> None:
+        self.robot = robot
+        self.dyn = RigidBodyDynamics(robot)
+        self.kp = np.full(robot.n_joints, kp)
+        self.kd = np.full(robot.n_joints, kd)
+
+    def compute(self, q_des: np.ndarray, contacts: np.ndarray) -> JointCommand:
+        """Command that holds the configuration q_des (Pinocchio q) on the given stance feet."""
+        u = np.clip(gravity_compensation(self.dyn, q_des, contacts), -self.robot.torque_limits, self.robot.torque_limits)
+        n = self.robot.n_joints
+        return JointCommand(u, np.zeros(n), q_des[7:].copy(), np.zeros(n), self.kp.copy(), self.kd.copy())

@@ -1,0 +1,1 @@
+"""CIML simulation: MuJoCo stand-in for the robot with configurable unmodelled effects."""

@@ -22,6 +22,8 @@ setup(
     license="BSD-3-Clause",
     entry_points={
         "console_scripts": [
+            "reference_generator = ciml_control.nodes.reference_generator:main",
+            "id_controller = ciml_control.nodes.id_controller:main",
         ],
     },
 )

@@ -25,6 +25,8 @@ setup(
             "ciml = ciml_learning.cli:main",
             "state_filter = ciml_learning.nodes.state_filter:main",
             "error_extractor = ciml_learning.nodes.error_extractor:main",
+            "online_learner = ciml_learning.nodes.online_learner:main",
+            "model_server = ciml_learning.nodes.model_server:main",
         ],
     },
 )

@@ -23,6 +23,7 @@ setup(
     license="BSD-3-Clause",
     entry_points={
         "console_scripts": [
+            "mujoco_bridge = ciml_sim.bridge_node:main",
         ],
     },
 )

@@ -26,6 +26,16 @@ def register(name: str, module: str, function: str, **kwargs) -> None:
 
 
 register("extraction_throughput", "ciml_learning.extraction", "throughput_benchmark", n_samples=50_000)
+register("lwpr_cross_2d", "ciml_learning.training", "lwpr_cross_benchmark", n_samples=20_000)
+register("lwpr_online_30dims", "ciml_learning.training", "online_benchmark", n_warmup=20_000, n_samples=2_000)
+register("train_lwpr_paper_size", "ciml_learning.training", "train_benchmark", learner="lwpr", n_samples=54_000)
+register("train_sgpr_paper_size", "ciml_learning.training", "train_benchmark", learner="sgpr", n_samples=54_000)
+register("online_nodes_per_sample", "ciml_learning.online", "online_nodes_benchmark", n_warmup=20_000, n_samples=2_000)
+register("id_controller_step", "ciml_control.controller", "compute_benchmark", motion="trot_35", n_steps=2000)
+register("id_controller_dds_latency", "ciml_control.nodes.id_controller", "dds_latency_benchmark", duration_s=5.0)
+register("sim_headless_speed", "ciml_sim.recorder", "speed_benchmark", motion="trot_35", duration=4.0)
+register("sim_bridge_rate", "ciml_sim.bridge_node", "rate_benchmark", seconds=8.0, publish_rate=250.0)
+register("diagnosis_50k", "ciml_learning.diagnosis.run", "benchmark", n_samples=50_000)
 
 
 def _machine() -> dict:

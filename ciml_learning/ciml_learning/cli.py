@@ -53,7 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--out", required=True, help="bag directory to create")
     s.add_argument("--no-ground-truth", action="store_true", help="leave the /sim/ topics out")
-    s.set_defaults(func=_not_implemented)
+    s.set_defaults(func=_run("ciml_sim.commands", "record"))
 
     s = sub.add_parser("extract", help="filter logs and extract contact-invariant model errors")
     s.add_argument("--bag", nargs="+", required=True)
@@ -65,13 +65,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--learner", choices=("lwpr", "sgpr"), required=True)
     s.add_argument("--out", required=True, help="model directory")
     s.add_argument("--jobs", type=int, default=-1, help="parallel jobs (joblib; -1: all cores)")
-    s.set_defaults(func=_not_implemented)
+    s.set_defaults(func=_run("ciml_learning.learning_commands", "train"))
 
     s = sub.add_parser("evaluate", help="prediction RMSE of a model on bags, nominal vs learned")
     s.add_argument("--model", required=True)
     s.add_argument("--bag", nargs="+", required=True)
     s.add_argument("--out", required=True, help="metrics .json")
-    s.set_defaults(func=_not_implemented)
+    s.set_defaults(func=_run("ciml_learning.learning_commands", "evaluate"))
 
     s = sub.add_parser("closed-loop", help="run a motion in simulation with a model and report tracking metrics")
     s.add_argument("--scenario", required=True)
@@ -80,17 +80,20 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--duration", type=float, default=None, help="[s] (default: 10 gait cycles)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--out", required=True, help="result .json")
-    s.set_defaults(func=_not_implemented)
+    s.set_defaults(func=_run("ciml_sim.commands", "closed_loop"))
 
     s = sub.add_parser("diagnose", help="where the sim-to-real gap lies, which effect causes it, how far it shrinks")
     s.add_argument("--bag", nargs="+", required=True)
     s.add_argument("--heldout", nargs="+")
     s.add_argument("--out", required=True, help="output directory (diagnosis.json, report.html)")
-    s.set_defaults(func=_not_implemented)
+    s.set_defaults(func=_run("ciml_learning.diagnosis.commands", "diagnose"))
 
     s = sub.add_parser("gap-bench", help="score the diagnosis on scenarios with withheld effects")
     s.add_argument("--out", required=True)
-    s.set_defaults(func=_not_implemented)
+    s.add_argument("--cases", nargs="+", type=int, help="run only these case numbers (1-based)")
+    s.add_argument("--jobs", type=int, default=1, help="cases run in parallel (joblib)")
+    s.add_argument("--scale", type=float, default=1.0, help="scale every recording's duration")
+    s.set_defaults(func=_run("ciml_sim.gapbench", "gap_bench_command"))
 
     s = sub.add_parser("play", help="publish a bag onto the live ROS graph with its recorded timing")
     s.add_argument("--bag", required=True)

@@ -284,3 +284,32 @@ def robot_state_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, ...]:
     if flags.shape != (len(msg.foot_names),):
         raise ConversionError("filtered_state: foot names and contact flags differ in length")
     return q, v, a, tau, u, flags[robot.foot_permutation(list(msg.foot_names))], bool(msg.valid)
+
+
+# --- ciml_msgs/RobotReference (read side, for the model server) ----------------------
+
+
+def robot_reference_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(qᵈ (nq), q̇ᵈ (nv), q̈ᵈ (nv), contact schedule (n_feet)) of a RobotReference, robot order.
+
+    Base twist/acceleration stay in the base frame (Pinocchio free-flyer convention);
+    the quaternion is normalised. Wrong names, sizes or non-finite values are a
+    ConversionError. (ciml_control.conversions.reference_point is the controller's
+    reader; this one returns plain arrays so ciml_learning does not import ciml_control.)
+    """
+    perm = robot.joint_permutation(list(msg.joint_names))
+    n = len(msg.joint_names)
+    p, o = msg.base_pose.position, msg.base_pose.orientation
+    quat = np.array([o.x, o.y, o.z, o.w], dtype=float)
+    q = np.concatenate([[p.x, p.y, p.z], quat, _vector(msg.position, n, "reference.position")[perm]])
+    v = np.concatenate([_six(msg.base_twist), _vector(msg.velocity, n, "reference.velocity")[perm]])
+    a = np.concatenate([_six(msg.base_acceleration), _vector(msg.acceleration, n, "reference.acceleration")[perm]])
+    _finite("reference", q, v, a)
+    norm = np.linalg.norm(quat)
+    if not 0.9 < norm < 1.1:
+        raise ConversionError(f"reference: orientation quaternion has norm {norm:.3f}, expected 1")
+    q[3:7] /= norm
+    flags = np.asarray(msg.in_contact, dtype=bool)
+    if flags.shape != (len(msg.foot_names),):
+        raise ConversionError("reference: foot names and contact flags differ in length")
+    return q, v, a, flags[robot.foot_permutation(list(msg.foot_names))]

@@ -1,17 +1,29 @@
 """`mujoco_bridge`: the simulated robot on the live graph (DESIGN.md §3).
 
-Thin adapter around ciml_sim.plant.Plant: physics at 1 kHz with the joint PD loop
-inside the plant; sensors and /clock published at `publish_rate` in simulation time.
-Python cannot promise 1 kHz wall-clock timing (ROS_WHEELS.md), so a wall timer at
-the publish rate advances the physics by the matching number of 1 ms steps; the
-achieved rate and period jitter are reported on /diagnostics.
+Thin adapter around ciml_sim.plant.Plant (physics and HyQ's joint PD loop at 1 kHz).
 
-Safety: a command older than `command_timeout` (sim time) or never received puts the
-joints in damping mode; non-finite or mismatched commands are rejected and counted.
+Timing: Python cannot wake at 1 kHz reliably (ROS_WHEELS.md), so a wall timer at the
+publish rate (250 Hz) advances the physics by the 1 ms steps owed to wall-clock time
+(simulation time follows the wall clock × `real_time_factor`), publishing one sample
+per `1000 / publish_rate` steps, always on the same simulation-time grid. A late timer
+is caught up (up to 20 ms); beyond that the debt is dropped and counted as an overrun,
+so the simulation slows down instead of bursting. The achieved physics rate and the
+p99 tick-period error are reported on /diagnostics.
+
+Topics: /joint_states, /base_state, /contact_state (sensor-data QoS), /clock (sim time),
+/diagnostics; optional /sim/ ground truth (`publish_ground_truth`); subscribes
+/torque_command (reliable). Service ~/reset (std_srvs/Trigger).
+
+Safety: until the first command, after `command_timeout` (simulation time) without a
+valid command, or on a MODE_DAMPING command, the joints are only damped
+(u = −damping_gain·q̇) and /diagnostics says so (level WARN). Commands with non-finite
+values, wrong joint names or sizes, or negative gains are dropped and counted; NaN
+never reaches the actuators.
 """
 from __future__ import annotations
 
 import time
+from collections import deque
 
 import numpy as np
 from ciml_msgs.msg import ContactState, TorqueCommand
@@ -25,93 +37,246 @@ from ciml_learning import conversions as cv
 from ciml_learning import topics
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import load_robot
-from ciml_learning.ros_common import COMMAND_QOS, SENSOR_QOS, Health, declare, run_node
+from ciml_learning.ros_common import COMMAND_QOS, OK, SENSOR_QOS, WARN, Health, declare, run_node
 
 from .plant import Plant
-from .scenario import load_scenario, nominal_scenario
+from .scenario import nominal_scenario, resolve_scenario
+
+MAX_CATCH_UP = 0.02
+"""[s] of wall-clock lag the bridge catches up in one tick; more is dropped (an overrun)."""
+STATS_WINDOW = 250
+"""Tick periods per reported statistic."""
 
 
 class MujocoBridge(Node):
-    def __init__(self) -> None:
-        super().__init__("mujoco_bridge")
-        scenario_path = declare(self, "scenario", "", "Scenario YAML with the unmodelled effects ('' = nominal)")
-        self.seed = declare(self, "seed", 0, "Random seed of sensor noise", 0, 2**31 - 1)
-        rate = declare(self, "publish_rate", 250.0, "Sensor and /clock publish rate [Hz]", 50.0, 1000.0)
-        self.timeout = declare(self, "command_timeout", 0.05, "Damping mode after this long without a command [s]", 0.004, 5.0)
-        self.kd_safe = declare(self, "damping_gain", 10.0, "Joint damping in the safe mode [Nm s/rad]", 0.0, 200.0)
+    def __init__(self, **kwargs) -> None:
+        super().__init__("mujoco_bridge", **kwargs)
+        scenario = declare(self, "scenario", "nominal",
+                           "Scenario: a YAML file or a shipped scenario name (nominal, default_gap, ...)")
+        self.seed = declare(self, "seed", 0, "Seed of the sensor noise", 0, 2**31 - 1)
+        rate = declare(self, "publish_rate", 250.0, "Sensor and /clock publish rate [Hz] (1000/n)", 10.0, 1000.0)
+        self.timeout = declare(self, "command_timeout", 0.05,
+                               "Damping mode after this long without a valid command [s, sim time]", 0.004, 5.0)
+        self.kd_safe = declare(self, "damping_gain", 10.0, "Joint damping in damping mode [Nm s/rad]", 0.0, 200.0)
+        self.rtf = declare(self, "real_time_factor", 1.0, "Simulation seconds per wall-clock second", 0.05, 20.0)
+        self.publish_truth = declare(self, "publish_ground_truth", False,
+                                     "Also publish the simulation-only /sim/ topics (true v̇, contact and effect forces)")
         urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
         self.robot = load_robot(urdf or None)
-        self.scenario = load_scenario(scenario_path, self.robot) if scenario_path else nominal_scenario()
-        self.steps_per_tick = max(1, int(round(1000.0 / rate)))
+        self.scenario = resolve_scenario(scenario, self.robot) if scenario else nominal_scenario()
+        self.steps_per_sample = max(1, int(round(1000.0 / rate)))
         self.plant = Plant(self.robot, self.scenario, seed=self.seed)
-        self.plant.reset()
         self.health = Health(self, "mujoco")
         self.pub_joints = self.create_publisher(JointState, topics.JOINT_STATES, SENSOR_QOS)
         self.pub_base = self.create_publisher(Odometry, topics.BASE_STATE, SENSOR_QOS)
         self.pub_contacts = self.create_publisher(ContactState, topics.CONTACT_STATE, SENSOR_QOS)
         self.pub_clock = self.create_publisher(Clock, topics.CLOCK, 10)
+        self._truth_pubs: dict[str, object] = {}
         self.create_subscription(TorqueCommand, topics.TORQUE_COMMAND, self.on_command, COMMAND_QOS)
         self.create_service(Trigger, "~/reset", self.on_reset)
+        self.commands_received = 0
+        self._enter_damping("damping mode: waiting for the first /torque_command")
         self.last_command_time = -np.inf
-        self.damping = True
-        self._apply_damping()
-        self._last_wall = None
-        self._periods: list[float] = []
-        self.create_timer(self.steps_per_tick * 1e-3, self.tick)
+        self._wall0 = time.monotonic()
+        self._steps_done = 0  # physics steps accounted against the wall clock (dropped debt included)
+        self.physics_steps = 0  # physics steps actually taken
+        self._last_tick: float | None = None
+        self.tick_periods: deque[float] = deque(maxlen=20_000)  # wall seconds between ticks (recent)
+        self.n_ticks = 0
+        self._window_start = (self._wall0, 0)  # (wall time, physics steps) at the window's start
+        self.create_timer(self.steps_per_sample * 1e-3 / self.rtf, self.tick)
+        self.get_logger().info(
+            f"mujoco_bridge: {self.robot.n_joints} joints, physics 1 kHz, publishing at "
+            f"{1000.0 / self.steps_per_sample:g} Hz of simulation time, real-time factor {self.rtf:g}")
 
-    def _apply_damping(self) -> None:
+    # --- commands ------------------------------------------------------------------------
+    def _enter_damping(self, why: str) -> None:
         n = self.robot.n_joints
         z = np.zeros(n)
         self.plant.set_command(z, z, z, z, np.full(n, self.kd_safe), damping_mode=True)
+        self.damping = True
+        self.health.set(WARN, why)
+        self.health.counts["damping_mode"] = 1
 
-    def on_command(self, msg) -> None:
+    def on_command(self, msg: TorqueCommand) -> None:
         try:
             cmd = cv.torque_command_arrays(self.robot, msg)
-        except CimlError as err:  # ConversionError, or RobotDescriptionError for wrong joint names
-            self.health.count("rejected_commands", f"command rejected: {err}")
+            if cmd.mode not in (TorqueCommand.MODE_TORQUE, TorqueCommand.MODE_DAMPING):
+                raise cv.ConversionError(f"torque_command: unknown mode {cmd.mode}")
+            if cmd.mode == TorqueCommand.MODE_TORQUE:
+                self.plant.set_command(cmd.feedforward + cmd.feedback_linearization, cmd.position_target,
+                                       cmd.velocity_target, cmd.stiffness, cmd.damping)
+        except CimlError as err:  # ConversionError, RobotDescriptionError (joint names), PlantError
+            self.health.count("rejected_commands")
+            if not self.damping:
+                self.health.set(WARN, f"command rejected: {err}")
+            self.get_logger().warning(f"command rejected: {err} (rejected_commands: "
+                                      f"{self.health.counts['rejected_commands']})", throttle_duration_sec=1.0)
             return
-        if cmd.mode == 1:
-            self.damping = True
-            self._apply_damping()
-        else:
-            self.damping = False
-            self.plant.set_command(cmd.feedforward + cmd.feedback_linearization, cmd.position_target,
-                                   cmd.velocity_target, cmd.stiffness, cmd.damping)
+        self.commands_received += 1
+        self.health.counts["commands_received"] = self.commands_received
         self.last_command_time = self.plant.time
+        if cmd.mode == TorqueCommand.MODE_DAMPING:
+            if not self.damping:
+                self._enter_damping("damping mode: requested by /torque_command")
+        elif self.damping:
+            self.damping = False
+            self.health.counts["damping_mode"] = 0
+            self.health.set(OK, "torque control")
 
     def on_reset(self, request, response):
+        t = self.plant.time
         self.plant.reset()
+        self.plant.data.time = t  # keep /clock monotonic
         self.last_command_time = -np.inf
-        self._apply_damping()
+        self._enter_damping("damping mode: reset, waiting for /torque_command")
+        self.health.count("resets")
         response.success = True
         response.message = "plant reset to the standing pose; joints damped until the next command"
         return response
 
+    # --- the loop ----------------------------------------------------------------------------
     def tick(self) -> None:
-        wall = time.monotonic()
-        if self._last_wall is not None:
-            self._periods.append(wall - self._last_wall)
-            if len(self._periods) >= 250:
-                p = np.asarray(self._periods)
-                # physics steps per wall second: 1 kHz is held when this is ~1000
-                self.health.counts["achieved_physics_rate_hz"] = round(self.steps_per_tick / p.mean(), 1)
-                self.health.counts["tick_period_error_p99_ms"] = round(1e3 * np.percentile(np.abs(p - self.steps_per_tick * 1e-3), 99), 3)
-                self._periods.clear()
-        self._last_wall = wall
-        if self.plant.time - self.last_command_time > self.timeout and not self.damping:
-            self.damping = True
-            self._apply_damping()
-            self.health.count("stale_command_damping", "no command within the timeout: joints damped")
-        self.plant.step(self.steps_per_tick)
+        now = time.monotonic()
+        if self._last_tick is not None:
+            self.tick_periods.append(now - self._last_tick)
+            self.n_ticks += 1
+        self._last_tick = now
+        owed = int((now - self._wall0) * 1000.0 * self.rtf) - self._steps_done
+        max_steps = int(MAX_CATCH_UP * 1000.0) + self.steps_per_sample
+        if owed > max_steps:
+            self.health.count("realtime_overruns")
+            self._steps_done += owed - max_steps  # drop the debt: simulation time slows down
+            owed = max_steps
+        try:
+            for _ in range(owed // self.steps_per_sample):
+                self._sample()
+        except Exception:
+            if self.context.ok():
+                raise
+            return  # SIGTERM/SIGINT shut the context down during this tick: normal shutdown
+        self._stats(now)
+
+    def _sample(self) -> None:
+        if not self.damping and self.plant.time - self.last_command_time > self.timeout:
+            self.health.count("stale_command_damping")
+            self._enter_damping(f"damping mode: no valid /torque_command for {self.timeout:g} s")
+        self.plant.step(self.steps_per_sample)
+        self._steps_done += self.steps_per_sample
+        self.physics_steps += self.steps_per_sample
         m = self.plant.measure()
         ns = int(round(m.time * 1e9))
         self.pub_clock.publish(Clock(clock=cv.stamp_msg(ns)))
         self.pub_joints.publish(cv.joint_state_msg(self.robot, ns, m.q, m.qd, m.tau_measured))
-        self.pub_base.publish(cv.odometry_msg(ns, m.base_position, m.base_orientation, m.base_linear_velocity, m.base_angular_velocity))
+        self.pub_base.publish(cv.odometry_msg(ns, m.base_position, m.base_orientation, m.base_linear_velocity,
+                                              m.base_angular_velocity))
         self.pub_contacts.publish(cv.contact_state_msg(self.robot, ns, m.contacts))
-        if not self.damping:
-            self.health.set(0, "ok")
+        if self.publish_truth:
+            from ciml_msgs.msg import ContactForces, GeneralizedForce
+
+            from .recorder import ground_truth_messages
+
+            for topic, msg in ground_truth_messages(self.robot, ns, self.plant.ground_truth()):
+                pub = self._truth_pubs.get(topic)
+                if pub is None:
+                    cls = ContactForces if topic == topics.SIM_CONTACT_FORCES else GeneralizedForce
+                    pub = self._truth_pubs[topic] = self.create_publisher(cls, topic, 10)
+                pub.publish(msg)
+
+    def _stats(self, now: float) -> None:
+        w0, s0 = self._window_start
+        if self.n_ticks % STATS_WINDOW or not self.n_ticks:
+            return
+        p = np.asarray(list(self.tick_periods)[-STATS_WINDOW:])
+        nominal = self.steps_per_sample * 1e-3 / self.rtf
+        c = self.health.counts
+        c["achieved_physics_rate_hz"] = round((self.physics_steps - s0) / (now - w0), 1)
+        c["tick_period_error_p99_ms"] = round(1e3 * float(np.percentile(np.abs(p - nominal), 99)), 3)
+        c["sim_time_s"] = round(self.plant.time, 3)
+        self._window_start = (now, self.physics_steps)
 
 
 def main(args=None) -> None:
-    run_node(MujocoBridge, args)
+    import sys
+
+    from rclpy._rclpy_pybind11 import RCLError
+    from rclpy.exceptions import InvalidParameterValueException
+
+    try:
+        run_node(MujocoBridge, args)
+    except (CimlError, InvalidParameterValueException) as err:  # bad scenario, URDF or parameter
+        print(f"mujoco_bridge: error: {' '.join(str(err).split())}", file=sys.stderr)
+        sys.exit(1)
+    except RCLError as err:
+        # rclpy race on SIGTERM: the signal handler shuts the context down while spin()
+        # builds its wait set; that is a normal shutdown, anything else is not
+        if "context is not valid" not in str(err):
+            raise
+
+
+# --- benchmark (ciml bench) ---------------------------------------------------------------------
+
+
+def rate_benchmark(seconds: float = 8.0, publish_rate: float = 250.0) -> dict:
+    """The bridge with ROS I/O: it publishes its sensors and a commander node sends a
+    standing TorqueCommand back at 250 Hz (one process, own DDS domain, loopback only).
+    Reports the achieved physics rate (target 1000 Hz of simulation time per wall second)
+    and the tick-period error (p50/p99) of the publish timer."""
+    import os
+    import random
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from ciml_control.standing import StandingController
+
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=random.SystemRandom().randint(1, 101))
+    try:
+        bridge = MujocoBridge(context=ctx, parameter_overrides=[Parameter("publish_rate", value=publish_rate)])
+        robot = bridge.robot
+        q0 = bridge.plant.standing_configuration()
+        c = StandingController(robot).compute(q0, np.ones(robot.n_feet, dtype=bool))
+        arrays = cv.TorqueCommandArrays(0, c.feedforward, c.feedback_linearization, c.q_target, c.qd_target, c.kp, c.kd)
+        commander = rclpy.create_node("bench_commander", context=ctx)
+        pub = commander.create_publisher(TorqueCommand, topics.TORQUE_COMMAND, COMMAND_QOS)
+        received = [0]
+        commander.create_subscription(JointState, topics.JOINT_STATES, lambda m: received.__setitem__(0, received[0] + 1),
+                                      SENSOR_QOS)
+        commander.create_timer(0.004, lambda: pub.publish(cv.torque_command_msg(robot, 0, arrays)))
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(bridge)
+        ex.add_node(commander)
+        t_end = time.monotonic() + 1.0
+        while time.monotonic() < t_end:  # discovery, first commands
+            ex.spin_once(timeout_sec=0.01)
+        wall0, steps0, ticks0, cmd0 = time.monotonic(), bridge.physics_steps, bridge.n_ticks, bridge.commands_received
+        sim0 = bridge.plant.time
+        while time.monotonic() < wall0 + seconds:
+            ex.spin_once(timeout_sec=0.01)
+        wall = time.monotonic() - wall0
+        p = np.asarray(list(bridge.tick_periods)[-(bridge.n_ticks - ticks0):])
+        nominal = bridge.steps_per_sample * 1e-3
+        err = np.abs(p - nominal) * 1e3
+        base_z = float(bridge.plant.data.qpos[2])
+        out = {
+            "publish_rate_hz": 1000.0 / bridge.steps_per_sample,
+            "target_physics_rate_hz": 1000.0,
+            "achieved_physics_rate_hz": round((bridge.physics_steps - steps0) / wall, 1),
+            "sim_time_per_wall_second": round((bridge.plant.time - sim0) / wall, 3),
+            "tick_period_nominal_ms": nominal * 1e3,
+            "tick_period_p50_ms": round(float(np.percentile(p, 50)) * 1e3, 3),
+            "tick_period_error_p50_ms": round(float(np.percentile(err, 50)), 3),
+            "tick_period_error_p99_ms": round(float(np.percentile(err, 99)), 3),
+            "realtime_overruns": int(bridge.health.counts.get("realtime_overruns", 0)),
+            "commands_received_per_s": round((bridge.commands_received - cmd0) / wall, 1),
+            "joint_states_received": received[0],
+            "stale_command_damping": int(bridge.health.counts.get("stale_command_damping", 0)),
+            "still_standing": base_z > 0.5,
+            "seconds": seconds,
+        }
+        return out
+    finally:
+        rclpy.try_shutdown(context=ctx)

@@ -1,39 +1,73 @@
 """The simulated robot: MuJoCo physics at 1 kHz, the joint PD loop, the scenario's effects.
 
-Where each effect acts (DESIGN §5):
-- the 1 kHz joint loop computes u = u_ff + K_p (q_target − q_meas) + K_d (q̇_target − q̇_meas),
-  clipped to the torque limits (TorqueCommand.msg, ciml_learning.conversions.commanded_torque);
-- the actuator delivers τ = g · lag(u) + o (actuator_lag, torque_gain, torque_offset):
-  between command and torque sensor, so they show in Γ = τ − u;
-- the torque sensor reads τ (+ noise);
-- joint friction acts on the joint after the sensor (MuJoCo frictionloss for Coulomb,
-  damping for viscous — both integrated implicitly, so no chatter at zero velocity), as do
-  the out-of-catalogue torques (Stribeck friction, joint spring, torque ripple): they show
-  in Φ̃, not in Γ;
-- payload and link mass scaling change the MuJoCo model's inertias only;
-- encoder offset and IMU tilt change only what is measured (the PD loop sees the
-  offset encoder too, as on the real robot); sensor noise likewise.
+Where each effect acts (DESIGN §5), from command to motion:
 
-Measurement convention: measure() at time t reports the joint loop's u(t) under the
-command in force before t (with the measured q(t), q̇(t) it reports) and the τ(t) the
-actuator delivers for it — the pairing ciml_learning.bagio.load_sensor_log rebuilds.
+    command (u_ff, q_t, q̇_t, K_p, K_d)            held until the next one
+    → joint loop, every 1 ms, on the *measured* q, q̇ (encoder offset and noise included,
+      as on the robot):  u = clip(u_ff + K_p (q_t − q_meas) + K_d (q̇_t − q̇_meas), ±limits)
+    → actuator:  τ = g · L(u) + o            actuator_lag (L: first-order lag, backward
+                                              Euler), torque_gain (g), torque_offset (o)
+    → torque sensor reads τ (+ noise)         so these effects show in Γ = τ − u (eq. 14)
+    → joint: τ + friction + other joint torques
+                                              joint_coulomb_friction (MuJoCo frictionloss, an
+                                              implicit constraint: true stiction, no chatter),
+                                              joint_viscous_friction (MuJoCo damping, implicit),
+                                              joint_stribeck_friction (frictionloss whose level
+                                              follows the Stribeck curve of the current speed),
+                                              joint_spring, torque_ripple (explicit torques):
+                                              after the sensor, so they show in Φ̃, not in Γ
+    → rigid bodies: payload, link_mass_scale change the MuJoCo model's inertias only
+    → sensors: encoder_offset and base_imu_tilt bias what is measured (the joint loop
+      sees the offset encoder too); sensor noise likewise.
+
+Timing convention (the one ciml_learning.bagio.load_sensor_log rebuilds): a sample at
+time t reports the state at t and the joint loop's u and the actuator's τ at t *under
+the command in force before t* (a command computed from that sample acts after it);
+GroundTruth at t is evaluated at the same instant with that same torque: v̇(t),
+the contact forces, and each effect's generalized force, which together close eq. (3)
+of the nominal model:
+
+    M(q) v̇ + h(q, v) = Sᵀ u + Σ_feet J_footᵀ f_foot + Σ_effects f_effect.
+
+Encoder noise is drawn once per 1 ms joint-loop reading (the loop and the published
+sample at that instant see the same reading); the other sensor noise once per sample.
 """
 from __future__ import annotations
 
+import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
 import pinocchio as pin
 
-from ciml_learning.conversions import commanded_torque
+from ciml_learning.errors import CimlError
 from ciml_learning.robot import RobotDescription
 
-from .mjcf import FOOT_RADIUS, build_mjcf, mj_to_pin_acceleration, mj_to_pin_force, mj_to_pin_state, pin_to_mj_state
-from .scenario import Scenario
+from .mjcf import (
+    FOOT_RADIUS,
+    TIMESTEP,
+    build_mjcf,
+    mj_to_pin_acceleration,
+    mj_to_pin_state,
+    pin_to_mj_state,
+)
+from .scenario import Effect, Scenario
 
-DT = 0.001
-CONTACT_THRESHOLD = 1.0  # [N] normal force above which a foot counts as in contact
+DT = TIMESTEP
+CONTACT_THRESHOLD = 1.0
+"""Normal force [N] above which a foot is reported in contact."""
+FRICTION_SOLREF = (2 * TIMESTEP, 1.0)
+FRICTION_SOLIMP = (0.9999, 0.9999, 0.001, 0.5, 2.0)
+"""MuJoCo's joint-friction constraint made close to ideal Coulomb friction: reference
+acceleration −q̇/Δt (the friction tries to stop the joint within one step) and almost no
+regularisation, so the force is ±value whenever the joint keeps sliding, and smaller only
+in the step in which it sticks."""
+_NOISE_BLOCK = 1000
+
+
+class PlantError(CimlError):
+    """The plant was given an invalid state or command."""
 
 
 @dataclass
@@ -41,44 +75,86 @@ class Measurement:
     """What the robot's sensors report at one instant (joint order of the robot)."""
 
     time: float
-    q: np.ndarray
-    qd: np.ndarray
-    tau_measured: np.ndarray
-    u_commanded: np.ndarray
-    base_position: np.ndarray
-    base_orientation: np.ndarray  # quaternion x, y, z, w
-    base_linear_velocity: np.ndarray  # base frame
-    base_angular_velocity: np.ndarray  # base frame
-    contacts: np.ndarray
+    q: np.ndarray                      # joint positions [rad] (encoder offset, noise)
+    qd: np.ndarray                     # joint velocities [rad/s]
+    tau_measured: np.ndarray           # torque sensors [Nm]
+    u_commanded: np.ndarray            # the joint loop's total command u [Nm] (not published)
+    base_position: np.ndarray          # world [m]
+    base_orientation: np.ndarray       # quaternion x, y, z, w (IMU tilt, noise)
+    base_linear_velocity: np.ndarray   # base frame [m/s]
+    base_angular_velocity: np.ndarray  # base frame [rad/s]
+    contacts: np.ndarray               # (n_feet,) bool
 
 
 @dataclass
 class GroundTruth:
-    """Simulation-only truth at the current instant, Pinocchio conventions."""
+    """Simulation-only truth at the current instant, Pinocchio conventions.
+
+    effect_forces[label]: the generalized force (nv; base force and torque in the base
+    frame, then joints) [N, Nm] that the effect adds to the right-hand side of eq. (3)
+    of the nominal model (see the module docstring). Measurement-only effects
+    (encoder_offset, base_imu_tilt) exert none and have no entry.
+    """
 
     q: np.ndarray
     v: np.ndarray
     vdot: np.ndarray
-    contact_forces: np.ndarray  # n_feet × 3, world frame [N]
-    effect_forces: dict[str, np.ndarray] = field(default_factory=dict)  # generalized force on the robot [N, Nm]
+    contact_forces: np.ndarray  # n_feet × 3, world frame, force of the floor on the foot [N]
+    u: np.ndarray               # joint loop command [Nm]
+    tau: np.ndarray             # torque the actuators deliver (noise-free sensor reading) [Nm]
+    effect_forces: dict[str, np.ndarray] = field(default_factory=dict)
 
 
-def true_pinocchio_model(robot: RobotDescription, scenario: Scenario) -> pin.Model:
-    """A copy of the nominal model with the scenario's inertial effects (payload, link mass)."""
+# --- inertial effects on the Pinocchio model ----------------------------------------------
+
+
+def link_inertia(robot: RobotDescription, link: str) -> tuple[int, pin.Inertia]:
+    """(parent joint index, the URDF link's own inertia expressed in that joint's frame)."""
+    root = ElementTree.parse(robot.urdf_path).getroot()
+    node = next((ln for ln in root.findall("link") if ln.get("name") == link), None)
+    inertial = node.find("inertial") if node is not None else None
+    if inertial is None:
+        raise CimlError(f"link {link!r} has no inertial in {robot.urdf_path}")
+    origin = inertial.find("origin")
+    xyz = np.zeros(3) if origin is None else np.fromstring(origin.get("xyz", "0 0 0"), sep=" ")
+    rpy = np.zeros(3) if origin is None else np.fromstring(origin.get("rpy", "0 0 0"), sep=" ")
+    mass = float(inertial.find("mass").get("value"))
+    a = inertial.find("inertia").attrib
+    I = np.array([[float(a["ixx"]), float(a["ixy"]), float(a["ixz"])],
+                  [float(a["ixy"]), float(a["iyy"]), float(a["iyz"])],
+                  [float(a["ixz"]), float(a["iyz"]), float(a["izz"])]])
+    R = pin.rpy.rpyToMatrix(*rpy)
+    local = pin.Inertia(mass, xyz, R @ I @ R.T)
+    frame = robot.model.frames[robot.model.getFrameId(link)]
+    return frame.parentJoint, frame.placement.act(local)
+
+
+def _add_inertial_effect(robot: RobotDescription, model: pin.Model, e: Effect) -> None:
+    if e.type == "payload":
+        # a point mass at `com` in the trunk frame (the root body when there is no trunk)
+        frame_name = "trunk" if model.existFrame("trunk") else model.frames[2].name
+        frame = model.frames[model.getFrameId(frame_name)]
+        point = pin.Inertia(e.params["mass"], np.asarray(e.params["com"], float), np.zeros((3, 3)))
+        model.inertias[frame.parentJoint] = model.inertias[frame.parentJoint] + frame.placement.act(point)
+    elif e.type == "link_mass_scale":
+        joint, inertia = link_inertia(robot, e.link)
+        s = e.params["value"] - 1.0  # scales the link's mass and rotational inertia about its CoM
+        # dynamic parameters are linear in the inertia: adds s times the link (s < 0 removes mass)
+        model.inertias[joint] = pin.Inertia.FromDynamicParameters(
+            model.inertias[joint].toDynamicParameters() + s * inertia.toDynamicParameters())
+
+
+def true_pinocchio_model(robot: RobotDescription, effects: list[Effect] | Scenario) -> pin.Model:
+    """A copy of the nominal model with the inertial effects (payload, link mass) applied."""
+    effects = list(effects.effects) if isinstance(effects, Scenario) else effects
     model = robot.model.copy()
-    for e in scenario.of_type("payload"):
-        # point mass in the trunk frame, expressed in the root joint frame
-        trunk = model.frames[model.getFrameId("trunk")] if model.existFrame("trunk") else None
-        placement = trunk.placement if trunk is not None else pin.SE3.Identity()
-        point = pin.Inertia(e.params["mass"], np.asarray(e.params["com"]), np.zeros((3, 3)))
-        model.inertias[1] = model.inertias[1] + placement.act(point)
-    for e in scenario.of_type("link_mass_scale"):
-        frame = model.frames[model.getFrameId(e.link)]
-        delta = frame.placement.act(frame.inertia)
-        s = e.params["value"] - 1.0
-        scaled = pin.Inertia(s * delta.mass, delta.lever, s * delta.inertia)
-        model.inertias[frame.parentJoint] = model.inertias[frame.parentJoint] + scaled
+    for e in effects:
+        if e.type in ("payload", "link_mass_scale"):
+            _add_inertial_effect(robot, model, e)
     return model
+
+
+# --- the plant ---------------------------------------------------------------------------
 
 
 class Plant:
@@ -87,57 +163,98 @@ class Plant:
     def __init__(self, robot: RobotDescription, scenario: Scenario, seed: int = 0) -> None:
         self.robot = robot
         self.scenario = scenario
+        self.seed = int(seed)
         nj = robot.n_joints
         self.true_model = true_pinocchio_model(robot, scenario)
-        self._true_data = self.true_model.createData()
-        self._nom_data = robot.model.createData()
         self.model = mujoco.MjModel.from_xml_string(build_mjcf(robot, self.true_model))
         self.data = mujoco.MjData(self.model)
-        self.model.opt.timestep = DT
-        self.dof = 6 + np.arange(nj)
-        self.lag = np.zeros(nj)
+        mj_joints = tuple(self.model.joint(i).name for i in range(1, self.model.njnt))
+        if mj_joints != robot.joint_names:
+            raise CimlError(f"MuJoCo joint order {mj_joints} differs from the robot's {robot.joint_names}")
+        self.model.dof_solref[6:] = FRICTION_SOLREF
+        self.model.dof_solimp[6:] = FRICTION_SOLIMP
+        self.limits = robot.torque_limits.copy()
+        self._neg_limits = -self.limits
+        self._nominal_data = robot.model.createData()
+
+        # per-joint parameters; effects of one type on the same joint add up (scenario.py)
         self.gain = np.ones(nj)
         self.offset = np.zeros(nj)
-        self.encoder = np.zeros(nj)
-        self.stribeck: list = []
-        self.springs: list = []
-        self.ripples: list = []
+        self.lag_time_constant = np.zeros(nj)
+        self.encoder_offset = np.zeros(nj)
+        self.coulomb = np.zeros(nj)
+        self.viscous = np.zeros(nj)
+        self._stribeck: list[tuple[Effect, np.ndarray]] = []
+        self._springs: list[tuple[Effect, np.ndarray]] = []
+        self._ripples: list[tuple[Effect, np.ndarray]] = []
+        self._inertial: list[tuple[Effect, pin.Model, pin.Data]] = []
+        roll = pitch = 0.0
         for e in scenario.effects:
             j = np.asarray(e.joints, dtype=int)
+            p = e.params
             if e.type == "joint_coulomb_friction":
-                self.model.dof_frictionloss[6 + j] += e.params["value"]
+                self.coulomb[j] += p["value"]
             elif e.type == "joint_viscous_friction":
-                self.model.dof_damping[6 + j] += e.params["value"]
+                self.viscous[j] += p["value"]
             elif e.type == "actuator_lag":
-                self.lag[j] = e.params["time_constant"]
+                self.lag_time_constant[j] += p["time_constant"]
             elif e.type == "torque_gain":
-                self.gain[j] *= e.params["value"]
+                self.gain[j] += p["value"] - 1.0
             elif e.type == "torque_offset":
-                self.offset[j] += e.params["value"]
+                self.offset[j] += p["value"]
             elif e.type == "encoder_offset":
-                self.encoder[j] += e.params["value"]
+                self.encoder_offset[j] += p["value"]
+            elif e.type == "base_imu_tilt":
+                roll, pitch = roll + p["roll"], pitch + p["pitch"]
             elif e.type == "joint_stribeck_friction":
-                self.stribeck.append((j, e.params))
+                self._stribeck.append((e, j))
             elif e.type == "joint_spring":
-                self.springs.append((j, e.params))
+                self._springs.append((e, j))
             elif e.type == "torque_ripple":
-                self.ripples.append((j, e.params))
-        tilt = scenario.of_type("base_imu_tilt")
-        self.imu_tilt = pin.rpy.rpyToMatrix(sum(e.params["roll"] for e in tilt), sum(e.params["pitch"] for e in tilt), 0.0)
-        self.noise = {k: scenario.sensor_noise.get(k, 0.0) for k in
+                self._ripples.append((e, j))
+            elif e.type in ("payload", "link_mass_scale"):
+                m = true_pinocchio_model(robot, [e])
+                self._inertial.append((e, m, m.createData()))
+            else:  # pragma: no cover - scenario.py validates the types
+                raise CimlError(f"effect type {e.type} has no implementation")
+        self.model.dof_frictionloss[6:] = self.coulomb
+        self.model.dof_damping[6:] = self.viscous
+        self._alpha = DT / (self.lag_time_constant + DT)  # backward-Euler lag: τ_k = τ_{k−1} + α (u_k − τ_{k−1})
+        self._has_lag = bool(np.any(self.lag_time_constant > 0))
+        self._has_gain = bool(np.any(self.gain != 1.0) or np.any(self.offset != 0.0))
+        self._has_side = bool(self._springs or self._ripples)
+        tilt = pin.Quaternion(pin.rpy.rpyToMatrix(roll, pitch, 0.0)).coeffs()
+        self._imu_tilt = None if roll == pitch == 0.0 else np.array([tilt[3], tilt[0], tilt[1], tilt[2]])
+        self.noise = {k: float(scenario.sensor_noise.get(k, 0.0)) for k in
                       ("q", "qd", "tau", "base_orientation", "base_position", "base_velocity")}
-        self.rng = np.random.default_rng(seed)
+        self._encoder_noise = self.noise["q"] > 0 or self.noise["qd"] > 0
         self.foot_geoms = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, f) for f in robot.foot_frames]
-        self.limits = robot.torque_limits
+        self._foot_bodies = np.array([self.model.geom_bodyid[g] for g in self.foot_geoms])
+        if len(set(self._foot_bodies.tolist())) != robot.n_feet:
+            raise CimlError("two feet on one body: per-foot contact forces cannot be told apart")
+        self._base_body = int(self.model.jnt_bodyid[0])
+        self._noise_std = np.array([self.noise[k] for k in ("base_orientation", "tau", "base_position",
+                                                              "base_velocity")])
+        # views into MjData (stable buffers)
+        d = self.data
+        self._qj = d.qpos[7:]
+        self._vj = d.qvel[6:]
+        self._ctrl = d.ctrl
+        self._qfrc_j = d.qfrc_applied[6:]
         self.reset()
 
-    # --- state -----------------------------------------------------------------------
+    # --- state -----------------------------------------------------------------------------
     @property
     def time(self) -> float:
         return float(self.data.time)
 
+    @property
+    def steps(self) -> int:
+        """Physics steps since the last reset."""
+        return self._k
+
     def standing_configuration(self) -> np.ndarray:
-        """Pinocchio q of the standing pose, feet on the floor."""
+        """Pinocchio q of the standing pose (robot.standing_joints), feet touching the floor."""
         q = pin.neutral(self.robot.model)
         q[7:] = self.robot.standing_joints
         data = self.robot.model.createData()
@@ -146,151 +263,263 @@ class Plant:
         q[2] = -lowest + FOOT_RADIUS
         return q
 
-    def reset(self, q0: np.ndarray | None = None) -> None:
-        mujoco.mj_resetData(self.model, self.data)
-        q = self.standing_configuration() if q0 is None else np.asarray(q0, float)
-        qpos, qvel = pin_to_mj_state(q, np.zeros(self.robot.nv))
-        self.data.qpos[:] = qpos
-        self.data.qvel[:] = qvel
-        mujoco.mj_forward(self.model, self.data)
+    def true_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """True (q, v) now, Pinocchio conventions (simulation only)."""
+        return mj_to_pin_state(self.data.qpos, self.data.qvel)
+
+    def reset(self, q0: np.ndarray | None = None, v0: np.ndarray | None = None) -> None:
+        """Back to time 0 at q0 (default: standing), velocity v0 (default 0), no command
+        (zero torque, zero gains), actuators at rest, noise streams restarted."""
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        q = self.standing_configuration() if q0 is None else np.asarray(q0, dtype=float)
+        v = np.zeros(self.robot.nv) if v0 is None else np.asarray(v0, dtype=float)
+        if q.shape != (self.robot.nq,) or v.shape != (self.robot.nv,) or not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+            raise PlantError(f"reset: expected finite q ({self.robot.nq}) and v ({self.robot.nv})")
+        d.qpos[:], d.qvel[:] = pin_to_mj_state(q, v)
+        mujoco.mj_forward(m, d)
         nj = self.robot.n_joints
-        self.cmd = (np.zeros(nj), q[7:].copy(), np.zeros(nj), np.zeros(nj), np.zeros(nj))
+        seeds = np.random.SeedSequence([self.scenario.seed, self.seed]).spawn(2)
+        self._rng_joint = np.random.default_rng(seeds[0])
+        self._rng_meas = np.random.default_rng(seeds[1])
+        self._noise_start = -_NOISE_BLOCK
+        self._k = 0
+        self._lag = np.zeros(nj)
+        self._c = np.zeros(nj)  # u_ff + K_p q_t + K_d q̇_t
+        self._kp = np.zeros(nj)
+        self._kd = np.zeros(nj)
         self.damping_mode = False
-        self.kd_safe = np.zeros(nj)
-        self.lag_state = np.zeros(nj)
         self.u = np.zeros(nj)
         self.tau = np.zeros(nj)
-        self._meas_cache: tuple[float, np.ndarray, np.ndarray] | None = None
+        self._meas: tuple | None = None
+
+    def rewind_clock(self) -> None:
+        """Set simulation time to 0 without touching the state (after a settling pre-roll)."""
+        self.data.time = 0.0
+        self._meas = None
 
     def set_command(self, u_ff: np.ndarray, q_target: np.ndarray, qd_target: np.ndarray, kp: np.ndarray,
                     kd: np.ndarray, damping_mode: bool = False) -> None:
-        """Hold a TorqueCommand until the next one; in damping mode u = −kd·q̇ only."""
-        self.cmd = tuple(np.asarray(x, dtype=float).copy() for x in (u_ff, q_target, qd_target, kp, kd))
-        self.damping_mode = damping_mode
+        """Hold a TorqueCommand until the next one; in damping mode u = −kd·q̇ only.
 
-    # --- the 1 kHz joint loop ------------------------------------------------------------
-    def _encoders(self) -> tuple[np.ndarray, np.ndarray]:
-        """Joint readings at the current instant (one draw per instant, shared with measure())."""
-        if self._meas_cache is not None and self._meas_cache[0] == self.data.time:
-            return self._meas_cache[1], self._meas_cache[2]
+        Non-finite values or negative gains raise PlantError (nodes drop such commands
+        before they get here; NaN never reaches the actuators).
+        """
         nj = self.robot.n_joints
-        q = self.data.qpos[7:] + self.encoder + self.noise["q"] * self.rng.standard_normal(nj)
-        qd = self.data.qvel[6:] + self.noise["qd"] * self.rng.standard_normal(nj)
-        self._meas_cache = (self.data.time, q, qd)
-        return q, qd
+        try:
+            c = np.array([u_ff, q_target, qd_target, kp, kd], dtype=float)
+        except ValueError as err:
+            raise PlantError(f"command: expected {nj} values per field") from err
+        if c.shape != (5, nj) or not np.isfinite(c).all():
+            raise PlantError(f"command: expected {nj} finite values per field")
+        if (c[3:] < 0).any():
+            raise PlantError("command: negative stiffness or damping")
+        self.damping_mode = bool(damping_mode)
+        if damping_mode:
+            self._c, self._kp, self._kd = np.zeros(nj), np.zeros(nj), c[4]
+        else:
+            self._c, self._kp, self._kd = c[0] + c[3] * c[1] + c[4] * c[2], c[3], c[4]
 
-    def _joint_loop(self, q_meas: np.ndarray, qd_meas: np.ndarray) -> np.ndarray:
-        u_ff, q_t, qd_t, kp, kd = self.cmd
-        if self.damping_mode:
-            return np.clip(-kd * qd_meas, -self.limits, self.limits)
-        return commanded_torque(u_ff, np.zeros_like(u_ff), q_t, qd_t, kp, kd, q_meas, qd_meas, self.limits)
+    # --- the 1 kHz joint loop -------------------------------------------------------------------
+    def _readings(self) -> tuple[np.ndarray, np.ndarray]:
+        """Encoder readings at the current physics step (offset and noise)."""
+        if not self._encoder_noise:
+            return self._qj + self.encoder_offset, self._vj.copy()
+        i = self._k - self._noise_start
+        if i >= _NOISE_BLOCK:
+            nj = self.robot.n_joints
+            self._noise_q = self.noise["q"] * self._rng_joint.standard_normal((_NOISE_BLOCK, nj))
+            self._noise_qd = self.noise["qd"] * self._rng_joint.standard_normal((_NOISE_BLOCK, nj))
+            self._noise_start, i = self._k, 0
+        return self._qj + self.encoder_offset + self._noise_q[i], self._vj + self._noise_qd[i]
 
-    def _actuator(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(lag state after this step, delivered torque τ = g·lag(u) + o); backward Euler lag."""
-        alpha = DT / (self.lag + DT)
-        lag_state = self.lag_state + alpha * (u - self.lag_state)
-        return lag_state, self.gain * lag_state + self.offset
+    def _actuation(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(q_meas, q̇_meas, u, lag state, τ) at the current step under the held command."""
+        q_m, qd_m = self._readings()
+        u = self._c - self._kp * q_m - self._kd * qd_m
+        np.minimum(u, self.limits, out=u)
+        np.maximum(u, self._neg_limits, out=u)
+        lag = self._lag + self._alpha * (u - self._lag) if self._has_lag else u
+        tau = self.gain * lag + self.offset if self._has_gain else lag
+        return q_m, qd_m, u, lag, tau
 
-    def _joint_side_torques(self) -> np.ndarray:
-        """Out-of-catalogue torques acting on the joints after the sensor (explicit)."""
-        tau = np.zeros(self.robot.n_joints)
-        q, qd = self.data.qpos[7:], self.data.qvel[6:]
-        for j, p in self.stribeck:
-            level = p["coulomb"] + (p["breakaway"] - p["coulomb"]) * np.exp(-(qd[j] / p["velocity"]) ** 2)
-            tau[j] -= level * np.tanh(qd[j] / 0.01)
-        for j, p in self.springs:
-            tau[j] -= p["stiffness"] * (q[j] - p["rest"])
-        for j, p in self.ripples:
-            tau[j] += p["amplitude"] * np.sin(2 * np.pi * q[j] / p["period"])
-        return tau
+    def _stribeck_levels(self) -> list[np.ndarray]:
+        qd = self._vj
+        return [e.params["coulomb"] + (e.params["breakaway"] - e.params["coulomb"])
+                * np.exp(-(qd[j] / e.params["velocity"]) ** 2) for e, j in self._stribeck]
+
+    def _side_torques(self) -> list[np.ndarray]:
+        """Explicit joint-side torques of joint_spring and torque_ripple effects (per effect)."""
+        q = self._qj
+        out = [-e.params["stiffness"] * (q[j] - e.params["rest"]) for e, j in self._springs]
+        out += [e.params["amplitude"] * np.sin(2 * np.pi * q[j] / e.params["period"]) for e, j in self._ripples]
+        return out
+
+    def _apply(self, tau: np.ndarray) -> None:
+        """Actuator torque and the joint-side effects into MjData for the next evaluation."""
+        self._ctrl[:] = tau
+        if self._stribeck:
+            fl = self.coulomb.copy()
+            for (e, j), level in zip(self._stribeck, self._stribeck_levels()):
+                fl[j] += level
+            self.model.dof_frictionloss[6:] = fl
+        if self._has_side:
+            f = np.zeros(self.robot.n_joints)
+            for (e, j), t in zip(self._springs + self._ripples, self._side_torques()):
+                f[j] += t
+            self._qfrc_j[:] = f
 
     def step(self, n: int = 1) -> None:
-        """Advance n physics steps of 1 ms, running the joint loop at every step."""
-        d = self.data
-        for _ in range(n):
-            q_meas, qd_meas = self._encoders()
-            self.u = self._joint_loop(q_meas, qd_meas)
-            self.lag_state, self.tau = self._actuator(self.u)
-            d.qfrc_applied[6:] = self.tau + self._joint_side_torques()
-            mujoco.mj_step(self.model, d)
+        """Advance n physics steps of 1 ms, running the joint loop at every step.
 
-    # --- sensors ----------------------------------------------------------------------
-    def _contact_forces(self) -> np.ndarray:
-        forces = np.zeros((self.robot.n_feet, 3))
-        f6 = np.zeros(6)
-        for i in range(self.data.ncon):
-            c = self.data.contact[i]
-            for k, g in enumerate(self.foot_geoms):
-                if g in (c.geom1, c.geom2):
-                    mujoco.mj_contactForce(self.model, self.data, i, f6)
-                    world = c.frame.reshape(3, 3).T @ f6[:3]
-                    forces[k] += world if g == c.geom2 else -world
-        return forces
+        The loop body is _actuation() inlined with local names (it runs 1000 times per
+        simulated second); test_effects checks that both give the same u and τ.
+        """
+        m, d = self.model, self.data
+        extra = bool(self._stribeck) or self._has_side
+        qj, vj, ctrl, enc = self._qj, self._vj, self._ctrl, self.encoder_offset
+        c, kp, kd, hi, lo = self._c, self._kp, self._kd, self.limits, self._neg_limits
+        has_lag, has_gain, noisy = self._has_lag, self._has_gain, self._encoder_noise
+        alpha, gain, offset, lag = self._alpha, self.gain, self.offset, self._lag
+        u = tau = self.u
+        for _ in range(n):
+            if noisy:
+                q_m, qd_m = self._readings()
+            else:
+                q_m, qd_m = qj + enc, vj
+            u = c - kp * q_m
+            u -= kd * qd_m
+            np.minimum(u, hi, out=u)
+            np.maximum(u, lo, out=u)
+            if has_lag:
+                lag = lag + alpha * (u - lag)
+                tau = gain * lag + offset if has_gain else lag
+            else:
+                tau = gain * u + offset if has_gain else u
+            if extra:
+                self._apply(tau)
+            else:
+                ctrl[:] = tau
+            mujoco.mj_step(m, d)
+            self._k += 1
+        if n > 0:
+            self._lag = lag
+            self.u, self.tau = u, tau
+            self._meas = None
+
+    # --- sensors ----------------------------------------------------------------------------
+    def _foot_forces(self) -> np.ndarray:
+        """Force of the floor (and anything else touching) on each foot, world frame [N].
+
+        The external force on a foot's body (cfrc_ext, linear part: independent of the
+        reference point); a foot sphere is the only colliding geom of its body (mjcf.py).
+        Needs mj_forward at the current state first.
+        """
+        mujoco.mj_rnePostConstraint(self.model, self.data)
+        return self.data.cfrc_ext[self._foot_bodies, 3:6].copy()
 
     def measure(self) -> Measurement:
-        nj = self.robot.n_joints
-        q_meas, qd_meas = self._encoders()
-        u = self._joint_loop(q_meas, qd_meas)
-        _, tau = self._actuator(u)
-        q_true, v_true = mj_to_pin_state(self.data.qpos, self.data.qvel)
-        R = pin.Quaternion(q_true[3:7]).matrix() @ self.imu_tilt
-        if self.noise["base_orientation"] > 0:
-            R = R @ pin.exp3(self.noise["base_orientation"] * self.rng.standard_normal(3))
-        nb = self.noise["base_velocity"]
-        return Measurement(
-            time=self.time,
-            q=q_meas.copy(),
-            qd=qd_meas.copy(),
-            tau_measured=tau + self.noise["tau"] * self.rng.standard_normal(nj),
-            u_commanded=u,
-            base_position=q_true[:3] + self.noise["base_position"] * self.rng.standard_normal(3),
-            base_orientation=pin.Quaternion(R).coeffs().copy(),
-            base_linear_velocity=v_true[:3] + nb * self.rng.standard_normal(3),
-            base_angular_velocity=v_true[3:6] + nb * self.rng.standard_normal(3),
-            contacts=np.linalg.norm(self._contact_forces(), axis=1) > CONTACT_THRESHOLD,
+        """Sensor readings at the current instant (cached until the next step)."""
+        if self._meas is not None:
+            return self._meas[0]
+        q_m, qd_m, u, lag, tau = self._actuation()
+        self._apply(tau)
+        d = self.data
+        mujoco.mj_forward(self.model, d)  # accelerations and contact forces at t under τ(t)
+        forces = self._foot_forces()
+        rng, nz = self._rng_meas, self._noise_std
+        qpos, qvel = d.qpos, d.qvel
+        quat = qpos[3:7].copy()  # w x y z
+        lin = d.xmat[self._base_body].reshape(3, 3).T @ qvel[:3]  # base frame
+        ang = qvel[3:6].copy()
+        pos = qpos[:3].copy()
+        if self._imu_tilt is not None:
+            mujoco.mju_mulQuat(quat, quat.copy(), self._imu_tilt)
+        if nz[0] > 0:  # base_orientation
+            dq = np.zeros(4)
+            mujoco.mju_axisAngle2Quat(dq, *_axis_angle(nz[0] * rng.standard_normal(3)))
+            mujoco.mju_mulQuat(quat, quat.copy(), dq)
+        quat /= np.sqrt(quat @ quat)
+        tau_meas = tau + nz[1] * rng.standard_normal(tau.size) if nz[1] > 0 else tau.copy()
+        if nz[2] > 0:  # base_position
+            pos += nz[2] * rng.standard_normal(3)
+        if nz[3] > 0:  # base_velocity
+            lin += nz[3] * rng.standard_normal(3)
+            ang += nz[3] * rng.standard_normal(3)
+        meas = Measurement(
+            time=float(d.time),
+            q=q_m.copy(),
+            qd=qd_m.copy(),
+            tau_measured=tau_meas,
+            u_commanded=u.copy(),
+            base_position=pos,
+            base_orientation=quat[[1, 2, 3, 0]],
+            base_linear_velocity=lin,
+            base_angular_velocity=ang,
+            contacts=forces[:, 2] > CONTACT_THRESHOLD,
         )
+        self._meas = (meas, u, lag.copy(), tau.copy(), forces)
+        return meas
 
     def ground_truth(self) -> GroundTruth:
-        """True state, acceleration, contact forces and each effect's generalized force."""
-        m, d = self.model, self.data
-        mujoco.mj_forward(m, d)
+        """True state, v̇, contact forces and each effect's generalized force at this instant
+        (same instant and torque as measure(); see the module docstring)."""
+        if self._meas is None:
+            self.measure()
+        _, u, lag, tau, forces = self._meas
+        d = self.data
         q, v = mj_to_pin_state(d.qpos, d.qvel)
         vdot = mj_to_pin_acceleration(q, v, d.qacc)
         nv = self.robot.nv
         effects: dict[str, np.ndarray] = {}
+
+        def joint_force(j: np.ndarray, values: np.ndarray) -> np.ndarray:
+            f = np.zeros(nv)
+            f[6 + j] = values
+            return f
+
+        # joint friction constraint forces, shared among the effects by their current levels
         friction = np.zeros(nv)
-        for row in range(d.nefc):
-            if d.efc_type[row] == mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF:
-                friction[d.efc_id[row]] += d.efc_force[row]
-        u = self.u
-        lag_out = self.lag_state
+        rows = d.efc_type[: d.nefc] == mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF
+        np.add.at(friction, d.efc_id[: d.nefc][rows], d.efc_force[: d.nefc][rows])
+        level = self.coulomb.copy()
+        stribeck_levels = self._stribeck_levels()
+        for (e, j), lv in zip(self._stribeck, stribeck_levels):
+            level[j] += lv
+        share = np.divide(friction[6:], level, out=np.zeros_like(level), where=level > 0)
+        strib = dict(zip((id(e) for e, _ in self._stribeck), stribeck_levels))
+        side = dict(zip((id(e) for e, _ in self._springs + self._ripples), self._side_torques()))
+        inertial = {id(e): (m, md) for e, m, md in self._inertial}
+        lag_share = np.divide(lag - u, self.lag_time_constant, out=np.zeros_like(u), where=self.lag_time_constant > 0)
         for e in self.scenario.effects:
-            f = np.zeros(nv)
-            j = 6 + np.asarray(e.joints, dtype=int)
+            j = np.asarray(e.joints, dtype=int)
+            p = e.params
             if e.type == "joint_coulomb_friction":
-                f[j] = friction[j]
+                f = joint_force(j, share[j] * p["value"])
+            elif e.type == "joint_stribeck_friction":
+                f = joint_force(j, share[j] * strib[id(e)])
             elif e.type == "joint_viscous_friction":
-                f[j] = -e.params["value"] * d.qvel[j]
+                f = joint_force(j, -p["value"] * self._vj[j])
+            elif e.type in ("joint_spring", "torque_ripple"):
+                f = joint_force(j, side[id(e)])
             elif e.type == "actuator_lag":
-                f[j] = (lag_out - u)[j - 6]
+                f = joint_force(j, lag_share[j] * p["time_constant"])
             elif e.type == "torque_gain":
-                f[j] = ((self.gain - 1.0) * lag_out)[j - 6]
+                f = joint_force(j, (p["value"] - 1.0) * lag[j])
             elif e.type == "torque_offset":
-                f[j] = self.offset[j - 6]
+                f = joint_force(j, np.full(len(j), p["value"]))
             elif e.type in ("payload", "link_mass_scale"):
-                continue  # combined below: both change the same inertias
-            elif e.type in ("joint_stribeck_friction", "joint_spring", "torque_ripple"):
+                m, md = inertial[id(e)]
+                f = -(pin.rnea(m, md, q, v, vdot) - pin.rnea(self.robot.model, self._nominal_data, q, v, vdot))
+            else:  # encoder_offset, base_imu_tilt: measurement only
                 continue
-            else:
-                continue  # measurement-only effects exert no force
             effects[e.label] = f
-        if self.scenario.of_type("payload", "link_mass_scale"):
-            # generalized force the nominal model misses: −[(M_true − M) v̇ + (h_true − h)]
-            f = -(pin.rnea(self.true_model, self._true_data, q, v, vdot) - pin.rnea(self.robot.model, self._nom_data, q, v, vdot))
-            effects["inertial"] = f
-        extra = self._joint_side_torques()
-        if np.any(extra):
-            f = np.zeros(nv)
-            f[6:] = extra
-            effects["unmodelled_joint_torque"] = f
-        return GroundTruth(q=q, v=v, vdot=vdot, contact_forces=self._contact_forces(), effect_forces=effects)
+        return GroundTruth(q=q, v=v, vdot=vdot, contact_forces=forces.copy(), u=u.copy(), tau=tau.copy(),
+                           effect_forces=effects)
+
+
+def _axis_angle(rotvec: np.ndarray) -> tuple[np.ndarray, float]:
+    angle = float(np.linalg.norm(rotvec))
+    if angle < 1e-15:
+        return np.array([1.0, 0.0, 0.0]), 0.0
+    return rotvec / angle, angle

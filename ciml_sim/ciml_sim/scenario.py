@@ -3,10 +3,18 @@
 A scenario is a YAML file, validated on load: an unknown type, joint or link, a
 missing, extra or out-of-range field gives a ScenarioError with one line naming the
 field and the valid choices. The nominal model (Pinocchio) never sees a scenario.
+
+Effects combine. Several effects of one type on the same joint (or link) add up:
+frictions and offsets add, gains and link-mass scales add their deviations from 1
+(g = 1 + Σ(gᵢ − 1)), lag time constants add; so every effect's share of the
+generalized force is well defined (ciml_sim.plant.GroundTruth.effect_forces).
 """
 from __future__ import annotations
 
+import math
 import os
+import re
+import sys
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -20,7 +28,7 @@ class ScenarioError(CimlError):
     """A scenario file is missing or invalid."""
 
 
-# type -> {field: (kind, lo, hi)}; kind: joint | joints | link | float | vec3
+# type -> {field: (kind, lo, hi)}; kind: joints (a name, a list of names or "all") | link | float | vec3
 _CATALOGUE: dict[str, dict[str, tuple]] = {
     "payload": {"mass": ("float", 0.0, 100.0), "com": ("vec3", -1.0, 1.0)},
     "joint_coulomb_friction": {"joint": ("joints",), "value": ("float", 0.0, 100.0)},
@@ -37,24 +45,38 @@ _CATALOGUE: dict[str, dict[str, tuple]] = {
     "joint_spring": {"joint": ("joints",), "stiffness": ("float", 0.0, 1000.0), "rest": ("float", -3.2, 3.2)},
     "torque_ripple": {"joint": ("joints",), "amplitude": ("float", 0.0, 50.0), "period": ("float", 0.01, 6.3)},
 }
-EFFECT_TYPES = tuple(_CATALOGUE)
-NOISE_FIELDS = ("q", "qd", "tau", "base_orientation", "base_position", "base_velocity")
+EFFECT_TYPES: tuple[str, ...] = tuple(_CATALOGUE)
+CATALOGUE_TYPES: tuple[str, ...] = EFFECT_TYPES[:9]
+"""The effect types of DESIGN §5 (the diagnosis' candidates)."""
+OUT_OF_CATALOGUE_TYPES: tuple[str, ...] = EFFECT_TYPES[9:]
+MEASUREMENT_ONLY_TYPES: tuple[str, ...] = ("encoder_offset", "base_imu_tilt")
+"""Effects that bias a measurement and exert no force."""
+NOISE_FIELDS: tuple[str, ...] = ("q", "qd", "tau", "base_orientation", "base_position", "base_velocity")
+"""Sensor-noise standard deviations: q [rad], qd [rad/s], tau [Nm], base_orientation [rad],
+base_position [m], base_velocity [m/s and rad/s]."""
+_TOP_LEVEL = ("name", "seed", "sensor_noise", "effects", "description")
+
+
+def effect_fields(effect_type: str) -> dict[str, tuple]:
+    """The fields of an effect type: {name: (kind, lo, hi)} (for docs and the diagnosis)."""
+    return dict(_CATALOGUE[effect_type])
 
 
 @dataclass(frozen=True)
 class Effect:
-    """One injected effect; `joints` resolved to joint indices (or the link name)."""
+    """One injected effect.
+
+    joints: indices into robot.joint_names it acts on (empty for base and link effects);
+    link: the URDF link of a link effect; label: a unique, topic-safe name
+    (`<type>`, `<type>_<joint>`, `<type>_all`, `<type>_<link>`; `_2`, `_3` … on repeats),
+    used only for the /sim/effect/<label> ground truth.
+    """
 
     type: str
     params: dict[str, Any]
     joints: tuple[int, ...] = ()
     link: str | None = None
-
-    @property
-    def label(self) -> str:
-        """Unique, readable label (used for /sim/effect/<label> ground truth only)."""
-        where = self.link or "_".join(str(j) for j in self.joints) or "base"
-        return f"{self.type}_{where}"
+    label: str = ""
 
 
 @dataclass(frozen=True)
@@ -69,91 +91,145 @@ class Scenario:
 
 
 def nominal_scenario() -> Scenario:
+    """No effect, no noise: the simulation matches the nominal model."""
     return Scenario(name="nominal")
 
 
-def _resolve_joints(value, robot: RobotDescription, where: str) -> tuple[int, ...]:
-    names = list(robot.joint_names) if value == "all" else ([value] if isinstance(value, str) else value)
-    if not isinstance(names, list) or not names:
-        raise ScenarioError(f"{where}: expected a joint name, a list of names or 'all'")
+def _resolve_joints(value: Any, robot: RobotDescription, where: str) -> tuple[tuple[int, ...], str]:
+    """(joint indices, label suffix) of a joint field: a name, a list of names or 'all'."""
+    valid = f"valid: all, {', '.join(robot.joint_names)}"
+    if value == "all":
+        return tuple(range(robot.n_joints)), "all"
+    names = [value] if isinstance(value, str) else value
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+        raise ScenarioError(f"{where}: expected a joint name, a list of joint names or 'all'; {valid}")
     out = []
     for n in names:
         if n not in robot.joint_names:
-            raise ScenarioError(f"{where}: unknown joint {n!r}; valid: all, {', '.join(robot.joint_names)}")
+            raise ScenarioError(f"{where}: unknown joint {n!r}; {valid}")
+        if robot.joint_names.index(n) in out:
+            raise ScenarioError(f"{where}: joint {n!r} listed twice")
         out.append(robot.joint_names.index(n))
-    return tuple(out)
+    return tuple(out), "_".join(n.removesuffix("_joint") for n in names)
+
+
+def _number(v: Any, lo: float, hi: float, where: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+        raise ScenarioError(f"{where}: expected a number in [{lo}, {hi}], got {v!r}")
+    return float(v)
+
+
+def _parse_effect(e: Any, i: int, robot: RobotDescription) -> tuple[Effect, str]:
+    where = f"effects[{i}]"
+    if not isinstance(e, dict) or "type" not in e:
+        raise ScenarioError(f"{where}: expected a mapping with a 'type'; valid types: {', '.join(EFFECT_TYPES)}")
+    typ = e["type"]
+    if typ not in _CATALOGUE:
+        raise ScenarioError(f"{where}.type: unknown effect {typ!r}; valid: {', '.join(EFFECT_TYPES)}")
+    spec = _CATALOGUE[typ]
+    given = set(e) - {"type"}
+    unknown, missing = sorted(given - set(spec)), sorted(set(spec) - given)
+    if unknown:
+        raise ScenarioError(f"{where} ({typ}): unknown field(s) {', '.join(unknown)}; valid: {', '.join(spec)}")
+    if missing:
+        raise ScenarioError(f"{where} ({typ}): missing field(s) {', '.join(missing)}; required: {', '.join(spec)}")
+    params: dict[str, Any] = {}
+    joints: tuple[int, ...] = ()
+    link = None
+    suffix = ""
+    for k, s in spec.items():
+        v = e[k]
+        w = f"{where}.{k}"
+        if s[0] == "joints":
+            joints, suffix = _resolve_joints(v, robot, w)
+        elif s[0] == "link":
+            if v not in robot.link_names:
+                raise ScenarioError(f"{w}: unknown link {v!r}; valid: {', '.join(robot.link_names)}")
+            link = suffix = v
+        elif s[0] == "vec3":
+            if not (isinstance(v, list) and len(v) == 3):
+                raise ScenarioError(f"{w}: expected [x, y, z] in metres, each in [{s[1]}, {s[2]}], got {v!r}")
+            params[k] = [_number(x, s[1], s[2], f"{w}[{n}]") for n, x in enumerate(v)]
+        else:
+            params[k] = _number(v, s[1], s[2], w)
+    if typ == "joint_stribeck_friction" and params["breakaway"] < params["coulomb"]:
+        raise ScenarioError(f"{where}.breakaway: must be at least coulomb ({params['coulomb']}), "
+                            f"got {params['breakaway']}")
+    label = re.sub(r"[^A-Za-z0-9_]", "_", f"{typ}_{suffix}" if suffix else typ)
+    return Effect(typ, params, joints, link), label
 
 
 def parse_scenario(data: Any, robot: RobotDescription) -> Scenario:
+    """Validate a scenario mapping (as loaded from YAML) against the robot."""
     if not isinstance(data, dict):
-        raise ScenarioError("scenario: expected a mapping with name, seed, sensor_noise, effects")
-    extra = set(data) - {"name", "seed", "sensor_noise", "effects", "description"}
+        raise ScenarioError(f"scenario: expected a mapping with keys {', '.join(_TOP_LEVEL)}")
+    extra = sorted(set(data) - set(_TOP_LEVEL))
     if extra:
-        raise ScenarioError(f"scenario: unknown field(s) {sorted(extra)}; valid: name, seed, sensor_noise, effects, description")
+        raise ScenarioError(f"scenario: unknown field(s) {', '.join(map(str, extra))}; valid: {', '.join(_TOP_LEVEL)}")
+    name = data.get("name", "unnamed")
+    if not isinstance(name, str) or not name:
+        raise ScenarioError(f"name: expected a non-empty string, got {name!r}")
     noise = data.get("sensor_noise") or {}
     if not isinstance(noise, dict):
-        raise ScenarioError("sensor_noise: expected a mapping of standard deviations")
+        raise ScenarioError(f"sensor_noise: expected a mapping of standard deviations; valid keys: {', '.join(NOISE_FIELDS)}")
     for k, v in noise.items():
         if k not in NOISE_FIELDS:
             raise ScenarioError(f"sensor_noise.{k}: unknown; valid: {', '.join(NOISE_FIELDS)}")
-        if not isinstance(v, (int, float)) or not 0 <= v < 10:
-            raise ScenarioError(f"sensor_noise.{k}: expected a standard deviation in [0, 10), got {v!r}")
+        _number(v, 0.0, 10.0, f"sensor_noise.{k}")
+    raw_effects = data.get("effects") or []
+    if not isinstance(raw_effects, list):
+        raise ScenarioError("effects: expected a list of effects, each a mapping with a 'type'")
     effects = []
-    for i, e in enumerate(data.get("effects") or []):
-        where = f"effects[{i}]"
-        if not isinstance(e, dict) or "type" not in e:
-            raise ScenarioError(f"{where}: expected a mapping with a 'type'")
-        typ = e["type"]
-        if typ not in _CATALOGUE:
-            raise ScenarioError(f"{where}.type: unknown effect {typ!r}; valid: {', '.join(EFFECT_TYPES)}")
-        spec = _CATALOGUE[typ]
-        given = set(e) - {"type"}
-        if given != set(spec):
-            raise ScenarioError(f"{where} ({typ}): fields {sorted(given)}; expected exactly {sorted(spec)}")
-        params, joints, link = {}, (), None
-        for k, s in spec.items():
-            v = e[k]
-            if s[0] == "joints":
-                joints = _resolve_joints(v, robot, f"{where}.{k}")
-            elif s[0] == "link":
-                if v not in robot.link_names:
-                    raise ScenarioError(f"{where}.{k}: unknown link {v!r}; valid: {', '.join(robot.link_names)}")
-                link = v
-            elif s[0] == "vec3":
-                if not (isinstance(v, list) and len(v) == 3 and all(isinstance(x, (int, float)) for x in v)):
-                    raise ScenarioError(f"{where}.{k}: expected [x, y, z] in metres")
-                if any(not s[1] <= x <= s[2] for x in v):
-                    raise ScenarioError(f"{where}.{k}: each component must be in [{s[1]}, {s[2]}]")
-                params[k] = [float(x) for x in v]
-            else:
-                if not isinstance(v, (int, float)) or isinstance(v, bool) or not s[1] <= v <= s[2]:
-                    raise ScenarioError(f"{where}.{k}: expected a number in [{s[1]}, {s[2]}], got {v!r}")
-                params[k] = float(v)
-        effects.append(Effect(typ, params, joints, link))
+    used: dict[str, int] = {}
+    for i, e in enumerate(raw_effects):
+        effect, label = _parse_effect(e, i, robot)
+        used[label] = used.get(label, 0) + 1
+        if used[label] > 1:
+            label = f"{label}_{used[label]}"
+        effects.append(Effect(effect.type, effect.params, effect.joints, effect.link, label))
     seed = data.get("seed", 0)
-    if not isinstance(seed, int):
-        raise ScenarioError(f"seed: expected an integer, got {seed!r}")
-    return Scenario(name=str(data.get("name", "unnamed")), seed=seed,
-                    sensor_noise={k: float(v) for k, v in noise.items()}, effects=tuple(effects))
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ScenarioError(f"seed: expected a non-negative integer, got {seed!r}")
+    return Scenario(name=name, seed=seed, sensor_noise={k: float(v) for k, v in noise.items()}, effects=tuple(effects))
 
 
 def load_scenario(path: str | os.PathLike, robot: RobotDescription) -> Scenario:
+    """Load and validate a scenario YAML file."""
     try:
         with open(path, encoding="utf-8") as f:
             data = yaml.safe_load(f)
     except FileNotFoundError as err:
         raise ScenarioError(f"scenario file not found: {path}") from err
+    except (OSError, UnicodeDecodeError) as err:
+        raise ScenarioError(f"cannot read scenario {path}: {err}") from err
     except yaml.YAMLError as err:
-        raise ScenarioError(f"scenario {path}: invalid YAML ({str(err).splitlines()[0]})") from err
-    return parse_scenario(data, robot)
+        raise ScenarioError(f"scenario {path}: invalid YAML ({' '.join(str(err).split())})") from err
+    try:
+        return parse_scenario(data, robot)
+    except ScenarioError as err:
+        raise ScenarioError(f"scenario {path}: {err}") from err
 
 
 def scenario_dir() -> str:
-    """Folder of the shipped scenarios (installed share/ciml_sim/config/scenarios, else the source tree)."""
-    import sys
-
-    for d in (os.path.join(sys.prefix, "share", "ciml_sim", "config", "scenarios"),
-              os.path.join(os.path.dirname(__file__), "..", "config", "scenarios")):
+    """Folder of the shipped scenarios (the source tree of an editable install, else share/ciml_sim)."""
+    for d in (os.path.join(os.path.dirname(__file__), "..", "config", "scenarios"),
+              os.path.join(sys.prefix, "share", "ciml_sim", "config", "scenarios")):
         if os.path.isdir(d):
             return os.path.abspath(d)
     raise ScenarioError("shipped scenarios not found; run make install")
+
+
+def shipped_scenarios() -> tuple[str, ...]:
+    return tuple(sorted(f[:-5] for f in os.listdir(scenario_dir()) if f.endswith(".yaml")))
+
+
+def resolve_scenario(spec: str, robot: RobotDescription) -> Scenario:
+    """A scenario from a YAML path, or the name of a shipped scenario ('nominal', 'default_gap', …)."""
+    if os.path.isfile(spec):
+        return load_scenario(spec, robot)
+    if os.sep not in spec and not spec.endswith(".yaml"):
+        path = os.path.join(scenario_dir(), f"{spec}.yaml")
+        if os.path.isfile(path):
+            return load_scenario(path, robot)
+    raise ScenarioError(f"scenario file not found: {spec}; give a YAML path or a shipped scenario: "
+                        f"{', '.join(shipped_scenarios())}")

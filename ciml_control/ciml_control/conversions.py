@@ -1,0 +1,90 @@
+"""ciml_msgs/RobotReference and ModelError ↔ numpy for the controller, by joint/foot name.
+
+Like ciml_learning.conversions: readers accept rclpy and rosbags messages, reject
+wrong names and non-finite values with a ConversionError; writers build rclpy messages.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ciml_learning.conversions import ConversionError, _finite, _vector, header_msg, stamp_to_ns
+from ciml_learning.extraction import combined_error
+from ciml_learning.robot import RobotDescription
+
+from .references import ReferencePoint
+
+
+def reference_msg(robot: RobotDescription, stamp_ns: int, ref: ReferencePoint):
+    """A ReferencePoint as ciml_msgs/RobotReference (base twist/acceleration in the base frame)."""
+    from ciml_msgs.msg import RobotReference
+    from geometry_msgs.msg import Accel, Point, Pose, Quaternion, Twist, Vector3
+
+    q, v, a = (np.asarray(x, float) for x in (ref.q, ref.v, ref.a))
+
+    def vec(x):
+        return Vector3(x=float(x[0]), y=float(x[1]), z=float(x[2]))
+
+    return RobotReference(
+        header=header_msg(stamp_ns, "world"),
+        motion=str(ref.motion),
+        phase=float(ref.phase),
+        joint_names=list(robot.joint_names),
+        base_pose=Pose(position=Point(x=float(q[0]), y=float(q[1]), z=float(q[2])),
+                       orientation=Quaternion(x=float(q[3]), y=float(q[4]), z=float(q[5]), w=float(q[6]))),
+        base_twist=Twist(linear=vec(v[:3]), angular=vec(v[3:6])),
+        base_acceleration=Accel(linear=vec(a[:3]), angular=vec(a[3:6])),
+        position=q[7:].tolist(),
+        velocity=v[6:].tolist(),
+        acceleration=a[6:].tolist(),
+        foot_names=list(robot.foot_frames),
+        in_contact=[bool(c) for c in ref.contacts],
+    )
+
+
+def _six(m) -> list[float]:
+    return [m.linear.x, m.linear.y, m.linear.z, m.angular.x, m.angular.y, m.angular.z]
+
+
+def reference_point(robot: RobotDescription, msg) -> ReferencePoint:
+    """RobotReference → ReferencePoint in the robot's joint and foot order (t = header stamp [s])."""
+    perm = robot.joint_permutation(list(msg.joint_names))
+    n = len(msg.joint_names)
+    p, o = msg.base_pose.position, msg.base_pose.orientation
+    quat = np.array([o.x, o.y, o.z, o.w], float)
+    q = np.concatenate([[p.x, p.y, p.z], quat, _vector(msg.position, n, "reference.position")[perm]])
+    v = np.concatenate([_six(msg.base_twist), _vector(msg.velocity, n, "reference.velocity")[perm]])
+    a = np.concatenate([_six(msg.base_acceleration), _vector(msg.acceleration, n, "reference.acceleration")[perm]])
+    _finite("reference", q, v, a, np.array([msg.phase], float))
+    norm = np.linalg.norm(quat)
+    if not 0.9 < norm < 1.1:
+        raise ConversionError(f"reference: orientation quaternion has norm {norm:.3f}, expected 1")
+    q[3:7] /= norm
+    flags = np.asarray(msg.in_contact, dtype=bool)
+    if flags.shape != (len(msg.foot_names),):
+        raise ConversionError("reference: foot names and contact flags differ in length")
+    contacts = flags[robot.foot_permutation(list(msg.foot_names))]
+    return ReferencePoint(t=stamp_to_ns(msg.header.stamp) * 1e-9, q=q, v=v, a=a, contacts=contacts,
+                          phase=float(msg.phase), motion=str(msg.motion))
+
+
+def model_error_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, np.ndarray]:
+    """(Φ̃' (18, robot.rbd_error_names order), Γ (n_j, joint order)) of a ModelError.
+
+    Entries are matched by name; a name the robot does not know, a missing name or a
+    non-finite value is a ConversionError.
+    """
+    names = list(msg.rbd_names)
+    expected = list(robot.rbd_error_names)
+    if sorted(names) != sorted(expected):
+        raise ConversionError(f"model_error: rbd names {names} do not match {expected}")
+    index = {nm: i for i, nm in enumerate(names)}
+    phi = _vector(msg.rbd_error, len(names), "model_error.rbd_error")[[index[nm] for nm in expected]]
+    perm = robot.joint_permutation(list(msg.actuation_names))
+    gamma = _vector(msg.actuation_error, len(msg.actuation_names), "model_error.actuation_error")[perm]
+    _finite("model_error", phi, gamma)
+    return phi, gamma
+
+
+def epsilon_from_model_error(basis: np.ndarray, phi_prime: np.ndarray, gamma: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """ε = J'ᵀ Φ̃' − Sᵀ Γ, eq. (17), with the contact-invariant basis J' at the reference."""
+    return combined_error(basis, phi_prime, gamma, S)

@@ -1,0 +1,104 @@
+"""Feedback of the inverse-dynamics controller (paper eq. 22–24).
+
+    u_fb = u_fb,pd + u_fb,lin
+    u_fb,pd  = −K_d ė_j − K_p e_j                       joint PD, 1 kHz, next to the robot
+    u_fb,lin = (P_c Sᵀ)⁺ P_c M (−K_d,lin ė − K_p,lin e)    feedback linearisation, 250 Hz
+
+e = q ⊖ qᵈ (pin.difference(qᵈ, q): base part in the desired base frame), ė = v − vᵈ.
+The linearisation term turns a desired correction of the full state's acceleration
+(base included) into joint torques through the nominal mass matrix, with the contact
+forces projected out (P_c = I − J_c⁺ J_c). With J_cᵀ = [Q_c Q_u][R; 0] one has
+P_c = Q_u Q_uᵀ and (P_c Sᵀ)⁺ P_c = (Q_uᵀ Sᵀ)⁺ Q_uᵀ, which is what is computed.
+
+The joint PD itself is not computed here: its targets (qᵈ, q̇ᵈ of the joints) and gains
+go to the robot's 1 kHz joint loop in the TorqueCommand.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from ciml_learning.robot import RobotDescription
+
+from .qp import contact_decomposition
+
+# HyQ-like joint loop gains (stance and swing legs alike)
+JOINT_KP = 300.0   # [Nm/rad]
+JOINT_KD = 8.0     # [Nm s/rad]
+# feedback linearisation gains, as accelerations per unit error [1/s², 1/s]
+BASE_LINEAR_KP = 200.0
+BASE_LINEAR_KD = 25.0
+BASE_ANGULAR_KP = 200.0
+BASE_ANGULAR_KD = 25.0
+JOINT_LIN_KP = 0.0
+JOINT_LIN_KD = 0.0
+
+
+@dataclass
+class FeedbackGains:
+    """Gains of eq. (22–24): joint PD (n_j) and linearisation gains (nv)."""
+
+    kp: np.ndarray
+    kd: np.ndarray
+    kp_lin: np.ndarray
+    kd_lin: np.ndarray
+
+    @classmethod
+    def default(cls, robot: RobotDescription, kp: float = JOINT_KP, kd: float = JOINT_KD,
+                base_kp: tuple[float, float] = (BASE_LINEAR_KP, BASE_ANGULAR_KP),
+                base_kd: tuple[float, float] = (BASE_LINEAR_KD, BASE_ANGULAR_KD),
+                joint_lin_kp: float = JOINT_LIN_KP, joint_lin_kd: float = JOINT_LIN_KD) -> "FeedbackGains":
+        nj = robot.n_joints
+        kp_lin = np.r_[np.full(3, base_kp[0]), np.full(3, base_kp[1]), np.full(nj, joint_lin_kp)]
+        kd_lin = np.r_[np.full(3, base_kd[0]), np.full(3, base_kd[1]), np.full(nj, joint_lin_kd)]
+        return cls(np.full(nj, kp), np.full(nj, kd), kp_lin, kd_lin)
+
+    def validate(self, robot: RobotDescription) -> None:
+        from ciml_learning.errors import CimlError
+
+        for name, arr, n in (("kp", self.kp, robot.n_joints), ("kd", self.kd, robot.n_joints),
+                             ("kp_lin", self.kp_lin, robot.nv), ("kd_lin", self.kd_lin, robot.nv)):
+            a = np.asarray(arr, float)
+            if a.shape != (n,) or not np.all(np.isfinite(a)) or np.any(a < 0):
+                raise CimlError(f"feedback gain {name} must be {n} finite non-negative numbers")
+
+
+def tracking_error(robot: RobotDescription, q: np.ndarray, v: np.ndarray, q_des: np.ndarray,
+                   v_des: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(e, ė) = (q ⊖ qᵈ, v − vᵈ), both nv."""
+    return pin.difference(robot.model, q_des, q), v - v_des
+
+
+def feedback_linearization(M: np.ndarray, foot_jacobians: np.ndarray, contacts: np.ndarray,
+                           e: np.ndarray, e_dot: np.ndarray, kp_lin: np.ndarray, kd_lin: np.ndarray) -> np.ndarray:
+    """u_fb,lin = (P_c Sᵀ)⁺ P_c M (−K_d ė − K_p e), eq. (24) [Nm] (n_j).
+
+    Computed as (Q_uᵀ Sᵀ)⁺ Q_uᵀ M q̈_fb; where Q_uᵀ Sᵀ loses rank (two feet on a line) its
+    zero rows are dropped first (ciml_control.qp.contact_decomposition), leaving a
+    full-row-rank A with A⁺ = Aᵀ (A Aᵀ)⁻¹.
+    """
+    dec = contact_decomposition(foot_jacobians, contacts)
+    qdd_fb = -kd_lin * e_dot - kp_lin * e
+    A = dec.Q_u[6:].T                   # Q_uᵀ Sᵀ
+    y = dec.Q_u.T @ (M @ qdd_fb)
+    if dec.U_r is not None:
+        A, y = dec.U_r.T @ A, dec.U_r.T @ y
+    return A.T @ np.linalg.solve(A @ A.T, y)
+
+
+@dataclass
+class PDCommand:
+    """Targets and gains of the 1 kHz joint loop (joint order)."""
+
+    q_target: np.ndarray
+    qd_target: np.ndarray
+    kp: np.ndarray
+    kd: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+def joint_pd_command(q_des: np.ndarray, v_des: np.ndarray, gains: FeedbackGains) -> PDCommand:
+    """Joint PD targets: the joint part of the reference (qᵈ, q̇ᵈ) with the gains."""
+    return PDCommand(np.asarray(q_des[7:], float).copy(), np.asarray(v_des[6:], float).copy(),
+                     gains.kp.copy(), gains.kd.copy())

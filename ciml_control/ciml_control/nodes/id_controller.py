@@ -1,0 +1,288 @@
+"""`id_controller`: inverse-dynamics QP controller on the live graph (DESIGN.md §3).
+
+Thin adapter around ciml_control.controller.IdController. Each /joint_states sample
+(250 Hz from the robot) triggers one control step with the latest base state, contact
+state, reference and model-error prediction; the command is stamped with that joint
+sample's stamp. A watchdog timer at `rate` commands damping when the state stops.
+
+Safety (counted on /diagnostics):
+- joint, base or contact state missing or older than `state_timeout` (time since
+  receipt, on the node clock: run with use_sim_time:=true next to a simulator, so that
+  a stalled simulation does not look like a dead robot), or no fresh /reference →
+  TorqueCommand MODE_DAMPING (no torque, no stiffness, joint damping only);
+- non-finite or mismatched inputs are dropped by the conversions (never used);
+- a controller error (ControllerInputError) → damping for that step;
+- QP failures → the controller's documented fallback; counted.
+Model error: the newest /model_error/predicted (if younger than `model_error_timeout`)
+gives ε = J'ᵀ Φ̃' − Sᵀ Γ (eq. 17) with the contact-invariant basis at the reference
+configuration; otherwise ε = 0 (nominal model). All 18 + 12 predicted entries are used
+(a model predicts every dimension; the observed mask belongs to measurements).
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+
+import numpy as np
+from ciml_msgs.msg import ContactState, ModelError, RobotReference, TorqueCommand
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+
+from ciml_learning import conversions as cv
+from ciml_learning import topics
+from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
+from ciml_learning.errors import CimlError
+from ciml_learning.projection import contact_invariant_basis
+from ciml_learning.robot import load_robot
+from ciml_learning.ros_common import COMMAND_QOS, SENSOR_QOS, Health, declare, run_node
+
+from ..controller import IdController
+from ..conversions import epsilon_from_model_error, model_error_arrays, reference_point
+from ..feedback import FeedbackGains
+
+MODE_TORQUE = 0
+MODE_DAMPING = 1
+
+
+class IdControllerNode(Node):
+    def __init__(self) -> None:
+        super().__init__("id_controller")
+        rate = declare(self, "rate", 250.0, "Watchdog rate (control runs on each /joint_states) [Hz]", 10.0, 1000.0)
+        self.state_timeout = declare(self, "state_timeout", 0.05, "Damping when a state topic is older than this [s]", 0.002, 2.0)
+        self.reference_timeout = declare(self, "reference_timeout", 0.1, "Damping when /reference is older than this [s]", 0.004, 5.0)
+        self.model_error_timeout = declare(self, "model_error_timeout", 0.1,
+                                           "Nominal model (ε = 0) when the newest prediction is older than this [s]", 0.004, 5.0)
+        self.use_model_error = declare(self, "use_model_error", True, "Add the predicted model error ε (eq. 17) to the QP")
+        self.damping_gain = declare(self, "damping_gain", 10.0, "Joint damping of the safe mode [Nm s/rad]", 0.0, 200.0)
+        kp = declare(self, "kp", 300.0, "Joint PD stiffness of the 1 kHz loop [Nm/rad]", 0.0, 2000.0)
+        kd = declare(self, "kd", 8.0, "Joint PD damping of the 1 kHz loop [Nm s/rad]", 0.0, 200.0)
+        base_kp = (declare(self, "base_kp_linear", 200.0, "Feedback linearisation, base position [1/s²]", 0.0, 2000.0),
+                   declare(self, "base_kp_angular", 200.0, "Feedback linearisation, base orientation [1/s²]", 0.0, 2000.0))
+        base_kd = (declare(self, "base_kd_linear", 25.0, "Feedback linearisation, base velocity [1/s]", 0.0, 200.0),
+                   declare(self, "base_kd_angular", 25.0, "Feedback linearisation, base angular velocity [1/s]", 0.0, 200.0))
+        joint_kp = declare(self, "joint_lin_kp", 0.0, "Feedback linearisation, joints [1/s²]", 0.0, 2000.0)
+        joint_kd = declare(self, "joint_lin_kd", 0.0, "Feedback linearisation, joint velocities [1/s]", 0.0, 200.0)
+        mu = declare(self, "mu", 0.5, "Friction coefficient of the QP's octagon cone", 0.05, 2.0)
+        f_min = declare(self, "f_min", 5.0, "Smallest normal force of a stance foot in the QP [N]", 0.0, 500.0)
+        fb_contacts = declare(self, "feedback_contacts", "reference", "Contact set of the feedback projector: reference | measured")
+        urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
+        self.robot = load_robot(urdf or None)
+        gains = FeedbackGains.default(self.robot, kp, kd, base_kp, base_kd, joint_kp, joint_kd)
+        self.controller = IdController(self.robot, gains, mu=mu, f_min=f_min, feedback_contacts=fb_contacts)
+        self.dyn = RigidBodyDynamics(self.robot)
+        self.S = selection_matrix(self.robot)
+        self.health = Health(self)
+        self.joints = None       # (receipt time, stamp ns, (q, qd, tau))
+        self.base = None
+        self.contacts = None
+        self.reference = None
+        self.model_error = None
+        self.compute_times: deque = deque(maxlen=1000)
+        self.pub = self.create_publisher(TorqueCommand, topics.TORQUE_COMMAND, COMMAND_QOS)
+        self.create_subscription(JointState, topics.JOINT_STATES, self.on_joints, SENSOR_QOS)
+        self.create_subscription(Odometry, topics.BASE_STATE, self.on_base, SENSOR_QOS)
+        self.create_subscription(ContactState, topics.CONTACT_STATE, self.on_contacts, SENSOR_QOS)
+        self.create_subscription(RobotReference, topics.REFERENCE, self.on_reference, COMMAND_QOS)
+        self.create_subscription(ModelError, topics.MODEL_ERROR_PREDICTED, self.on_model_error, COMMAND_QOS)
+        self.create_timer(1.0 / rate, self.watchdog)
+        self.create_timer(1.0, self.report)
+
+    # --- inputs ------------------------------------------------------------------------
+    def _convert(self, what: str, fn, msg):
+        try:
+            return self._now(), cv.stamp_to_ns(msg.header.stamp), fn(msg)
+        except CimlError as err:
+            self.health.count(f"rejected_{what}", f"{what} rejected: {err}")
+            return None
+
+    def on_base(self, msg) -> None:
+        self.base = self._convert("base_state", cv.odometry_arrays, msg) or self.base
+
+    def on_contacts(self, msg) -> None:
+        self.contacts = self._convert("contact_state", lambda m: cv.contact_state_arrays(self.robot, m), msg) or self.contacts
+
+    def on_reference(self, msg) -> None:
+        self.reference = self._convert("reference", lambda m: reference_point(self.robot, m), msg) or self.reference
+
+    def on_model_error(self, msg) -> None:
+        self.model_error = self._convert("model_error", lambda m: model_error_arrays(self.robot, m), msg) or self.model_error
+
+    def on_joints(self, msg) -> None:
+        joints = self._convert("joint_states", lambda m: cv.joint_state_arrays(self.robot, m), msg)
+        if joints is None:
+            return
+        self.joints = joints
+        self.control()
+
+    # --- control -----------------------------------------------------------------------
+    def _now(self) -> float:
+        """Node clock [s] (simulation time with use_sim_time)."""
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _fresh(self, item, timeout: float, now: float) -> bool:
+        return item is not None and now - item[0] <= timeout
+
+    def watchdog(self) -> None:
+        now = self._now()
+        if not self._fresh(self.joints, self.state_timeout, now):
+            self.publish_damping("stale_state", "no fresh joint state: damping")
+
+    def epsilon(self, ref, now: float) -> np.ndarray:
+        if not self.use_model_error or not self._fresh(self.model_error, self.model_error_timeout, now):
+            return np.zeros(self.robot.nv)
+        phi, gamma = self.model_error[2]
+        basis = contact_invariant_basis(self.dyn.foot_jacobians(ref.q), self.robot.leg_joints)
+        self.health.counts["model_error_used"] += 1
+        return epsilon_from_model_error(basis, phi, gamma, self.S)
+
+    def control(self) -> None:
+        now = self._now()
+        stamp = self.joints[1]
+        if not all(self._fresh(x, self.state_timeout, now) for x in (self.joints, self.base, self.contacts)):
+            self.publish_damping("stale_state", "base or contact state missing or stale: damping", stamp)
+            return
+        if not self._fresh(self.reference, self.reference_timeout, now):
+            self.publish_damping("stale_reference", "no fresh /reference: damping", stamp)
+            return
+        t0 = time.perf_counter()
+        qj, qdj, _ = self.joints[2]
+        pos, quat, twist = self.base[2]
+        q = np.concatenate([pos, quat, qj])
+        v = np.concatenate([twist, qdj])
+        ref = self.reference[2]
+        try:
+            out = self.controller.compute(q, v, self.contacts[2], ref, self.epsilon(ref, now))
+        except CimlError as err:
+            self.publish_damping("controller_errors", f"controller error: {err}", stamp)
+            return
+        if out.qp_failed:
+            self.health.count("qp_failures", f"QP failed, fallback feedforward: {out.qp_error}")
+        if out.epsilon_rejected:
+            self.health.count("epsilon_rejected", "non-finite model error: nominal model used")
+        cmd = cv.TorqueCommandArrays(mode=MODE_TORQUE, feedforward=out.feedforward,
+                                     feedback_linearization=out.feedback_linearization,
+                                     position_target=out.q_target, velocity_target=out.qd_target,
+                                     stiffness=out.kp, damping=out.kd)
+        self.pub.publish(cv.torque_command_msg(self.robot, stamp, cmd))
+        self.health.counts["commands"] += 1
+        self.compute_times.append(time.perf_counter() - t0)
+
+    def publish_damping(self, event: str, reason: str, stamp: int | None = None) -> None:
+        n = self.robot.n_joints
+        q_now = self.joints[2][0] if self.joints is not None else np.zeros(n)
+        cmd = cv.TorqueCommandArrays(mode=MODE_DAMPING, feedforward=np.zeros(n), feedback_linearization=np.zeros(n),
+                                     position_target=q_now, velocity_target=np.zeros(n), stiffness=np.zeros(n),
+                                     damping=np.full(n, self.damping_gain))
+        ns = stamp if stamp is not None else self.get_clock().now().nanoseconds
+        self.pub.publish(cv.torque_command_msg(self.robot, ns, cmd))
+        self.health.count(event, reason)
+
+    def report(self) -> None:
+        if self.compute_times:
+            t = np.array(self.compute_times) * 1e6
+            self.health.counts["compute_p50_us"] = int(np.percentile(t, 50))
+            self.health.counts["compute_p99_us"] = int(np.percentile(t, 99))
+
+
+def main(args=None) -> None:
+    import sys
+
+    try:
+        run_node(IdControllerNode, args)
+    except CimlError as err:
+        print(f"id_controller: {err}", file=sys.stderr)
+        sys.exit(1)
+
+
+def dds_latency_benchmark(duration_s: float = 5.0, rate: float = 250.0) -> dict:
+    """End-to-end latency state → command over DDS (loopback): this process publishes a
+    standing robot's /joint_states (+ base, contacts, reference) at `rate` Hz to an
+    `id_controller` process and times each /torque_command stamped with that sample."""
+    import os
+    import subprocess
+    import sys
+    import threading
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    from ..conversions import reference_msg
+    from ..references import make_reference, standing_configuration
+
+    env = dict(os.environ)
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
+    os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID")})
+    proc = subprocess.Popen([os.path.join(sys.prefix, "bin", "id_controller")], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    robot = load_robot()
+    q_stand = standing_configuration(robot, 0.002)
+    ref = make_reference(robot, "stand", q_stand).sample(0.0)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("latency_probe", context=context)
+    sent: dict[int, float] = {}
+    latencies: list[float] = []
+
+    def on_command(msg) -> None:
+        t = time.perf_counter()
+        ns = cv.stamp_to_ns(msg.header.stamp)
+        if msg.mode == MODE_TORQUE and ns in sent:
+            latencies.append(t - sent.pop(ns))
+
+    node.create_subscription(TorqueCommand, topics.TORQUE_COMMAND, on_command, COMMAND_QOS)
+    pub_j = node.create_publisher(JointState, topics.JOINT_STATES, SENSOR_QOS)
+    pub_b = node.create_publisher(Odometry, topics.BASE_STATE, SENSOR_QOS)
+    pub_c = node.create_publisher(ContactState, topics.CONTACT_STATE, SENSOR_QOS)
+    pub_r = node.create_publisher(RobotReference, topics.REFERENCE, COMMAND_QOS)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    stop = threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.01)
+
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+    n_sent = 0
+    try:
+        deadline = time.monotonic() + 60.0
+        while time.monotonic() < deadline and (pub_j.get_subscription_count() == 0 or node.count_publishers(topics.TORQUE_COMMAND) == 0):
+            time.sleep(0.1)
+        if pub_j.get_subscription_count() == 0:
+            return {"error": "id_controller did not come up within 60 s"}
+        nj = robot.n_joints
+        period = 1.0 / rate
+        next_t = time.perf_counter()
+        warmup = int(rate)  # the first second is not timed
+        for k in range(int((duration_s + 1.0) * rate)):
+            ns = time.time_ns()
+            pub_r.publish(reference_msg(robot, ns, ref))
+            pub_b.publish(cv.odometry_msg(ns, q_stand[:3], q_stand[3:7], np.zeros(3), np.zeros(3)))
+            pub_c.publish(cv.contact_state_msg(robot, ns, np.ones(robot.n_feet, bool)))
+            msg = cv.joint_state_msg(robot, ns, q_stand[7:], np.zeros(nj), np.zeros(nj))
+            if k >= warmup:
+                sent[ns] = time.perf_counter()
+                n_sent += 1
+            pub_j.publish(msg)
+            next_t += period
+            time.sleep(max(0.0, next_t - time.perf_counter()))
+        time.sleep(0.2)
+    finally:
+        stop.set()
+        thread.join(timeout=2)
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    lat = np.array(latencies) * 1e3
+    out = {"rate_hz": rate, "sent": n_sent, "received": len(lat)}
+    if len(lat):
+        out.update({"p50_ms": round(float(np.percentile(lat, 50)), 3), "p99_ms": round(float(np.percentile(lat, 99)), 3),
+                    "max_ms": round(float(lat.max()), 3), "budget_ms": round(1e3 / rate, 1)})
+    return out

@@ -1,0 +1,60 @@
+"""`reference_generator`: publishes the full-body reference of a motion on /reference.
+
+Thin adapter around ciml_control.references: at `rate` Hz it samples the motion at the
+time elapsed since the motion started (node clock: simulation time with use_sim_time)
+and publishes ciml_msgs/RobotReference (qᵈ, q̇ᵈ, q̈ᵈ and the contact schedule).
+The motion starts when the first subscriber (the controller) is matched; until then
+the node publishes the motion's first sample, the standing pose.
+"""
+from __future__ import annotations
+
+import sys
+
+from ciml_msgs.msg import RobotReference
+from rclpy.node import Node
+
+from ciml_learning import topics
+from ciml_learning.errors import CimlError
+from ciml_learning.robot import load_robot
+from ciml_learning.ros_common import COMMAND_QOS, ERROR, Health, declare, run_node
+
+from ..conversions import reference_msg
+from ..references import MOTIONS, make_reference, standing_configuration
+
+
+class ReferenceGeneratorNode(Node):
+    def __init__(self) -> None:
+        super().__init__("reference_generator")
+        motion = declare(self, "motion", "stand", f"Motion to generate, one of: {', '.join(MOTIONS)}")
+        rate = declare(self, "rate", 250.0, "Publish rate [Hz]", 1.0, 1000.0)
+        foot_height = declare(self, "foot_height", 0.002,
+                              "Height of the foot frames above the ground when standing [m] (sphere foot radius)", 0.0, 0.2)
+        urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
+        self.robot = load_robot(urdf or None)
+        self.reference = make_reference(self.robot, motion, standing_configuration(self.robot, foot_height))
+        self.health = Health(self)
+        self.pub = self.create_publisher(RobotReference, topics.REFERENCE, COMMAND_QOS)
+        self.start_ns: int | None = None
+        self.create_timer(1.0 / rate, self.tick)
+        self.get_logger().info(f"publishing {motion} on {topics.REFERENCE} at {rate:.0f} Hz")
+
+    def tick(self) -> None:
+        now = self.get_clock().now().nanoseconds
+        if self.start_ns is None and self.pub.get_subscription_count() > 0:
+            self.start_ns = now
+        try:
+            point = self.reference.sample(0.0 if self.start_ns is None else (now - self.start_ns) * 1e-9)
+        except CimlError as err:  # e.g. an unreachable foot target: publish nothing
+            self.health.set(ERROR, str(err))
+            self.health.count("reference_errors", str(err))
+            return
+        self.pub.publish(reference_msg(self.robot, now, point))
+        self.health.counts["published"] += 1
+
+
+def main(args=None) -> None:
+    try:
+        run_node(ReferenceGeneratorNode, args)
+    except CimlError as err:
+        print(f"reference_generator: {err}", file=sys.stderr)
+        sys.exit(1)

@@ -1,0 +1,119 @@
+"""reference_generator and id_controller on the live graph (DDS on loopback)."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from ciml_control.conversions import reference_msg, reference_point
+from ciml_control.references import make_reference, standing_configuration
+from ciml_learning import conversions as cv
+from ciml_learning.robot import load_robot
+from rosutil import Listener, start_node, stop
+
+ROBOT = load_robot()
+
+
+@pytest.mark.ros
+def test_reference_generator_publishes_reference():
+    from ciml_msgs.msg import RobotReference
+
+    listener = Listener({"/reference": RobotReference})
+    node = start_node("reference_generator", "-p", "motion:=trot_35")
+    try:
+        ok = listener.wait_for(lambda: len(listener.messages["/reference"]) >= 400, timeout=30)  # past the settle phase
+    finally:
+        log = stop(node)
+        listener.close()
+    msgs = listener.messages["/reference"]
+    assert ok, log
+    points = [reference_point(ROBOT, m) for m in msgs]
+    assert all(p.motion == "trot_35" for p in points)
+    q_stand = standing_configuration(ROBOT, 0.002)
+    # the motion starts (at the standing pose) once a subscriber is there
+    assert np.allclose(points[0].q, q_stand, atol=1e-3)
+    stamps = np.array([p.t for p in points])
+    assert np.all(np.diff(stamps) > 0)
+    rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
+    assert 150 < rate < 300  # 250 Hz nominal on a shared machine
+    # the samples are the motion's reference at the elapsed time (made exact with the phase)
+    ref = make_reference(ROBOT, "trot_35", q_stand)
+    p = points[-1]
+    assert p.t - points[0].t > ref.t0 + 0.1
+    elapsed = p.t - points[0].t
+    k = round((elapsed - ref.t0) / ref.period - p.phase)
+    expected = ref.sample(ref.t0 + (k + p.phase) * ref.period)
+    assert abs(ref.t0 + (k + p.phase) * ref.period - elapsed) < 0.05
+    assert np.allclose(p.q, expected.q, atol=1e-6) and np.array_equal(p.contacts, expected.contacts)
+
+
+@pytest.mark.ros
+def test_id_controller_commands_limited_torque_and_damps_without_state():
+    from ciml_msgs.msg import ContactState, RobotReference, TorqueCommand
+    from diagnostic_msgs.msg import DiagnosticArray
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import JointState
+
+    listener = Listener({"/torque_command": TorqueCommand, "/diagnostics": DiagnosticArray})
+    pubs = {
+        "/reference": listener.node.create_publisher(RobotReference, "/reference", 10),
+        "/joint_states": listener.node.create_publisher(JointState, "/joint_states", 10),
+        "/base_state": listener.node.create_publisher(Odometry, "/base_state", 10),
+        "/contact_state": listener.node.create_publisher(ContactState, "/contact_state", 10),
+    }
+    node = start_node("id_controller")
+    cmds = listener.messages["/torque_command"]
+    q_stand = standing_configuration(ROBOT, 0.002)
+    ref = make_reference(ROBOT, "stand", q_stand).sample(0.0)
+    try:
+        # no state yet: the watchdog commands damping
+        assert listener.wait_for(lambda: len(cmds) >= 10, timeout=30), stop(node)
+        assert all(m.mode == TorqueCommand.MODE_DAMPING for m in cmds)
+        assert all(max(m.stiffness) == 0.0 and max(np.abs(m.feedforward)) == 0.0 for m in cmds)
+        # a static standing state at 250 Hz → torque commands
+        n_before = len(cmds)
+        rng = np.random.default_rng(0)
+        for k in range(250):
+            ns = time.time_ns()
+            qj = q_stand[7:] + 0.01 * rng.standard_normal(ROBOT.n_joints)
+            pubs["/reference"].publish(reference_msg(ROBOT, ns, ref))
+            pubs["/base_state"].publish(cv.odometry_msg(ns, q_stand[:3], q_stand[3:7], np.zeros(3), np.zeros(3)))
+            pubs["/contact_state"].publish(cv.contact_state_msg(ROBOT, ns, np.ones(4, bool)))
+            if k == 100:  # a non-finite sample is dropped, never used
+                bad = cv.joint_state_msg(ROBOT, ns, qj, np.zeros(ROBOT.n_joints), np.zeros(ROBOT.n_joints))
+                bad.position[3] = float("nan")
+                pubs["/joint_states"].publish(bad)
+            else:
+                pubs["/joint_states"].publish(cv.joint_state_msg(ROBOT, ns, qj, np.zeros(ROBOT.n_joints),
+                                                                 np.zeros(ROBOT.n_joints)))
+            time.sleep(0.004)
+        torque = [m for m in cmds[n_before:] if m.mode == TorqueCommand.MODE_TORQUE]
+        # then silence: damping again
+        n_quiet = len(cmds)
+        assert listener.wait_for(lambda: len(cmds) >= n_quiet + 20, timeout=10)
+        after = cmds[n_quiet + 5:]
+        time.sleep(1.2)  # one diagnostics period
+        diags = [kv for d in listener.messages["/diagnostics"] for s in d.status if "id_controller" in s.name
+                 for kv in s.values]
+    finally:
+        log = stop(node)
+        listener.close()
+    assert len(torque) > 100, log
+    limits = ROBOT.torque_limits
+    mg = ROBOT.total_mass * 9.81
+    for m in torque:
+        arr = cv.torque_command_arrays(ROBOT, m)  # rejects non-finite values
+        assert np.all(np.abs(arr.feedforward + arr.feedback_linearization) <= limits + 1e-9)
+        assert np.allclose(arr.position_target, q_stand[7:]) and np.all(arr.stiffness == 300.0)
+    # the feedforward is the QP's standing torque at the reference (independent of the measured state)
+    from ciml_control.controller import IdController
+
+    expected = IdController(ROBOT).compute(ref.q, ref.v, ref.contacts, ref, np.zeros(ROBOT.nv))
+    assert expected.contact_forces[:, 2].sum() == pytest.approx(mg, rel=1e-3)
+    for m in torque[::10]:
+        assert np.allclose(cv.torque_command_arrays(ROBOT, m).feedforward, expected.feedforward, atol=1e-3)
+    assert all(m.mode == TorqueCommand.MODE_DAMPING for m in after)
+    keys = {kv.key: kv.value for kv in diags}
+    assert int(keys.get("rejected_joint_states", 0)) >= 1, keys
+    assert int(keys.get("stale_state", 0)) >= 1, keys

@@ -1,0 +1,312 @@
+"""Candidate unmodelled effects (DESIGN §5) as physically parameterised regressors.
+
+Every candidate is linear (or linearised) in its parameters θ. A candidate of the rigid-body
+kind predicts a generalized force e (nv) — the model error Φ̃ of eq. (3),
+M q̈ + h + Φ̃ = Sᵀτ + J_cᵀλ, i.e. minus the force the effect exerts on the robot — which is
+passed through the very eq. (11) operator as the measured error (extraction.observation_operators):
+Φ̃'_pred = O e. A candidate of the actuation kind predicts the actuation error Γ = τ − u of
+eq. (14) directly. Regressors are computed once per sample as *features* (one column each);
+a candidate's columns are a fixed linear map A of the features (A is a selection, except
+for the payload — whose rotational inertia depends on its CoM — and the all-joint lag).
+
+Features (e-convention, per sample; q, q̇, q̈, τ, τ̇ are the filtered log):
+    joint Coulomb friction j   e_{6+j} = LP(tanh(q̇_j / v_s))         θ = f_c ≥ 0 [Nm]
+    joint viscous friction j   e_{6+j} = q̇_j                          θ = b ≥ 0 [Nm s/rad]
+    encoder offset j           e = −∂(Mq̈+h)/∂q_j + ∂(J_cᵀλ)/∂q_j      θ = δ [rad]  (q_meas = q_true + δ)
+    base IMU tilt              e = −∂(Mq̈+h)/∂θ_{roll,pitch}           θ = (roll, pitch) [rad]
+                               (a body-frame rotation of the base: only gravity changes; the
+                               contact term drops out exactly because P_c is rotation-invariant)
+    root inertial parameters   e = Y_root(q, q̇, q̈) Δπ_root             (payload: Δπ of a point mass)
+    link mass scale l          e = Y_joint(l)(q, q̇, q̈) π_l            θ = s − 1
+    joint torque j             e_{6+j} = 1   (no candidate: a unit torque error at joint j, for the
+                               stiction of Coulomb friction and the joint-level localisation)
+    actuation, joint j         Γ_j = a τ_j + b − c τ̇_j                 a = 1 − 1/g, b = o/g, c = T/g
+
+The actuation line is exact for τ = g·ℓ + o, T ℓ̇ + ℓ = u (a first-order lag ℓ of the command,
+then gain and offset): Γ = τ − u = (1 − 1/g)(τ − o) + o − (T/g) τ̇. λ in the encoder term is
+the contact force estimated from the measured residual, λ̂ = −(J_cᵀ)⁺ r. Y is Pinocchio's
+joint-torque regressor (pin.computeJointTorqueRegressor), ∂(Mq̈+h)/∂q from
+pin.computeRNEADerivatives, ∂J/∂q_j from pin.computeJointJacobiansTimeVariation with q̇ = e_j.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from xml.etree import ElementTree
+
+import numpy as np
+import pinocchio as pin
+
+from ..filters import filter_offline, lowpass_taps
+from ..robot import RobotDescription
+
+COULOMB_SMOOTHING = 0.03
+"""Velocity [rad/s] of the tanh that smooths sign(q̇) for the Coulomb regressor."""
+MIN_LINK_MASS = 0.05
+"""Links lighter than this [kg] get no link_mass_scale candidate (URDF placeholders)."""
+
+RBD_TYPES = ("joint_coulomb_friction", "joint_viscous_friction", "payload", "link_mass_scale",
+             "encoder_offset", "base_imu_tilt")
+ACTUATION_TYPES = ("actuator_lag", "torque_gain", "torque_offset")
+MEASUREMENT_TYPES = ("encoder_offset", "base_imu_tilt")
+"""Effects that change only what is measured: they exert no force on the robot."""
+EFFECT_TYPES = RBD_TYPES + ACTUATION_TYPES
+
+
+@dataclass(frozen=True)
+class LinkInertia:
+    """A URDF link's inertia as dynamic parameters in its parent joint's frame (Pinocchio order:
+    m, m·c (3), I about the joint origin (Ixx, Ixy, Iyy, Ixz, Iyz, Izz))."""
+
+    name: str
+    joint: int  # Pinocchio joint index (1 = root)
+    params: np.ndarray
+
+    @property
+    def mass(self) -> float:
+        return float(self.params[0])
+
+
+def link_inertias(robot: RobotDescription, min_mass: float = MIN_LINK_MASS) -> list[LinkInertia]:
+    """Inertias of the URDF links with mass ≥ MIN_LINK_MASS, expressed in their parent joints.
+
+    Pinocchio merges links rigidly attached to a joint into model.inertias; the link-level
+    inertia (needed to scale one link) is read from the URDF and moved by the link frame's
+    placement.
+    """
+    root = ElementTree.parse(robot.urdf_path).getroot()
+    model = robot.model
+    out = []
+    for link in root.findall("link"):
+        inertial = link.find("inertial")
+        name = link.get("name")
+        if inertial is None or not model.existFrame(name):
+            continue
+        mass = float(inertial.find("mass").get("value"))
+        if mass < min_mass:
+            continue
+        origin = inertial.find("origin")
+        xyz = np.zeros(3)
+        rpy = np.zeros(3)
+        if origin is not None:
+            xyz = np.array([float(x) for x in origin.get("xyz", "0 0 0").split()])
+            rpy = np.array([float(x) for x in origin.get("rpy", "0 0 0").split()])
+        el = inertial.find("inertia")
+        g = {k: float(el.get(k, 0.0)) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+        I_c = np.array([[g["ixx"], g["ixy"], g["ixz"]], [g["ixy"], g["iyy"], g["iyz"]], [g["ixz"], g["iyz"], g["izz"]]])
+        R = pin.rpy.rpyToMatrix(*rpy)
+        inertia = pin.Inertia(mass, xyz, R @ I_c @ R.T)
+        frame = model.frames[model.getFrameId(name)]
+        in_joint = frame.placement.act(inertia)
+        out.append(LinkInertia(name, int(frame.parentJoint), np.asarray(in_joint.toDynamicParameters(), float)))
+    return out
+
+
+def point_mass_rotational(com: np.ndarray) -> np.ndarray:
+    """Rotational inertia about the origin of a unit point mass at `com`, in Pinocchio's
+    dynamic-parameter order (Ixx, Ixy, Iyy, Ixz, Iyz, Izz): ‖c‖² I − c cᵀ."""
+    c = np.asarray(com, float)
+    I = np.dot(c, c) * np.eye(3) - np.outer(c, c)
+    return np.array([I[0, 0], I[0, 1], I[1, 1], I[0, 2], I[1, 2], I[2, 2]])
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate effect at one location, with its linear parameters θ.
+
+    features: indices into the FeatureLayout; `matrix(layout)` gives A (n_features × n_params)
+    such that the candidate's prediction is features · A θ.
+    """
+
+    type: str
+    kind: str  # "rbd" | "actuation"
+    param_names: tuple[str, ...]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+    features: tuple[int, ...]
+    joint: str | None = None
+    joints: tuple[str, ...] = ()
+    link: str | None = None
+
+    @property
+    def label(self) -> str:
+        where = self.link or self.joint or ("all" if len(self.joints) > 1 else "base")
+        return f"{self.type}:{where}"
+
+    @property
+    def n_params(self) -> int:
+        return len(self.param_names)
+
+    def location(self) -> dict:
+        if self.link is not None:
+            return {"link": self.link}
+        if self.joint is not None:
+            return {"joint": self.joint}
+        if self.joints:
+            return {"joints": "all"}
+        return {}
+
+
+@dataclass
+class FeatureLayout:
+    """Names and kinds of the feature columns, and the catalogue of candidates over them."""
+
+    robot: RobotDescription
+    links: list[LinkInertia]
+    names: list[str] = field(default_factory=list)
+    n_rbd: int = 0
+
+    def __post_init__(self) -> None:
+        nj = self.robot.n_joints
+        jn = self.robot.joint_names
+        self.names = (
+            [f"coulomb:{j}" for j in jn]
+            + [f"viscous:{j}" for j in jn]
+            + [f"encoder:{j}" for j in jn]
+            + ["imu:roll", "imu:pitch"]
+            + [f"root:{k}" for k in range(10)]
+            + [f"link:{link.name}" for link in self.links]
+            + [f"joint_torque:{j}" for j in jn]
+        )
+        self.n_rbd = len(self.names)
+        for j in jn:
+            self.names += [f"lag:{j}", f"gain:{j}", f"offset:{j}"]
+        self.coulomb0, self.viscous0, self.encoder0 = 0, nj, 2 * nj
+        self.imu0 = 3 * nj
+        self.root0 = self.imu0 + 2
+        self.link0 = self.root0 + 10
+        self.torque0 = self.link0 + len(self.links)
+        self.act0 = self.n_rbd
+
+    @property
+    def n_features(self) -> int:
+        return len(self.names)
+
+    def actuation_feature(self, joint: int, what: str) -> int:
+        return self.act0 + 3 * joint + {"lag": 0, "gain": 1, "offset": 2}[what]
+
+    @cached_property
+    def candidates(self) -> list[Candidate]:
+        r = self.robot
+        inf = np.inf
+        out: list[Candidate] = []
+        for j, name in enumerate(r.joint_names):
+            out.append(Candidate("joint_coulomb_friction", "rbd", ("value",), (0.0,), (inf,),
+                                 (self.coulomb0 + j,), joint=name))
+            out.append(Candidate("joint_viscous_friction", "rbd", ("value",), (0.0,), (inf,),
+                                 (self.viscous0 + j,), joint=name))
+            out.append(Candidate("encoder_offset", "rbd", ("value",), (-0.3,), (0.3,), (self.encoder0 + j,), joint=name))
+        out.append(Candidate("base_imu_tilt", "rbd", ("roll", "pitch"), (-0.3, -0.3), (0.3, 0.3),
+                             (self.imu0, self.imu0 + 1)))
+        out.append(Candidate("payload", "rbd", ("mass", "mass_com_x", "mass_com_y", "mass_com_z"),
+                             (0.0, -inf, -inf, -inf), (inf, inf, inf, inf), tuple(range(self.root0, self.root0 + 10))))
+        for k, link in enumerate(self.links):
+            out.append(Candidate("link_mass_scale", "rbd", ("scale_minus_one",), (-0.95,), (inf,),
+                                 (self.link0 + k,), link=link.name))
+        for j, name in enumerate(r.joint_names):
+            out.append(Candidate("actuator_lag", "actuation", ("lag_over_gain",), (0.0,), (0.5,),
+                                 (self.actuation_feature(j, "lag"),), joint=name))
+            out.append(Candidate("torque_gain", "actuation", ("one_minus_inverse_gain",), (-9.0,), (0.9,),
+                                 (self.actuation_feature(j, "gain"),), joint=name))
+            out.append(Candidate("torque_offset", "actuation", ("offset_over_gain",), (-inf,), (inf,),
+                                 (self.actuation_feature(j, "offset"),), joint=name))
+        out.append(Candidate("actuator_lag", "actuation", ("lag_over_gain",), (0.0,), (0.5,),
+                             tuple(self.actuation_feature(j, "lag") for j in range(r.n_joints)),
+                             joints=tuple(r.joint_names)))
+        return out
+
+    def matrix(self, cand: Candidate, payload_com: np.ndarray | None = None) -> np.ndarray:
+        """A (n_features × n_params): the candidate's columns as combinations of features.
+
+        The payload's mass column carries the rotational inertia of a point mass at
+        `payload_com` (refined by the identification; zero at first).
+        """
+        A = np.zeros((self.n_features, cand.n_params))
+        if cand.type == "payload":
+            r0 = self.root0
+            A[r0, 0] = 1.0
+            if payload_com is not None:
+                A[r0 + 4:r0 + 10, 0] = point_mass_rotational(payload_com)
+            for k in range(3):
+                A[r0 + 1 + k, 1 + k] = 1.0
+        elif cand.type == "base_imu_tilt":
+            A[cand.features[0], 0] = 1.0
+            A[cand.features[1], 1] = 1.0
+        else:  # one parameter; several features only for the all-joint lag (one joint per row)
+            A[list(cand.features), 0] = 1.0
+        return A
+
+
+def coulomb_regressor(v_joints: np.ndarray, segment: np.ndarray | None, fs: float = 250.0,
+                      smoothing: float = COULOMB_SMOOTHING) -> np.ndarray:
+    """LP(tanh(q̇/v_s)) per joint: the Coulomb friction torque per unit f_c as it appears after
+    the same 10 Hz low-pass as the log (the friction torque switches at velocity reversals;
+    the log's torques and accelerations are low-passed, so the regressor is too)."""
+    s = np.tanh(np.asarray(v_joints, float) / smoothing)
+    if segment is None:
+        segment = np.zeros(len(s), dtype=int)
+    taps = lowpass_taps(fs)
+    out = np.empty_like(s)
+    for seg in np.unique(segment):
+        idx = np.flatnonzero(segment == seg)
+        out[idx], _ = filter_offline(s[idx], taps)
+    return out
+
+
+class RegressorEvaluator:
+    """Per-sample rigid-body regressors (Pinocchio) for a chunk of samples."""
+
+    def __init__(self, robot: RobotDescription, layout: FeatureLayout) -> None:
+        self.robot = robot
+        self.layout = layout
+        self.model = robot.model
+        self.data = robot.model.createData()
+        self.link_cols = [(10 * (link.joint - 1), link.params) for link in layout.links]
+
+    def chunk(self, q: np.ndarray, v: np.ndarray, a: np.ndarray, contacts: np.ndarray, residual: np.ndarray,
+              coulomb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Generalized-force features E (n × nv × n_rbd) and foot Jacobians (n × n_feet × 3 × nv).
+
+        residual: measured r = Sᵀτ − M q̈ − h (for the contact-force estimate of the encoder term).
+        """
+        r, lay, model, data = self.robot, self.layout, self.model, self.data
+        n, nv, nj = len(q), r.nv, r.n_joints
+        E = np.zeros((n, nv, lay.n_rbd))
+        jac = np.empty((n, r.n_feet, 3, nv))
+        jidx = np.arange(nj)
+        E[:, 6 + jidx, lay.coulomb0 + jidx] = coulomb
+        E[:, 6 + jidx, lay.viscous0 + jidx] = v[:, 6:]
+        E[:, 6 + jidx, lay.torque0 + jidx] = 1.0
+        frames = r.foot_frame_ids
+        unit = np.zeros(nv)
+        for k in range(n):
+            qk, vk, ak = q[k], v[k], a[k]
+            pin.computeJointJacobians(model, data, qk)
+            pin.updateFramePlacements(model, data)
+            for i, f in enumerate(frames):
+                jac[k, i] = pin.getFrameJacobian(model, data, f, pin.LOCAL_WORLD_ALIGNED)[:3]
+            Y = pin.computeJointTorqueRegressor(model, data, qk, vk, ak)
+            E[k, :, lay.root0:lay.root0 + 10] = Y[:, :10]
+            for c, (col, params) in enumerate(self.link_cols):
+                E[k, :, lay.link0 + c] = Y[:, col:col + 10] @ params
+            pin.computeRNEADerivatives(model, data, qk, vk, ak)
+            D = data.dtau_dq
+            E[k, :, lay.encoder0:lay.encoder0 + nj] = -D[:, 6:]
+            E[k, :, lay.imu0:lay.imu0 + 2] = -D[:, 3:5]
+            stance = np.flatnonzero(contacts[k])
+            if len(stance):
+                Jc = jac[k, stance].reshape(-1, nv)
+                lam = -np.linalg.lstsq(Jc.T, residual[k], rcond=None)[0].reshape(-1, 3)
+                for s_i, foot in enumerate(stance):
+                    for j in r.leg_joints[foot]:
+                        unit[:] = 0.0
+                        unit[6 + j] = 1.0
+                        pin.computeJointJacobiansTimeVariation(model, data, qk, unit)
+                        dJ = pin.getFrameJacobianTimeVariation(model, data, frames[foot], pin.LOCAL_WORLD_ALIGNED)[:3]
+                        E[k, :, lay.encoder0 + j] += dJ.T @ lam[s_i]
+        return E, jac
+
+
+def actuation_features(tau: np.ndarray, tau_dot: np.ndarray) -> np.ndarray:
+    """Features of Γ_j per joint: (n × n_joints × 3) = [−τ̇_j, τ_j, 1] (lag, gain, offset)."""
+    return np.stack([-tau_dot, tau, np.ones_like(tau)], axis=-1)

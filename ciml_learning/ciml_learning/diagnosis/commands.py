@@ -1,0 +1,19 @@
+"""`ciml diagnose --bag BAG... [--heldout BAG...] --out DIR` (DESIGN §4, §6)."""
+from __future__ import annotations
+
+import argparse
+import os
+
+
+def diagnose(args: argparse.Namespace) -> int:
+    from ..cli import robot_from_args
+    from .report import answers
+    from .run import diagnose as run
+
+    robot = robot_from_args(args)
+    result = run(robot, args.bag, args.heldout, args.out, progress=True)
+    print(f"diagnosis: {os.path.join(args.out, 'diagnosis.json')}")
+    print(f"report:    {os.path.join(args.out, 'report.html')}")
+    for line in answers(result):
+        print(line)
+    return 0

@@ -1,0 +1,154 @@
+"""Regression rows of the diagnosis: every observed entry of Φ̃' (eq. 11) and of Γ (eq. 14)
+with the candidate features at that sample.
+
+Rows of the rigid-body kind are (sample, Φ̃' dimension) pairs where the dimension is observed
+(base always, a foot while it swings) and the sample is valid; their features are the
+candidate generalized forces passed through the sample's eq. (11) operator O_k, exactly as
+the measured error was. Rows of the actuation kind are (sample, joint) pairs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..extraction import observation_operators
+from ..projection import contact_invariant_bases
+from ..robot import RobotDescription
+from .candidates import FeatureLayout, RegressorEvaluator, actuation_features, coulomb_regressor
+
+CHUNK = 1000
+
+
+@dataclass
+class Rows:
+    """Regression rows of a set of samples (see module docstring)."""
+
+    layout: FeatureLayout
+    samples: np.ndarray    # dataset indices of the samples these rows come from (sorted)
+    X_rbd: np.ndarray      # M_r × n_rbd features (float32)
+    y_rbd: np.ndarray      # M_r measured Φ̃' entries
+    dim_rbd: np.ndarray    # M_r Φ̃' dimension (0 … 17)
+    sample_rbd: np.ndarray  # M_r position in `samples`
+    X_act: np.ndarray      # N × n_j × 3 actuation features (lag, gain, offset)
+    y_act: np.ndarray      # N × n_j measured Γ
+    signal_rbd: np.ndarray  # M_r the measured joint torques seen through eq. (11), O Sᵀτ (the "signal")
+
+    @property
+    def n_dims(self) -> int:
+        return 6 + 3 * self.layout.robot.n_feet + self.layout.robot.n_joints
+
+    def subset(self, keep: np.ndarray) -> "Rows":
+        """Rows of the samples where keep (bool over `samples`) is True."""
+        keep = np.asarray(keep, bool)
+        new_pos = np.cumsum(keep) - 1
+        r_keep = keep[self.sample_rbd]
+        return Rows(self.layout, self.samples[keep], self.X_rbd[r_keep], self.y_rbd[r_keep], self.dim_rbd[r_keep],
+                    new_pos[self.sample_rbd[r_keep]], self.X_act[keep], self.y_act[keep], self.signal_rbd[r_keep])
+
+
+def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples: np.ndarray,
+               progress: bool = True, desc: str = "regressors") -> Rows:
+    """Features and targets of the given dataset samples (valid ones only are used)."""
+    log, targets = dataset.log, dataset.targets
+    samples = np.asarray(samples, dtype=int)
+    samples = samples[targets.valid[samples]]
+    coulomb = coulomb_regressor(log.v[:, 6:], log.segment)
+    ev = RegressorEvaluator(robot, layout)
+    Xr, yr, dr, sr, gr = [], [], [], [], []
+    nv = robot.nv
+    chunks = [samples[i:i + CHUNK] for i in range(0, len(samples), CHUNK)]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(samples), desc=desc, unit="sample", leave=False, mininterval=0.5)
+    for c_i, idx in enumerate(chunks):
+        E, jac = ev.chunk(log.q[idx], log.v[idx], log.a[idx], log.contacts[idx], targets.residual[idx], coulomb[idx])
+        basis = contact_invariant_bases(jac, robot.leg_joints)
+        O, _ = observation_operators(jac, basis, log.contacts[idx])
+        phi = np.einsum("nij,njf->nif", O, E)
+        sig = np.einsum("nij,nj->ni", O[:, :, 6:], log.tau[idx]) if nv > 6 else np.zeros((len(idx), nv))
+        mask = targets.rbd_observed[idx]
+        n_i, d_i = np.nonzero(mask)
+        Xr.append(phi[n_i, d_i].astype(np.float32))
+        yr.append(targets.rbd_error[idx][n_i, d_i])
+        dr.append(d_i)
+        sr.append(n_i + c_i * CHUNK)
+        gr.append(sig[n_i, d_i])
+        if bar is not None:
+            bar.update(len(idx))
+    if bar is not None:
+        bar.close()
+    n_r = layout.n_rbd
+    cat = (lambda parts, shape, dt: np.concatenate(parts) if parts else np.zeros(shape, dt))
+    return Rows(
+        layout=layout,
+        samples=samples,
+        X_rbd=cat(Xr, (0, n_r), np.float32),
+        y_rbd=cat(yr, (0,), float),
+        dim_rbd=cat(dr, (0,), int),
+        sample_rbd=cat(sr, (0,), int),
+        X_act=actuation_features(log.tau[samples], log.tau_dot[samples]),
+        y_act=targets.actuation_error[samples].copy(),
+        signal_rbd=cat(gr, (0,), float),
+    )
+
+
+@dataclass
+class Grams:
+    """Sufficient statistics of a set of rows, per output dimension d (Φ̃' dims, then joints):
+    G[d] = Xᵀ X, c[d] = Xᵀ y, s[d] = yᵀ y, n[d] = number of rows (features: the full layout)."""
+
+    G: np.ndarray
+    c: np.ndarray
+    s: np.ndarray
+    n: np.ndarray
+
+    def weighted(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        return (np.einsum("d,dij->ij", w, self.G), w @ self.c, float(w @ self.s))
+
+    def ss(self, theta_f: np.ndarray) -> np.ndarray:
+        """Residual sum of squares per dimension for feature coefficients theta_f."""
+        return self.s - 2 * self.c @ theta_f + np.einsum("i,dij,j->d", theta_f, self.G, theta_f)
+
+
+def grams(rows: Rows) -> Grams:
+    """Per-dimension Gram matrices of the rows over all features (float64 accumulation)."""
+    lay = rows.layout
+    nf, n_rbd_dims, nj = lay.n_features, 6 + 3 * lay.robot.n_feet, lay.robot.n_joints
+    D = n_rbd_dims + nj
+    G = np.zeros((D, nf, nf))
+    c = np.zeros((D, nf))
+    s = np.zeros(D)
+    n = np.zeros(D)
+    nr = lay.n_rbd
+    for d in range(n_rbd_dims):
+        m = rows.dim_rbd == d
+        if not m.any():
+            continue
+        X = rows.X_rbd[m].astype(float)
+        y = rows.y_rbd[m]
+        G[d, :nr, :nr] = X.T @ X
+        c[d, :nr] = X.T @ y
+        s[d] = y @ y
+        n[d] = m.sum()
+    for j in range(nj):
+        X = rows.X_act[:, j, :]
+        y = rows.y_act[:, j]
+        f = lay.actuation_feature(j, "lag") + np.arange(3)
+        G[n_rbd_dims + j][np.ix_(f, f)] = X.T @ X
+        c[n_rbd_dims + j, f] = X.T @ y
+        s[n_rbd_dims + j] = y @ y
+        n[n_rbd_dims + j] = len(y)
+    return Grams(G, c, s, n)
+
+
+def predict(rows: Rows, theta_f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted Φ̃' row values (M_r) and Γ (N × n_j) for feature coefficients theta_f."""
+    lay = rows.layout
+    rbd = rows.X_rbd.astype(float) @ theta_f[:lay.n_rbd]
+    nj = lay.robot.n_joints
+    act_theta = theta_f[lay.act0:].reshape(nj, 3)
+    act = np.einsum("njk,jk->nj", rows.X_act, act_theta)
+    return rbd, act

@@ -1,0 +1,189 @@
+"""report.html: a self-contained page (plots embedded as base64 PNG) answering the three
+questions of DESIGN §6 — where the gap lies, which effect causes it, how far it shrinks."""
+from __future__ import annotations
+
+import base64
+import html
+import io
+
+import numpy as np
+
+
+def _png(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _fmt_params(params: dict, std: dict) -> str:
+    parts = []
+    for k, v in params.items():
+        s = std.get(k)
+        if isinstance(v, list):
+            vs = ", ".join(f"{x:.4g}" for x in v)
+            ss = ", ".join(f"{x:.2g}" for x in s) if isinstance(s, list) else ""
+            parts.append(f"{k} = [{vs}] ± [{ss}]")
+        else:
+            parts.append(f"{k} = {v:.4g} ± {s:.2g}" if isinstance(s, float) else f"{k} = {v:.4g}")
+    return "; ".join(parts)
+
+
+def _where(e: dict) -> str:
+    return e.get("joint") or e.get("link") or ("all joints" if e.get("joints") == "all" else "base")
+
+
+def answers(result: dict) -> list[str]:
+    """The three answers in a few lines of plain text (also printed by `ciml diagnose`)."""
+    loc = result["localization"]
+    top = [f"{d['dimension']} ({d['share']:.0%}, RMS {d['rms_error']:.3g} {'Nm' if d['kind'] == 'actuation' or 'roll' in d['dimension'] or 'pitch' in d['dimension'] or 'yaw' in d['dimension'] else 'N'})"
+           for d in loc[:3] if d["share"] > 0]
+    legs = sorted(result.get("localization_by_leg", {}).items(), key=lambda x: -x[1])
+    where = "Where: " + (", ".join(top) if top else "no dimension stands above its noise level")
+    if legs and legs[0][1] > 0:
+        where += f"; by part: " + ", ".join(f"{k} {v:.0%}" for k, v in legs[:3] if v > 0)
+    eff = result["effects"]
+    if eff:
+        which = "Which: " + "; ".join(f"{e['type']} at {_where(e)} ({_fmt_params(e['params'], e['std'])}), "
+                                      f"{e['share']:.0%} of the gap" for e in eff)
+    else:
+        which = "Which: no catalogue effect explains the gap"
+    which += f"; unexplained: {result['unexplained_share']:.0%}"
+    s = result["shrink"]
+    far = (f"How far: on held-out data the gap shrinks by {s['ratio']:.0%} "
+           f"(noise-normalised RMS {s['heldout_rms_nominal']:.3g} → {s['heldout_rms_with_effects']:.3g})")
+    return [where, which, far]
+
+
+def render_report(robot, result: dict, series: dict, rows_ho, selection) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    loc = result["localization"]
+    order = {d: i for i, d in enumerate([*robot.rbd_error_names,
+                                         *[j[:-6] if j.endswith("_joint") else j for j in robot.joint_names]])}
+    dims = sorted(loc, key=lambda d: order.get(d["dimension"], 99))
+    names = [d["dimension"] for d in dims]
+    x = np.arange(len(dims))
+    figs = {}
+
+    # 1. where: error per dimension by phase, relative to noise; by contact configuration; by speed
+    fig, axes = plt.subplots(3, 1, figsize=(13, 11))
+    ax = axes[0]
+    for k, (phase, col) in enumerate((("stance", "tab:blue"), ("swing", "tab:orange"))):
+        vals = [d.get("by_phase", {}).get(phase, np.nan) / d["noise_level"] for d in dims]
+        ax.bar(x + (k - 0.5) * 0.4, vals, 0.4, label=phase, color=col)
+    ax.axhline(1.0, color="k", lw=0.8, ls="--", label="noise level")
+    ax.set_xticks(x, names, rotation=70, fontsize=8)
+    ax.set_ylabel("RMS error / noise level")
+    ax.set_title("Where: measured error per dimension (Φ̃' base/feet, Γ actuators), stance vs swing")
+    ax.legend(fontsize=8)
+    configs = sorted({c for d in dims for c in d.get("by_contacts", {})})
+    mat = np.array([[d.get("by_contacts", {}).get(c, np.nan) / d["noise_level"] for d in dims] for c in configs]) \
+        if configs else np.zeros((1, len(dims)))
+    ax = axes[1]
+    im = ax.imshow(mat, aspect="auto", cmap="viridis")
+    ax.set_yticks(np.arange(len(configs)), configs if configs else [""], fontsize=7)
+    ax.set_xticks(x, names, rotation=70, fontsize=8)
+    ax.set_title("by contact configuration (feet on the ground): RMS error / noise level")
+    fig.colorbar(im, ax=ax, fraction=0.02)
+    ax = axes[2]
+    for k, (b, col) in enumerate((("slow", "tab:green"), ("medium", "tab:olive"), ("fast", "tab:red"))):
+        vals = [d.get("by_speed", {}).get(b, np.nan) / d["noise_level"] for d in dims]
+        ax.bar(x + (k - 1) * 0.27, vals, 0.27, label=b, color=col)
+    ax.axhline(1.0, color="k", lw=0.8, ls="--")
+    ax.set_xticks(x, names, rotation=70, fontsize=8)
+    ax.set_ylabel("RMS error / noise level")
+    ax.set_title("by speed tercile (base: linear speed; feet and actuators: their leg's joint speed)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    figs["where"] = _png(fig)
+
+    # 2. which: shares
+    eff = result["effects"]
+    fig, ax = plt.subplots(figsize=(9, 0.5 * (len(eff) + 2) + 1))
+    labels = [f"{e['type']} @ {_where(e)}" for e in eff] + ["unexplained"]
+    shares = [e["share"] for e in eff] + [result["unexplained_share"]]
+    colors = ["tab:blue"] * len(eff) + ["tab:gray"]
+    ax.barh(np.arange(len(labels)), shares, color=colors)
+    ax.set_yticks(np.arange(len(labels)), labels, fontsize=9)
+    ax.invert_yaxis()
+    ax.set_xlim(0, 1)
+    ax.set_xlabel("share of the held-out gap (noise-normalised sum of squares)")
+    ax.set_title("Which: identified effects")
+    figs["which"] = _png(fig)
+
+    # 3. how far: per dimension before/after, and over time
+    per = result["shrink"]["per_dimension"]
+    fig, axes = plt.subplots(2, 1, figsize=(13, 8))
+    ax = axes[0]
+    sig = {d["dimension"]: d["noise_level"] for d in loc}
+    pn = [per.get(n, {}).get("rms_nominal", np.nan) / sig[n] for n in names]
+    pw = [per.get(n, {}).get("rms_with_effects", np.nan) / sig[n] for n in names]
+    ax.bar(x - 0.2, pn, 0.4, label="nominal model", color="tab:red")
+    ax.bar(x + 0.2, pw, 0.4, label="with identified effects", color="tab:green")
+    ax.axhline(1.0, color="k", lw=0.8, ls="--", label="noise level")
+    ax.set_xticks(x, names, rotation=70, fontsize=8)
+    ax.set_ylabel("held-out RMS / noise level")
+    ax.set_title("How far: held-out residual per dimension")
+    ax.legend(fontsize=8)
+    ax = axes[1]
+    t = series["t"] - series["t"][0] if len(series["t"]) else series["t"]
+    ax.plot(t, series["nominal"], lw=0.8, color="tab:red", label="nominal model")
+    ax.plot(t, series["with_effects"], lw=0.8, color="tab:green", label="with identified effects")
+    ax.axhline(1.0, color="k", lw=0.8, ls="--")
+    ax.set_xlabel("held-out sample time [s] (bags concatenated)")
+    ax.set_ylabel("RMS over dimensions of error / noise")
+    ax.set_title("held-out residual over time")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    figs["far"] = _png(fig)
+
+    a = answers(result)
+    e = html.escape
+    rows = "".join(
+        f"<tr><td>{e(x['type'])}</td><td>{e(_where(x))}</td><td>{e(_fmt_params(x['params'], x['std']))}</td>"
+        f"<td>{x['share']:.1%}</td></tr>" for x in eff) or "<tr><td colspan=4>none</td></tr>"
+    loc_rows = "".join(
+        f"<tr><td>{e(d['dimension'])}</td><td>{d['kind']}</td><td>{d['rms_error']:.3g}</td>"
+        f"<td>{d['relative_error']:.2%}</td><td>{d['noise_level']:.3g}</td><td>{d['share']:.1%}</td></tr>"
+        for d in loc[:12])
+    steps = "".join(f"<li>{e(s['accepted'])}: {s['gain_share']:.2%} of the gap"
+                    + (f" (runner-up {e(s['runner_up'])}: {s['runner_up_share']:.2%})" if s.get("runner_up") else "")
+                    + "</li>" for s in result["selection"]["steps"])
+    d = result["data"]
+    s = result["shrink"]
+    return f"""<!DOCTYPE html>
+<html><head><meta charset="utf-8"><title>CIML gap diagnosis</title>
+<style>body{{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em}}
+table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:3px 8px;text-align:left}}
+.ans{{background:#f4f4f8;padding:0.6em 1em;border-left:4px solid #446}}</style></head><body>
+<h1>Sim-to-real gap diagnosis</h1>
+<div class="ans"><p>{e(a[0])}</p><p>{e(a[1])}</p><p>{e(a[2])}</p></div>
+<h2>1. Where does the gap lie?</h2>
+<p>Error of the nominal model per dimension: the contact-invariant error Φ̃' (eq. 11: base force and
+torque always, each foot's force while it swings) and the actuation error Γ = τ − u per joint (eq. 14),
+over {d['samples'] + d['heldout_samples']} valid samples. Noise level: what no catalogue effect explains.</p>
+<table><tr><th>dimension</th><th>kind</th><th>RMS error [N|Nm]</th><th>relative to signal</th>
+<th>noise level</th><th>share of gap</th></tr>{loc_rows}</table>
+<img src="{figs['where']}" style="width:100%">
+<h2>2. Which unmodelled effect causes it?</h2>
+<table><tr><th>effect</th><th>where</th><th>parameters ± std</th><th>share</th></tr>{rows}
+<tr><td colspan=3>unexplained (no candidate explains it)</td><td>{result['unexplained_share']:.1%}</td></tr></table>
+<img src="{figs['which']}" style="max-width:100%">
+<p>Selection on held-out data ({len(eff)} of {result['selection']['candidates']} candidates kept):</p><ul>{steps}</ul>
+<h2>3. How far does it shrink?</h2>
+<p>Held-out: {e(d['heldout'])}; {d['heldout_samples']} samples. Noise-normalised RMS
+{s['heldout_rms_nominal']:.3g} → {s['heldout_rms_with_effects']:.3g} (gap removed: {s['ratio']:.1%});
+physical RMS (N and Nm mixed) {s['heldout_rms_nominal_physical']:.3g} → {s['heldout_rms_with_effects_physical']:.3g}.</p>
+<img src="{figs['far']}" style="width:100%">
+<h2>Data</h2><p>Identification bags: {e(', '.join(d['bags']))}<br>Held-out bags: {e(', '.join(d['heldout_bags']) or '(part of the above)')}<br>
+Samples: {d['samples']} identification, {d['heldout_samples']} held-out. Rejected while reading: {e(str(d['rejected']))}.</p>
+<p>Closed-loop check: <code>ciml closed-loop --scenario S.yaml --motion M --model DIR</code> runs the controller
+with the nominal model plus these effects (DIR = this report's folder).</p>
+</body></html>
+"""

@@ -1,0 +1,229 @@
+"""The sim-to-real gap diagnosis end to end (DESIGN §6): bags in, diagnosis.json and report.html out.
+
+The diagnosis reads bags only through ciml_learning.pipeline.load_dataset, i.e. only the four
+sensor topics (/joint_states, /base_state, /contact_state, /torque_command): nothing under
+/sim/, no scenario name or effect list can reach it.
+
+Held-out data: the --heldout bags; without them, whole bags are held out (the last ~30 %,
+at least one) or, with a single bag, its last ~30 % of time (the filter's half window on
+either side of the cut is left out of both parts).
+"""
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..fileio import atomic_write_json, atomic_write_text
+from ..pipeline import load_dataset
+from ..robot import RobotDescription
+from .candidates import COULOMB_SMOOTHING, FeatureLayout, link_inertias
+from .effects import DiagnosisError
+from .features import build_rows, grams
+from .identification import bootstrap_std, physical_parameters, select
+from .localization import dimension_names, leg_summary, localize
+from .shrink import residual_series, residuals, shrink
+
+FORMAT_VERSION = 1
+HELDOUT_FRACTION = 0.3
+MIN_SAMPLES = 250
+"""Fewest valid samples (1 s at 250 Hz) in each of the identification and held-out parts."""
+
+
+def _say(progress: bool, msg: str) -> None:
+    if progress:
+        print(f"[diagnose] {msg}", file=sys.stderr, flush=True)
+
+
+def split_heldout(dataset, fraction: float = HELDOUT_FRACTION) -> tuple[np.ndarray, np.ndarray, str]:
+    """(identification samples, held-out samples, description) of one dataset without --heldout."""
+    from ..filters import delay_samples
+
+    n_bags = len(dataset.bags)
+    idx = np.arange(len(dataset.targets.t))
+    if n_bags >= 2:
+        k = max(1, int(round(fraction * n_bags)))
+        held = set(range(n_bags - k, n_bags))
+        mask = np.isin(dataset.bag_index, list(held))
+        names = [dataset.bags[i] for i in sorted(held)]
+        return idx[~mask], idx[mask], f"whole bags held out: {', '.join(names)}"
+    t = dataset.targets.t
+    cut = int(np.searchsorted(t, t[0] + (1 - fraction) * (t[-1] - t[0])))
+    guard = delay_samples()
+    return (idx[: max(0, cut - guard)], idx[cut + guard:],
+            f"last {fraction:.0%} of time held out of {dataset.bags[0]} (t ≥ {t[cut] - t[0]:.2f} s from its start)")
+
+
+MIN_SUBSET_SAMPLES = 250
+
+
+def consistency_subsets(robot: RobotDescription, dataset, rows) -> list:
+    """Grams of parts of the identification data: each contact configuration and each bag with
+    at least MIN_SUBSET_SAMPLES samples (identification.consistency)."""
+    contacts = dataset.log.contacts[rows.samples]
+    keys = {"contacts": contacts @ (1 << np.arange(robot.n_feet)), "bag": dataset.bag_index[rows.samples]}
+    out = []
+    for arr in keys.values():
+        values = np.unique(arr)
+        if len(values) < 2:
+            continue
+        for v in values:
+            keep = arr == v
+            if keep.sum() >= MIN_SUBSET_SAMPLES:
+                out.append(grams(rows.subset(keep)))
+    return out
+
+
+def _effect_entry(cand, params: dict, std: dict, share: float, spread: float) -> dict:
+    e = {"type": cand.type}
+    e.update(cand.location())
+    e.update({"params": params, "std": std, "share": float(share), "consistency_spread": float(spread)})
+    return e
+
+
+def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str] | None = None,
+             out_dir: str | None = None, progress: bool = True, report: bool = True) -> dict:
+    """Run the diagnosis; write DIR/diagnosis.json (atomically) and DIR/report.html if out_dir."""
+    t_start = time.perf_counter()
+    bags = [str(b) for b in bags]
+    if not bags:
+        raise DiagnosisError("no bag given")
+    if out_dir is not None and os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise DiagnosisError(f"--out {out_dir} exists and is not a directory")
+    for b in list(bags) + [str(h) for h in heldout or []]:
+        if not os.path.exists(b):
+            raise DiagnosisError(f"bag not found: {b}")
+    _say(progress, f"reading {len(bags)} bag(s)")
+    ds_id = load_dataset(robot, bags, progress=progress)
+    if heldout:
+        _say(progress, f"reading {len(heldout)} held-out bag(s)")
+        ds_ho = load_dataset(robot, [str(b) for b in heldout], progress=progress)
+        id_idx = np.arange(len(ds_id.targets.t))
+        ho_idx = np.arange(len(ds_ho.targets.t))
+        how = "held-out bags given with --heldout"
+    else:
+        ds_ho = ds_id
+        id_idx, ho_idx, how = split_heldout(ds_id)
+    layout = FeatureLayout(robot, link_inertias(robot))
+    _say(progress, f"regressors of {len(layout.candidates)} candidate effects")
+    rows_id = build_rows(robot, layout, ds_id, id_idx, progress=progress, desc="regressors (identification)")
+    rows_ho = build_rows(robot, layout, ds_ho, ho_idx, progress=progress, desc="regressors (held-out)")
+    for name, rows in (("identification", rows_id), ("held-out", rows_ho)):
+        if len(rows.samples) < MIN_SAMPLES:
+            raise DiagnosisError(f"only {len(rows.samples)} valid {name} samples (need ≥ {MIN_SAMPLES}, "
+                                 f"{MIN_SAMPLES / 250:.0f} s at 250 Hz); give longer or more bags")
+    g_id, g_ho = grams(rows_id), grams(rows_ho)
+    _say(progress, "selecting effects on held-out data")
+    sel = select(layout, g_id, g_ho, subsets=consistency_subsets(robot, ds_id, rows_id))
+    _say(progress, "parameter uncertainty (block bootstrap)")
+    std = bootstrap_std(sel, rows_id)
+    params = physical_parameters(sel.model)
+    _say(progress, "localisation and shrink")
+    loc = localize(robot, [(ds_id, rows_id), (ds_ho, rows_ho)], sel.sigma)
+    res = residuals(rows_ho, sel.model, sel.weights, ds_ho.log.v[rows_ho.samples, 6:])
+    shr = shrink(robot, rows_ho, res, sel.sigma)
+    # shares: drop-one costs of the selection plus what each friction's stiction estimate removes
+    shares = [sh + res.stiction_gain.get(c.label, 0.0) / sel.nominal_ss
+              for c, sh in zip(sel.model.candidates, sel.shares)]
+    unexplained = 1.0 - sum(shares) if shares else 1.0
+    effects = [_effect_entry(c, p, s, sh, sp)
+               for c, p, s, sh, sp in zip(sel.model.candidates, params, std, shares, sel.spread)]
+    effects.sort(key=lambda e: -e["share"])
+    names = dimension_names(robot)
+    result = {
+        "format_version": FORMAT_VERSION,
+        "localization": loc,
+        "localization_by_leg": leg_summary(robot, loc),
+        "effects": effects,
+        "unexplained_share": float(max(0.0, unexplained)),
+        "shrink": shr,
+        "data": {
+            "bags": bags,
+            "heldout_bags": [str(b) for b in heldout] if heldout else [],
+            "heldout": how,
+            "samples": int(len(rows_id.samples)),
+            "heldout_samples": int(len(rows_ho.samples)),
+            "rejected": {k: int(v) for k, v in ds_id.rejected.items()},
+        },
+        "selection": {
+            "steps": [{"accepted": s.accepted, "gain_share": s.gain_share, "runner_up": s.runner_up,
+                       "runner_up_share": s.runner_up_share} for s in sel.steps],
+            "candidates": len(layout.candidates),
+            "noise_level": {n: float(s) for n, s in zip(names, sel.sigma)},
+            "rejected_as_inconsistent": [{"candidate": lab, "spread": sp} for lab, sp in sel.rejected],
+            "nominal_heldout_ss": sel.nominal_ss,
+            "final_heldout_ss": sel.final_ss,
+        },
+        "model": {
+            "format_version": 1,
+            "description": "nominal model + these effects; Phi~ = e(q, qd, qdd), Gamma = tau - u "
+                           "(ciml_learning.diagnosis.effects.EffectModel)",
+            "joint_names": list(robot.joint_names),
+            "foot_frames": list(robot.foot_frames),
+            "coulomb_smoothing": COULOMB_SMOOTHING,
+            "effects": [{k: v for k, v in e.items() if k in ("type", "joint", "joints", "link", "params")}
+                        for e in effects],
+        },
+        "time_s": round(time.perf_counter() - t_start, 2),
+    }
+    _check_finite(result)
+    if out_dir is not None:
+        os.makedirs(out_dir, exist_ok=True)
+        atomic_write_json(os.path.join(out_dir, "diagnosis.json"), result)
+        if report:
+            _say(progress, "report")
+            from .report import render_report
+
+            series = residual_series(rows_ho, res, sel.sigma, ds_ho.targets.t)
+            html = render_report(robot, result, series, rows_ho, sel)
+            atomic_write_text(os.path.join(out_dir, "report.html"), html)
+        result["time_s"] = round(time.perf_counter() - t_start, 2)
+    return result
+
+
+def _check_finite(obj, path: str = "") -> None:
+    """NaN never reaches an output: fail loudly instead (a bug, not bad input)."""
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            _check_finite(v, f"{path}.{k}")
+    elif isinstance(obj, (list, tuple)):
+        for i, v in enumerate(obj):
+            _check_finite(v, f"{path}[{i}]")
+    elif isinstance(obj, float) and not np.isfinite(obj):
+        raise DiagnosisError(f"non-finite value at {path or 'result'}; the data may be degenerate")
+
+
+def benchmark(n_samples: int = 50_000, seconds: float = 20.0, motion: str = "walk_35") -> dict:
+    """Diagnosis of n_samples (250 Hz) end to end: bag reading, filtering, extraction, regressors,
+    selection, bootstrap, report. One simulated bag of the default gap scenario (ciml_sim's
+    recorder, not timed) is given repeatedly, 80 % as identification and 20 % as held-out bags."""
+    import shutil
+    import tempfile
+
+    from ciml_sim.recorder import run_headless
+    from ciml_sim.scenario import load_scenario, scenario_dir
+
+    from ..bagio import BagWriter
+    from ..robot import load_robot
+
+    robot = load_robot()
+    scenario = load_scenario(os.path.join(scenario_dir(), "default_gap.yaml"), robot)
+    tmp = tempfile.mkdtemp(prefix="ciml_diag_bench_")
+    try:
+        bag = os.path.join(tmp, "bag")
+        with BagWriter(bag) as w:
+            run_headless(robot, scenario, motion, seconds, 1, writer=w, ground_truth=False, progress=False)
+        per_bag = int(round(seconds * 250))
+        copies = max(2, int(round(n_samples / per_bag)))
+        n_ho = max(1, copies // 5)
+        t0 = time.perf_counter()
+        result = diagnose(robot, [bag] * (copies - n_ho), [bag] * n_ho, os.path.join(tmp, "out"), progress=False)
+        elapsed = time.perf_counter() - t0
+        return {"samples": copies * per_bag, "valid_samples": result["data"]["samples"] + result["data"]["heldout_samples"],
+                "diagnosis_s": round(elapsed, 2), "target_s": 120.0,
+                "effects": [e["type"] for e in result["effects"]]}
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)

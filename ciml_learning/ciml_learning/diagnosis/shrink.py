@@ -1,0 +1,134 @@
+"""How far the gap shrinks: the held-out residual with the identified effects added to the
+nominal model, per dimension (physical units) and overall (noise-normalised).
+
+Overall: RMS over every held-out observed entry of e/σ_d (each dimension in units of its
+noise level, identification.py), nominal vs with the effects; ratio = 1 − with / nominal,
+the fraction of the gap removed. The same overall number in physical units (N and Nm mixed)
+is given as `heldout_rms_*_physical` for reference.
+
+Stiction. Coulomb friction sticks: while a joint does not move (|q̇_j| < V_STICK) its friction
+torque is whatever holds it, anywhere in [−f_c, f_c], not a function of the state. For each
+identified Coulomb friction the identification uses the sliding samples only (its regressor
+vanishes at rest); at the stuck samples the friction torque is estimated per sample as the
+projection of the residual onto that joint's torque direction (O_k e_j, eq. 11), clipped to
+±f_c — the set-valued friction law with the identified level. The shrink is given with and
+without this per-sample estimate.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .features import Rows, predict
+from .identification import Model
+from .localization import dimension_names
+
+V_STICK = 0.05
+"""[rad/s] a joint slower than this may be stuck by its Coulomb friction."""
+
+
+@dataclass
+class Residuals:
+    """Held-out (or any) rows: measured errors and residuals after the identified effects."""
+
+    rbd: np.ndarray          # M_r residual Φ̃' entries
+    act: np.ndarray          # N × n_j residual Γ
+    rbd_no_stiction: np.ndarray
+    stiction_gain: dict      # candidate label → weighted SS removed by its stiction estimate
+
+
+def residuals(rows: Rows, model: Model, weights: np.ndarray, v_joints: np.ndarray) -> Residuals:
+    """Residuals of `rows` under the model, with the stiction estimate of each Coulomb friction.
+
+    v_joints: joint velocities of rows.samples (N × n_j)."""
+    lay = rows.layout
+    theta = model.feature_theta()
+    pr, pa = predict(rows, theta)
+    res = rows.y_rbd - pr
+    base = res.copy()
+    wr = weights[rows.dim_rbd]
+    n_s = len(rows.samples)
+    gains = {}
+    for cand in model.candidates:
+        if cand.type != "joint_coulomb_friction":
+            continue
+        j = lay.robot.joint_names.index(cand.joint)
+        f_c = float(model.params_of(cand)[0])
+        stuck_rows = (np.abs(v_joints[:, j]) < V_STICK)[rows.sample_rbd]
+        if f_c <= 0 or not stuck_rows.any():
+            continue
+        before = float(np.sum(wr * res ** 2))
+        d = rows.X_rbd[:, lay.torque0 + j].astype(float)
+        r2 = res.copy()
+        r2[stuck_rows] += f_c * rows.X_rbd[stuck_rows, lay.coulomb0 + j]  # the sliding model does not apply
+        idx = rows.sample_rbd[stuck_rows]
+        num = np.bincount(idx, weights=(wr * d * r2)[stuck_rows], minlength=n_s)
+        den = np.bincount(idx, weights=(wr * d * d)[stuck_rows], minlength=n_s)
+        torque = np.clip(np.divide(num, den, out=np.zeros(n_s), where=den > 0), -f_c, f_c)
+        r2[stuck_rows] -= torque[idx] * d[stuck_rows]
+        res = r2
+        gains[cand.label] = before - float(np.sum(wr * res ** 2))
+    return Residuals(rbd=res, act=rows.y_act - pa, rbd_no_stiction=base, stiction_gain=gains)
+
+
+def _overall(rows: Rows, rbd_res: np.ndarray, act_res: np.ndarray, sigma: np.ndarray) -> tuple[float, float]:
+    n_rbd = len(sigma) - rows.y_act.shape[1]
+    z = np.sum((rbd_res / sigma[rows.dim_rbd]) ** 2) + np.sum((act_res / sigma[n_rbd:]) ** 2)
+    phys = np.sum(rbd_res ** 2) + np.sum(act_res ** 2)
+    n = len(rbd_res) + act_res.size
+    return float(np.sqrt(z / max(n, 1))), float(np.sqrt(phys / max(n, 1)))
+
+
+def shrink(robot, rows: Rows, res: Residuals, sigma: np.ndarray) -> dict:
+    """The `shrink` object of diagnosis.json (DESIGN §6) from held-out rows."""
+    names = dimension_names(robot)
+    n_rbd = len(sigma) - rows.y_act.shape[1]
+    per_dim = {}
+    for d, name in enumerate(names):
+        if d < n_rbd:
+            m = rows.dim_rbd == d
+            if not m.any():
+                continue
+            y, e = rows.y_rbd[m], res.rbd[m]
+        else:
+            y, e = rows.y_act[:, d - n_rbd], res.act[:, d - n_rbd]
+            if len(y) == 0:
+                continue
+        nom = float(np.sqrt(np.mean(y ** 2)))
+        wth = float(np.sqrt(np.mean(e ** 2)))
+        per_dim[name] = {"rms_nominal": nom, "rms_with_effects": wth,
+                         "ratio": float(1.0 - wth / nom) if nom > 0 else 0.0, "samples": int(len(y))}
+    nom, nom_p = _overall(rows, rows.y_rbd, rows.y_act, sigma)
+    wth, wth_p = _overall(rows, res.rbd, res.act, sigma)
+    wns, _ = _overall(rows, res.rbd_no_stiction, res.act, sigma)
+    return {
+        "heldout_rms_nominal": nom,
+        "heldout_rms_with_effects": wth,
+        "ratio": float(1.0 - wth / nom) if nom > 0 else 0.0,
+        "metric": "RMS over all held-out observed entries of Phi~' and Gamma, each divided by its "
+                  "dimension's noise level (localization[].noise_level)",
+        "ratio_without_stiction_estimate": float(1.0 - wns / nom) if nom > 0 else 0.0,
+        "heldout_rms_nominal_physical": nom_p,
+        "heldout_rms_with_effects_physical": wth_p,
+        "ratio_physical": float(1.0 - wth_p / nom_p) if nom_p > 0 else 0.0,
+        "per_dimension": per_dim,
+    }
+
+
+def residual_series(rows: Rows, res: Residuals, sigma: np.ndarray, t: np.ndarray) -> dict:
+    """Per held-out sample: time and the RMS over its observed entries of e/σ_d, nominal vs with
+    the effects (for the report's over-time plot)."""
+    n_s = len(rows.samples)
+    n_rbd = len(sigma) - rows.y_act.shape[1]
+    nom_sq, with_sq, cnt = np.zeros(n_s), np.zeros(n_s), np.zeros(n_s)
+    s_r = sigma[rows.dim_rbd]
+    np.add.at(nom_sq, rows.sample_rbd, (rows.y_rbd / s_r) ** 2)
+    np.add.at(with_sq, rows.sample_rbd, (res.rbd / s_r) ** 2)
+    np.add.at(cnt, rows.sample_rbd, 1.0)
+    sa = sigma[n_rbd:]
+    nom_sq += ((rows.y_act / sa) ** 2).sum(axis=1)
+    with_sq += ((res.act / sa) ** 2).sum(axis=1)
+    cnt += rows.y_act.shape[1]
+    cnt = np.maximum(cnt, 1)
+    return {"t": t[rows.samples], "nominal": np.sqrt(nom_sq / cnt), "with_effects": np.sqrt(with_sq / cnt)}

@@ -1,0 +1,95 @@
+"""`model_server`: /reference + /model_update → /model_error/predicted (mean and variance).
+
+Thin adapter around ciml_learning.online (load_served_model, predict_at_reference,
+LatestOnlyWorker). For every /reference (qᵈ, q̇ᵈ, q̈ᵈ) it publishes a ciml_msgs/ModelError
+stamped like the reference: Φ̃' (18) and Γ (n_j) predicted at x = learning_inputs(qᵈ, q̇ᵈ,
+q̈ᵈ) (eq. 12) with their predictive variances, `source` = the model's name
+("<learner>:<folder name>"), observed = the dimension has a learned model.
+
+Nominal model (source "nominal"): zeros, all observed flags false and the prior variance
+of online.nominal_prediction (large: (5 % of the weight-derived force scale)²) — served
+when no model is loaded (model_dir '') or when a prediction is non-finite (counted).
+
+Hot swap without a gap: a /model_update (or the initial model_dir) is loaded and
+validated on a worker thread (ModelSet.load's checks, the announced checksum, a finite
+probe prediction); the node swaps its served model in its own thread between two
+references, so the old model serves until the new one is ready. A refused model
+(tampered, truncated, wrong version or robot) is logged, counted (refused_models) and the
+old model keeps serving. Rejected references (non-finite, wrong names) are counted and
+produce no output: NaN never reaches /model_error/predicted.
+"""
+from __future__ import annotations
+
+from ciml_msgs.msg import ModelError, ModelUpdate, RobotReference
+from rclpy.node import Node
+
+from .. import conversions as cv
+from .. import topics
+from ..errors import CimlError
+from ..online import LatestOnlyWorker, ServedModel, load_served_model, predict_at_reference
+from ..robot import load_robot
+from ..ros_common import COMMAND_QOS, Health, declare, run_node
+
+
+class ModelServerNode(Node):
+    def __init__(self) -> None:
+        super().__init__("model_server")
+        model_dir = declare(self, "model_dir", "", "Model folder served at start ('' = nominal model)")
+        swap_period = declare(self, "swap_check_period", 0.02,
+                              "How often a freshly loaded model is swapped in [s]", 0.001, 1.0)
+        urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
+        self.robot = load_robot(urdf or None)
+        self.served: ServedModel | None = None
+        self.health = Health(self)
+        self.health.set(0, "serving the nominal model")
+        self.loader = LatestOnlyWorker(lambda item: load_served_model(self.robot, *item), name="model-loader")
+        self.pub = self.create_publisher(ModelError, topics.MODEL_ERROR_PREDICTED, COMMAND_QOS)
+        self.create_subscription(RobotReference, topics.REFERENCE, self.on_reference, COMMAND_QOS)
+        self.create_subscription(ModelUpdate, topics.MODEL_UPDATE, self.on_update, COMMAND_QOS)
+        self.create_timer(swap_period, self.swap)
+        if model_dir:
+            self.loader.submit((model_dir, ""))
+
+    def on_update(self, msg) -> None:
+        self.health.counts["model_updates"] += 1
+        if self.loader.submit((msg.model_dir, msg.checksum)):
+            self.health.counts["model_updates_superseded"] += 1
+
+    def swap(self) -> None:
+        """Install models loaded by the worker (runs in the executor: never during a prediction)."""
+        for result in self.loader.drain():
+            model_dir = result.item[0]
+            if result.error is not None:
+                kept = self.served.name if self.served is not None else "the nominal model"
+                self.health.count("refused_models", f"model {model_dir} refused ({result.error}); still serving {kept}")
+                self.get_logger().error(f"model refused: {result.error}")
+                continue
+            self.served = result.value
+            self.health.counts["model_swaps"] += 1
+            self.health.counts["load_ms"] = int(round(1e3 * result.seconds))
+            self.health.set(0, f"serving {self.served.name}")
+            self.get_logger().info(f"serving {self.served.model_dir} (loaded in {1e3 * result.seconds:.0f} ms)")
+
+    def on_reference(self, msg) -> None:
+        try:
+            q, v, a, _contacts = cv.robot_reference_arrays(self.robot, msg)
+        except CimlError as err:
+            self.health.count("rejected_references", f"reference rejected: {err}")
+            return
+        pred = predict_at_reference(self.robot, self.served, q, v, a)
+        if pred.fallback == "no_model":
+            self.health.counts["nominal_no_model"] += 1
+        elif pred.fallback is not None:
+            self.health.count(pred.fallback, f"{pred.fallback}: serving the nominal model")
+        self.pub.publish(cv.model_error_msg(self.robot, cv.stamp_to_ns(msg.header.stamp), pred.source, pred.rbd_error,
+                                            pred.rbd_observed, pred.actuation_error, pred.actuation_observed,
+                                            pred.rbd_variance, pred.actuation_variance))
+        self.health.counts["predictions"] += 1
+
+    def destroy_node(self) -> None:
+        self.loader.close(timeout=5.0)
+        super().destroy_node()
+
+
+def main(args=None) -> None:
+    run_node(ModelServerNode, args)

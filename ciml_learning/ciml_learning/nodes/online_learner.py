@@ -1,0 +1,170 @@
+"""`online_learner`: /filtered_state + /model_error/measured → LWPR snapshots + /model_update.
+
+Thin adapter around ciml_learning.online (StampPairer, OnlineLearner, SnapshotWriter):
+each filtered state (q, q̇, q̈ → x of eq. 12) is paired by header stamp with the measured
+error of eq. (11)/(14) and learned at once with ModelSet.partial_fit_one (all 30
+dimensions, ~0.5 ms per sample: real time at 250 Hz). Every `snapshot_period` seconds,
+if something new was learned, the model set is deep-copied on this thread (the only
+stall; its duration is reported on /diagnostics as snapshot_copy_ms) and written by a
+worker thread to model_dir/snapshot-NNNNNN (model_dir/latest → newest); once on disk, a
+ciml_msgs/ModelUpdate is published (model_dir = the snapshot directory, learner, samples
+learned, npz sha256). Subscription queues of `queue_depth` absorb the copy's stall.
+
+Rejected inputs are counted on /diagnostics and never learned: states or errors that do
+not convert (non-finite values, wrong joint/foot/error names, wrong sizes), states and
+errors without a partner of the same stamp within `max_pair_age` (unmatched_*), pairs
+out of stamp order, and invalid samples (filter warm-up, near a contact change).
+At shutdown a last snapshot of unsaved samples is written (not announced).
+"""
+from __future__ import annotations
+
+import os
+import time
+
+from ciml_msgs.msg import ModelError, ModelUpdate, RobotState
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from .. import conversions as cv
+from .. import topics
+from ..errors import CimlError
+from ..models import ModelSet
+from ..online import (ERROR, STATE, LatestOnlyWorker, OnlineLearner, SnapshotWriter, StampPairer, StateSample,
+                      model_error_sample, warm_up)
+from ..robot import load_robot
+from ..ros_common import COMMAND_QOS, ERROR as DIAG_ERROR, Health, declare, run_node
+
+DEFAULT_MODEL_DIR = os.path.join("~", ".ros", "ciml", "online_model")
+
+
+class OnlineLearnerNode(Node):
+    def __init__(self) -> None:
+        super().__init__("online_learner")
+        model_dir = declare(self, "model_dir", "", f"Snapshot folder ('' = {DEFAULT_MODEL_DIR})")
+        self.snapshot_period = declare(self, "snapshot_period", 5.0, "Seconds between model snapshots [s]", 0.1, 3600.0)
+        keep = declare(self, "keep_snapshots", 3, "Snapshot folders kept (older ones are deleted)", 1, 1000)
+        learner = declare(self, "learner", "lwpr", "Incremental learner of the model set (lwpr)")
+        initial = declare(self, "initial_model", "", "Model folder to continue learning from ('' = empty model set)")
+        calib = declare(self, "calibration_samples", 0,
+                        "Valid samples buffered to calibrate input/output scaling first (0 = default scaling)",
+                        0, 100000)
+        max_age = declare(self, "max_pair_age", 0.5,
+                          "Longest wait for the partner (same stamp) of a state or error [s]", 0.004, 10.0)
+        depth = declare(self, "queue_depth", 250, "Subscription queue depth (absorbs snapshot stalls)", 10, 10000)
+        record = declare(self, "record_stamps", False,
+                         "Write the learned samples' stamps (learned_stamps.npy) into each snapshot")
+        urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
+        self.robot = load_robot(urdf or None)
+        if initial:
+            ms = ModelSet.load(os.path.expanduser(initial), self.robot)
+            self.get_logger().info(f"continuing from {initial} ({int(ms.n_samples_.max())} samples)")
+        else:
+            ms = ModelSet.for_robot(self.robot, learner)
+        self.learner = OnlineLearner(ms, calibration_samples=calib, record_stamps=record)
+        self.get_logger().info(f"learner code ready in {warm_up(self.robot, ms.learner):.2f} s")
+        self.pairer = StampPairer(int(max_age * 1e9))
+        self.writer = SnapshotWriter(model_dir or DEFAULT_MODEL_DIR, keep)
+        self.worker = LatestOnlyWorker(self.writer.write, name="snapshot-writer")
+        self.snapshot_samples = 0   # samples in the newest snapshot submitted
+        self.saved_samples = 0      # samples in the newest snapshot written
+        self.learn_times: list[float] = []
+        self.health = Health(self)
+        self.health.set(0, f"learning, snapshots in {self.writer.root}")
+        self.pub = self.create_publisher(ModelUpdate, topics.MODEL_UPDATE, COMMAND_QOS)
+        qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
+        self.create_subscription(RobotState, topics.FILTERED_STATE, self.on_state, qos)
+        self.create_subscription(ModelError, topics.MODEL_ERROR_MEASURED, self.on_error, qos)
+        self.create_timer(self.snapshot_period, self.snapshot)
+        self.create_timer(0.05, self.announce)
+
+    # --- inputs ------------------------------------------------------------------------
+    def on_state(self, msg) -> None:
+        try:
+            q, v, a, _tau, _u, _contacts, valid = cv.robot_state_arrays(self.robot, msg)
+        except CimlError as err:
+            self.health.count("rejected_states", f"filtered_state rejected: {err}")
+            return
+        self._pair(STATE, cv.stamp_to_ns(msg.header.stamp), StateSample(q, v, a, valid))
+
+    def on_error(self, msg) -> None:
+        try:
+            sample = model_error_sample(self.robot, msg)
+        except CimlError as err:
+            self.health.count("rejected_errors", f"model_error/measured rejected: {err}")
+            return
+        self._pair(ERROR, cv.stamp_to_ns(msg.header.stamp), sample)
+
+    def _pair(self, side: int, stamp: int, item) -> None:
+        pair = self.pairer.add(side, stamp, item)
+        self._sync_counts(self.pairer.counts)
+        if pair is None:
+            return
+        t0 = time.perf_counter()
+        reason = self.learner.learn(*pair)
+        dt = time.perf_counter() - t0
+        if reason is not None:
+            if reason != "invalid_samples":  # expected near every contact change: counted, not a warning
+                self.health.count(reason, f"pair at stamp {pair[0]} not learned: {reason}")
+            else:
+                self.health.count(reason)
+            return
+        self.learn_times.append(dt)
+        c = self.health.counts
+        c["samples_learned"] = self.learner.n_learned
+        if len(self.learn_times) >= 250:
+            c["learn_us_mean"] = int(1e6 * sum(self.learn_times) / len(self.learn_times))
+            c["learn_us_max"] = int(1e6 * max(self.learn_times))
+            self.learn_times.clear()
+
+    def _sync_counts(self, counts) -> None:
+        """Mirror the pairer's counters on /diagnostics (warning on new unmatched items)."""
+        for key, value in counts.items():
+            delta = value - self.health.counts[key]
+            if delta > 0:
+                self.health.counts[key] += delta - 1
+                self.health.count(key, "duplicate stamp dropped" if key == "duplicate_stamps"
+                                  else "state or error without a partner of the same stamp")
+
+    # --- snapshots ---------------------------------------------------------------------
+    def snapshot(self) -> None:
+        if self.learner.n_learned <= self.snapshot_samples:
+            return
+        if self.worker.busy:
+            self.health.count("snapshots_deferred", "previous snapshot still being written")
+            return
+        snap = self.learner.snapshot()
+        self.snapshot_samples = snap.samples
+        self.health.counts["snapshot_copy_ms"] = int(round(1e3 * snap.copy_seconds))
+        self.worker.submit(snap)
+
+    def announce(self) -> None:
+        for result in self.worker.drain():
+            if result.error is not None:
+                self.health.count("snapshot_failures", f"snapshot not written: {result.error}")
+                self.health.set(DIAG_ERROR, f"snapshot not written: {result.error}")
+                self.snapshot_samples = self.saved_samples  # retry at the next period
+                continue
+            saved = result.value
+            self.saved_samples = max(self.saved_samples, saved.samples)
+            msg = ModelUpdate(header=cv.header_msg(self.get_clock().now().nanoseconds), model_dir=saved.model_dir,
+                              learner=saved.learner, samples=saved.samples, checksum=saved.checksum)
+            self.pub.publish(msg)
+            self.health.counts["snapshots_written"] += 1
+            self.health.counts["snapshot_write_ms"] = int(round(1e3 * saved.write_seconds))
+            self.get_logger().info(f"snapshot {saved.model_dir} ({saved.samples} samples, "
+                                   f"write {1e3 * saved.write_seconds:.0f} ms)")
+
+    def destroy_node(self) -> None:
+        """Write the samples learned since the last snapshot before exiting (not announced)."""
+        try:
+            if self.learner.n_learned > self.snapshot_samples:
+                snap = self.learner.snapshot()
+                self.snapshot_samples = snap.samples
+                self.worker.submit(snap)  # replaces a snapshot that has not started yet
+            self.worker.close()           # finishes the running and the pending one
+        finally:
+            super().destroy_node()
+
+
+def main(args=None) -> None:
+    run_node(OnlineLearnerNode, args)

@@ -1,0 +1,594 @@
+"""Online learning and model serving without ROS: the algorithms of the `online_learner`
+and `model_server` nodes (DESIGN.md §3), testable without rclpy.
+
+Online learner (paper §III-D, LWPR learning at 250 Hz):
+
+- StampPairer pairs each filtered state (/filtered_state: q, q̇, q̈ of eq. 12) with the
+  measured error of the same header stamp (/model_error/measured: Φ̃' of eq. 11 and
+  Γ of eq. 14). Topics are not ordered relative to each other over DDS, so either may
+  come first; an item without a partner after `max_age` is dropped and counted.
+- OnlineLearner feeds each valid pair, in increasing stamp order, to
+  ModelSet.partial_fit_one with x = learning_inputs(q, q̇, q̈) (eq. 12). Optionally the
+  first `calibration_samples` valid pairs are buffered to calibrate the set's input and
+  output scaling (ModelSet.calibrate), then learned in order. It can record the stamps
+  it learned, in order: offline ModelSet.partial_fit on the same samples in the same
+  order reproduces the online model (test/test_online_learning.py).
+- SnapshotWriter saves snapshots from a worker thread: the learner's thread only pays a
+  deep copy of the model set (timed, reported); serialisation, checksum and fsync run on
+  the worker. Each snapshot is a new directory root/snapshot-NNNNNN (immutable once
+  announced, so a server never reads a directory that is being rewritten), `root/latest`
+  is a symlink to the newest, and only the newest `keep` are kept.
+
+Model server:
+
+- load_served_model loads and validates a model directory (ModelSet.load: version,
+  allow-listed learner, robot names, checksum; plus the checksum announced on
+  /model_update and a finite probe prediction) — any failure is a ModelFileError.
+- predict_at_reference gives Φ̃' (18) and Γ (n_j) with variances at the reference's
+  x = learning_inputs(qᵈ, q̇ᵈ, q̈ᵈ), or the nominal model (see PredictedError).
+- LatestOnlyWorker runs the loading off the callback thread; the node swaps the served
+  model in its own thread, so the old model serves until the new one is ready (no gap).
+"""
+from __future__ import annotations
+
+import copy
+import io
+import os
+import re
+import shutil
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .conversions import ConversionError, _finite, _vector
+from .errors import CimlError
+from .extraction import learning_inputs
+from .learners import learner_class
+from .models import ModelFileError, ModelSet, ModelSetError, default_scaling, read_metadata
+from .robot import RobotDescription
+
+STATE, ERROR = 0, 1
+"""The two sides of a StampPairer: /filtered_state and /model_error/measured."""
+SNAPSHOT_PREFIX = "snapshot-"
+LATEST = "latest"
+STAMPS_FILE = "learned_stamps.npy"
+"""Optional file of a snapshot: int64 header stamps [ns] of the learned samples, in order."""
+
+
+# ---------------------------------------------------------------------- messages → arrays
+@dataclass
+class StateSample:
+    """The part of a filtered state the learner uses (Pinocchio q, v, q̈; `valid` flag)."""
+
+    q: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    valid: bool
+
+
+@dataclass
+class ErrorSample:
+    """A measured model error in the robot's orders: Φ̃' (18) + mask, Γ (n_j) + mask."""
+
+    rbd_error: np.ndarray
+    rbd_observed: np.ndarray
+    actuation_error: np.ndarray
+    actuation_observed: np.ndarray
+
+
+def _by_name(names, expected, what: str) -> np.ndarray:
+    names = list(names)
+    expected = list(expected)
+    if len(names) != len(set(names)) or set(names) != set(expected):
+        raise ConversionError(f"{what} names {names} do not match the robot's {expected}")
+    index = {n: i for i, n in enumerate(names)}
+    return np.array([index[n] for n in expected], dtype=int)
+
+
+def model_error_sample(robot: RobotDescription, msg) -> ErrorSample:
+    """A ciml_msgs/ModelError as arrays in robot.rbd_error_names / robot.joint_names order.
+
+    Entries are matched by name; wrong or missing names, wrong sizes and non-finite
+    values raise ConversionError (rclpy and rosbags messages alike).
+    """
+    nr, nj = len(msg.rbd_names), len(msg.actuation_names)
+    perm_r = _by_name(msg.rbd_names, robot.rbd_error_names, "model_error rbd")
+    perm_a = robot.joint_permutation(list(msg.actuation_names))
+    phi = _vector(msg.rbd_error, nr, "model_error.rbd_error")[perm_r]
+    gamma = _vector(msg.actuation_error, nj, "model_error.actuation_error")[perm_a]
+    obs_r = np.asarray(msg.rbd_observed, dtype=bool)
+    obs_a = np.asarray(msg.actuation_observed, dtype=bool)
+    if obs_r.shape != (nr,) or obs_a.shape != (nj,):
+        raise ConversionError(f"model_error: observed masks have {obs_r.size} and {obs_a.size} entries, "
+                              f"expected {nr} and {nj}")
+    _finite("model_error", phi, gamma)
+    return ErrorSample(phi, obs_r[perm_r], gamma, obs_a[perm_a])
+
+
+# ---------------------------------------------------------------------- pairing by stamp
+class StampPairer:
+    """Pairs items of two streams that carry the same header stamp [ns].
+
+    add(side, stamp, item) returns (stamp, state_item, error_item) once both sides of a
+    stamp are in, else None. Items wait at most max_age_ns behind the newest stamp seen
+    on either side; older ones are dropped (counts["unmatched_states"/"unmatched_errors"]),
+    as are items that arrive already that late. A second item of the same side and stamp
+    is dropped (counts["duplicate_stamps"]). Memory is bounded by max_pending per side.
+    """
+
+    def __init__(self, max_age_ns: int, max_pending: int = 4096) -> None:
+        if max_age_ns <= 0 or max_pending < 1:
+            raise ValueError("max_age_ns and max_pending must be positive")
+        self.max_age_ns = int(max_age_ns)
+        self.max_pending = int(max_pending)
+        self.pending: tuple[dict[int, Any], dict[int, Any]] = ({}, {})
+        self.newest = None
+        self.counts: Counter[str] = Counter()
+
+    _NAMES = ("states", "errors")
+
+    def add(self, side: int, stamp: int, item: Any) -> tuple[int, Any, Any] | None:
+        stamp = int(stamp)
+        mine, other = self.pending[side], self.pending[1 - side]
+        if self.newest is not None and stamp < self.newest - self.max_age_ns:
+            self.counts[f"unmatched_{self._NAMES[side]}"] += 1
+            return None
+        if stamp in mine:
+            self.counts["duplicate_stamps"] += 1
+            return None
+        if self.newest is None or stamp > self.newest:
+            self.newest = stamp
+            self._evict()
+        if stamp in other:
+            partner = other.pop(stamp)
+            return (stamp, item, partner) if side == STATE else (stamp, partner, item)
+        mine[stamp] = item
+        while len(mine) > self.max_pending:  # dicts keep insertion order: drop the oldest
+            mine.pop(next(iter(mine)))
+            self.counts[f"unmatched_{self._NAMES[side]}"] += 1
+        return None
+
+    def _evict(self) -> None:
+        limit = self.newest - self.max_age_ns
+        for side, pending in enumerate(self.pending):
+            old = [s for s in pending if s < limit]
+            for s in old:
+                del pending[s]
+            if old:
+                self.counts[f"unmatched_{self._NAMES[side]}"] += len(old)
+
+    def flush(self) -> None:
+        """Drop everything pending (counted as unmatched)."""
+        for side, pending in enumerate(self.pending):
+            self.counts[f"unmatched_{self._NAMES[side]}"] += len(pending)
+            pending.clear()
+
+
+# ---------------------------------------------------------------------- learning
+@dataclass
+class Snapshot:
+    """A frozen copy of the learner's model set, handed to the SnapshotWriter."""
+
+    model_set: ModelSet
+    samples: int                   # pairs learned when the copy was taken
+    stamps: np.ndarray | None      # learned stamps [ns], in order (record_stamps only)
+    copy_seconds: float            # time the learning thread spent copying
+
+
+class OnlineLearner:
+    """ModelSet.partial_fit_one on valid (state, error) pairs in increasing stamp order.
+
+    learn() returns None when the pair was learned (or buffered for calibration), else
+    the name of the rejection, which is also counted in `counts`:
+    - "out_of_order_pairs": stamp not after the last learned one (learning order matters);
+    - "invalid_samples": the state is not valid (near a contact change, filter warm-up,
+      after a rejected input) or nothing in the error is observed;
+    - "non_finite_inputs": x is not finite (cannot happen after the conversions' checks).
+    Γ entries whose actuation_observed flag is false are not learned (passed as NaN,
+    which partial_fit_one skips per dimension); Φ̃' entries follow rbd_observed.
+    """
+
+    def __init__(self, model_set: ModelSet, calibration_samples: int = 0, record_stamps: bool = False) -> None:
+        if calibration_samples < 0:
+            raise ValueError("calibration_samples must be >= 0")
+        if not learner_class(model_set.learner).supports_partial_fit:
+            raise ModelSetError(f"learner {model_set.learner!r} cannot learn online (no partial_fit); use 'lwpr'")
+        self.model_set = model_set
+        self.calibration_samples = 0 if model_set.is_fitted() else int(calibration_samples)
+        self.record_stamps = bool(record_stamps)
+        self.counts: Counter[str] = Counter()
+        self.n_learned = 0
+        self.last_stamp: int | None = None
+        self._buffer: list[tuple[int, np.ndarray, ErrorSample]] = []
+        self._stamps = np.empty(1024 if record_stamps else 0, dtype=np.int64)
+
+    @property
+    def calibrating(self) -> bool:
+        return self.calibration_samples > 0
+
+    @property
+    def learned_stamps(self) -> np.ndarray:
+        """Stamps of the learned samples in learning order (empty without record_stamps)."""
+        return self._stamps[: self.n_learned if self.record_stamps else 0]
+
+    def _reject(self, reason: str) -> str:
+        self.counts[reason] += 1
+        return reason
+
+    def learn(self, stamp: int, state: StateSample, error: ErrorSample) -> str | None:
+        if self.last_stamp is not None and stamp <= self.last_stamp:
+            return self._reject("out_of_order_pairs")
+        if not state.valid or not (error.rbd_observed.any() or error.actuation_observed.any()):
+            return self._reject("invalid_samples")
+        x = learning_inputs(state.q, state.v, state.a)[0]
+        if not np.all(np.isfinite(x)):
+            return self._reject("non_finite_inputs")
+        self.last_stamp = stamp
+        if self.calibrating:
+            self._buffer.append((stamp, x, error))
+            if len(self._buffer) >= self.calibration_samples:
+                self._calibrate_and_learn_buffer()
+            return None
+        self._learn_one(stamp, x, error)
+        return None
+
+    def _gamma(self, error: ErrorSample) -> np.ndarray:
+        return np.where(error.actuation_observed, error.actuation_error, np.nan)
+
+    def _learn_one(self, stamp: int, x: np.ndarray, error: ErrorSample) -> None:
+        self.model_set.partial_fit_one(x, error.rbd_error, error.rbd_observed, self._gamma(error))
+        self._record(stamp)
+
+    def _record(self, stamp: int) -> None:
+        if self.record_stamps:
+            if self.n_learned >= len(self._stamps):
+                self._stamps = np.concatenate([self._stamps, np.empty(len(self._stamps), dtype=np.int64)])
+            self._stamps[self.n_learned] = stamp
+        self.n_learned += 1
+
+    def _calibrate_and_learn_buffer(self) -> None:
+        stamps = [s for s, _, _ in self._buffer]
+        X = np.array([x for _, x, _ in self._buffer])
+        phi = np.array([e.rbd_error for _, _, e in self._buffer])
+        obs = np.array([e.rbd_observed for _, _, e in self._buffer])
+        gamma = np.array([self._gamma(e) for _, _, e in self._buffer])
+        self._buffer.clear()
+        self.calibration_samples = 0
+        self.model_set.calibrate(X, phi, obs, gamma)
+        self.model_set.partial_fit(X, phi, obs, gamma)  # = partial_fit_one on each, in order
+        for s in stamps:
+            self._record(s)
+
+    def snapshot(self) -> Snapshot:
+        """Deep copy of the model set (and learned stamps) for a writer thread; timed."""
+        t0 = time.perf_counter()
+        ms = copy.deepcopy(self.model_set)
+        stamps = self.learned_stamps.copy() if self.record_stamps else None
+        return Snapshot(ms, self.n_learned, stamps, time.perf_counter() - t0)
+
+
+def warm_up(robot: RobotDescription, learner: str = "lwpr") -> float:
+    """Compile (or load from numba's cache) the learner's code on a throwaway model set, so
+    the first live sample is not late; returns the seconds it took."""
+    t0 = time.perf_counter()
+    ms = ModelSet.for_robot(robot, learner)
+    x = probe_inputs(robot)
+    ones = np.ones(ms.n_rbd, dtype=bool)
+    for k in range(3):
+        ms.partial_fit_one(x + 0.01 * k, np.zeros(ms.n_rbd), ones, np.zeros(ms.n_actuation))
+    ms.predict_one(x)
+    ms.partial_fit(np.array([x, x + 0.02]), np.zeros((2, ms.n_rbd)), np.ones((2, ms.n_rbd), bool),
+                   np.zeros((2, ms.n_actuation)))
+    return time.perf_counter() - t0
+
+
+# ---------------------------------------------------------------------- background work
+@dataclass
+class WorkResult:
+    item: Any
+    value: Any = None
+    error: str | None = None
+    seconds: float = 0.0
+
+
+class LatestOnlyWorker:
+    """Runs fn(item) on one background thread; only the newest submitted item waits.
+
+    submit() replaces a pending (not yet started) item: for model snapshots and model
+    updates only the newest matters. Results (WorkResult) are collected by drain() from
+    the owner's thread, so the owner never shares mutable state with the worker.
+    Exceptions of fn become WorkResult.error (one line); the worker keeps running.
+    """
+
+    def __init__(self, fn: Callable[[Any], Any], name: str = "ciml-worker") -> None:
+        self.fn = fn
+        self._cond = threading.Condition()
+        self._pending: list[Any] = []
+        self._running = False
+        self._closed = False
+        self._results: deque[WorkResult] = deque()
+        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
+        self._thread.start()
+
+    @property
+    def busy(self) -> bool:
+        with self._cond:
+            return self._running or bool(self._pending)
+
+    def submit(self, item: Any) -> bool:
+        """Queue item; returns True if it replaced an item that had not started yet."""
+        with self._cond:
+            replaced = bool(self._pending)
+            self._pending = [item]
+            self._cond.notify()
+            return replaced
+
+    def drain(self) -> list[WorkResult]:
+        out = []
+        while self._results:
+            out.append(self._results.popleft())
+        return out
+
+    def _loop(self) -> None:
+        while True:
+            with self._cond:
+                while not self._pending and not self._closed:
+                    self._cond.wait()
+                if not self._pending:
+                    return
+                item = self._pending.pop()
+                self._running = True
+            t0 = time.perf_counter()
+            try:
+                result = WorkResult(item, value=self.fn(item))
+            except CimlError as err:
+                result = WorkResult(item, error=str(err))
+            except Exception as err:  # noqa: BLE001 - the worker must survive any failure and report it
+                result = WorkResult(item, error=f"{type(err).__name__}: {err}")
+            result.seconds = time.perf_counter() - t0
+            self._results.append(result)
+            with self._cond:
+                self._running = False
+                self._cond.notify_all()
+
+    def close(self, timeout: float = 30.0) -> None:
+        """Finish the pending item (if any) and stop the thread."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+        self._thread.join(timeout)
+
+
+# ---------------------------------------------------------------------- snapshots on disk
+@dataclass
+class SavedSnapshot:
+    model_dir: str
+    learner: str
+    samples: int
+    checksum: str
+    write_seconds: float
+
+
+class SnapshotWriter:
+    """Numbered snapshot directories under `root` (module docstring); write() is what
+    the worker thread runs. Numbering continues after existing snapshots."""
+
+    def __init__(self, root: str, keep: int = 3) -> None:
+        if keep < 1:
+            raise ValueError("keep must be >= 1")
+        self.root = os.path.abspath(os.path.expanduser(root))
+        self.keep = int(keep)
+        try:
+            os.makedirs(self.root, exist_ok=True)
+            existing = self.snapshots()
+        except OSError as err:
+            raise CimlError(f"cannot use snapshot folder {self.root}: {err.strerror or err}") from err
+        self.seq = existing[-1][0] if existing else 0
+
+    def snapshots(self) -> list[tuple[int, str]]:
+        """(number, path) of the snapshot directories, oldest first."""
+        out = []
+        for name in os.listdir(self.root):
+            m = re.fullmatch(rf"{SNAPSHOT_PREFIX}(\d+)", name)
+            if m and os.path.isdir(os.path.join(self.root, name)):
+                out.append((int(m.group(1)), os.path.join(self.root, name)))
+        return sorted(out)
+
+    def write(self, snap: Snapshot) -> SavedSnapshot:
+        from .fileio import atomic_write_bytes
+
+        t0 = time.perf_counter()
+        self.seq += 1
+        name = f"{SNAPSHOT_PREFIX}{self.seq:06d}"
+        path = os.path.join(self.root, name)
+        if os.path.exists(path):  # a leftover of an interrupted run with the same number
+            shutil.rmtree(path)
+        os.makedirs(path)
+        if snap.stamps is not None:
+            buf = io.BytesIO()
+            np.save(buf, snap.stamps.astype(np.int64), allow_pickle=False)
+            atomic_write_bytes(os.path.join(path, STAMPS_FILE), buf.getvalue())
+        snap.model_set.training_ = {**snap.model_set.training_, "source": "online_learner",
+                                    "samples": int(snap.samples), "snapshot": self.seq}
+        meta = snap.model_set.save(path)  # npz then json, each atomically
+        tmp = os.path.join(self.root, f".{LATEST}.tmp{os.getpid()}")
+        if os.path.lexists(tmp):
+            os.unlink(tmp)
+        os.symlink(name, tmp)
+        os.replace(tmp, os.path.join(self.root, LATEST))
+        for _, old in self.snapshots()[: -self.keep]:
+            shutil.rmtree(old, ignore_errors=True)
+        return SavedSnapshot(path, snap.model_set.learner, int(snap.samples), meta["npz"]["sha256"],
+                             time.perf_counter() - t0)
+
+
+# ---------------------------------------------------------------------- serving
+@dataclass
+class ServedModel:
+    """A validated model set as served by the model server."""
+
+    name: str                 # "<learner>:<directory name>", the `source` of predictions
+    model_dir: str
+    model_set: ModelSet
+    checksum: str
+    rbd_learned: np.ndarray        # (18,) bool: dimension has a learned model
+    actuation_learned: np.ndarray  # (n_j,) bool
+
+
+def probe_inputs(robot: RobotDescription) -> np.ndarray:
+    """Learning inputs x (eq. 12) of the robot standing still: a probe for validation."""
+    q = robot.neutral_configuration().copy()
+    q[7:] = robot.standing_joints
+    return learning_inputs(q, np.zeros(robot.nv), np.zeros(robot.nv))[0]
+
+
+def load_served_model(robot: RobotDescription, model_dir: str, checksum: str = "") -> ServedModel:
+    """Load and validate a model directory for serving; ModelFileError (one line) if unusable.
+
+    Beyond ModelSet.load's checks (format version, allow-listed learner, the robot's
+    names, npz checksum against model.json), the npz checksum must equal `checksum`
+    when given (the one announced on /model_update), and a probe prediction at the
+    standing posture must be finite.
+    """
+    model_dir = os.path.abspath(os.path.expanduser(model_dir))
+    meta = read_metadata(model_dir)
+    announced = str(checksum or "")
+    stored = str((meta.get("npz") or {}).get("sha256", ""))
+    if announced and stored != announced:
+        raise ModelFileError(f"{model_dir}: npz checksum {stored[:12]}… differs from the announced "
+                             f"{announced[:12]}… (replaced or tampered after the announcement)")
+    ms = ModelSet.load(model_dir, robot)
+    if announced and str((read_metadata(model_dir).get("npz") or {}).get("sha256", "")) != announced:
+        raise ModelFileError(f"{model_dir} changed while it was being loaded")
+    out = ms.predict_one(probe_inputs(robot))
+    if not all(np.all(np.isfinite(a)) for a in out):
+        raise ModelFileError(f"{model_dir}: the model predicts non-finite values at the standing posture")
+    learned = np.array([m is not None for m in ms.models_], dtype=bool)
+    return ServedModel(name=f"{ms.learner}:{os.path.basename(model_dir)}", model_dir=model_dir, model_set=ms,
+                       checksum=stored, rbd_learned=learned[: ms.n_rbd], actuation_learned=learned[ms.n_rbd:])
+
+
+@dataclass
+class PredictedError:
+    """What the model server publishes on /model_error/predicted.
+
+    Learned model: the set's means and predictive variances [N², Nm²]; observed = the
+    dimension has a learned model (an unlearned dimension predicts 0 with its prior
+    variance, output_scale², as ModelSet.predict_one does).
+    Nominal model (no model loaded, or a non-finite prediction): zeros, all observed
+    flags false, and the prior variance of default_scaling(robot): (5 % of the weight
+    [N], ×0.1 m [Nm], per foot a quarter; 5 % of each torque limit [Nm])² — large
+    compared with a learned model's variance, so "we do not know" is explicit.
+    """
+
+    source: str
+    rbd_error: np.ndarray
+    rbd_variance: np.ndarray
+    rbd_observed: np.ndarray
+    actuation_error: np.ndarray
+    actuation_variance: np.ndarray
+    actuation_observed: np.ndarray
+    fallback: str | None = None    # why nominal was served ("no_model", "non_finite_prediction")
+
+
+NOMINAL = "nominal"
+
+
+def nominal_prediction(robot: RobotDescription, fallback: str | None = None) -> PredictedError:
+    _, _, out_scale = default_scaling(robot)
+    var = out_scale ** 2
+    nr = len(robot.rbd_error_names)
+    return PredictedError(NOMINAL, np.zeros(nr), var[:nr].copy(), np.zeros(nr, bool),
+                          np.zeros(robot.n_joints), var[nr:].copy(), np.zeros(robot.n_joints, bool), fallback)
+
+
+def predict_at_reference(robot: RobotDescription, served: ServedModel | None, q: np.ndarray, v: np.ndarray,
+                         a: np.ndarray) -> PredictedError:
+    """Φ̃' and Γ (with variances) at x = learning_inputs(qᵈ, q̇ᵈ, q̈ᵈ) (eq. 12); nominal
+    when no model is served or anything predicted is non-finite. Never returns NaN."""
+    if served is None:
+        return nominal_prediction(robot, "no_model")
+    x = learning_inputs(q, v, a)[0]
+    if not np.all(np.isfinite(x)):
+        return nominal_prediction(robot, "non_finite_reference")
+    phi, phi_var, gamma, gamma_var = served.model_set.predict_one(x)
+    if not all(np.all(np.isfinite(z)) for z in (phi, phi_var, gamma, gamma_var)):
+        return nominal_prediction(robot, "non_finite_prediction")
+    return PredictedError(served.name, phi, phi_var, served.rbd_learned.copy(), gamma, gamma_var,
+                          served.actuation_learned.copy())
+
+
+# ---------------------------------------------------------------------- benchmark
+def online_nodes_benchmark(n_warmup: int = 20_000, n_samples: int = 2_000, seed: int = 0) -> dict:
+    """Per-sample cost of the two nodes' algorithms, after n_warmup learned samples:
+
+    - learner path: StampPairer (both sides) + OnlineLearner.learn (learning_inputs +
+      partial_fit_one of all 30 dimensions), then predict_at_reference (learning_inputs +
+      predict_one of all 30) — the online cost per 250 Hz sample; target ≤ 4 ms;
+    - snapshot: the deep copy on the learning thread (the only stall) and the write on
+      the worker thread; server hot-swap: load_served_model of that snapshot.
+    The LWPR update alone is training.online_benchmark (the learners' module).
+    """
+    import tempfile
+
+    from .robot import load_robot
+    from .training import synthetic_training_set
+
+    robot = load_robot()
+    data = synthetic_training_set(robot, n_warmup + n_samples, seed)
+    X, R, O, A, V = (data[k] for k in ("inputs", "rbd_error", "rbd_observed", "actuation_error", "valid"))
+    # states whose learning_inputs are X: base roll/pitch as a quaternion, the rest verbatim
+    import pinocchio as pin
+
+    nj, nv = robot.n_joints, robot.nv
+    n = n_warmup + n_samples
+    q = np.zeros((n, robot.nq))
+    for k in range(n):
+        q[k, 3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(X[k, 0], X[k, 1], 0.0)).coeffs()
+    q[:, 2] = 0.6
+    q[:, 7:] = X[:, 2:2 + nj]
+    v = X[:, 2 + nj:2 + nj + nv]
+    a = X[:, 2 + nj + nv:]
+    ms = ModelSet.for_robot(robot, "lwpr")
+    sl = slice(0, n_warmup)
+    ms.calibrate(X[sl], R[sl], O[sl], A[sl], V[sl])
+    ms.partial_fit(X[sl], R[sl], O[sl], A[sl], V[sl])
+    learner = OnlineLearner(ms)
+    pairer = StampPairer(max_age_ns=500_000_000)
+    served = ServedModel("lwpr:bench", "", ms, "", np.ones(ms.n_rbd, bool), np.ones(ms.n_actuation, bool))
+    t_learn = np.empty(n_samples)
+    t_pred = np.empty(n_samples)
+    for s in range(n_samples):
+        k = n_warmup + s
+        stamp = k * 4_000_000
+        t0 = time.perf_counter()
+        pairer.add(STATE, stamp, StateSample(q[k], v[k], a[k], bool(V[k])))
+        pair = pairer.add(ERROR, stamp, ErrorSample(R[k], O[k], A[k], np.ones(nj, bool)))
+        learner.learn(pair[0], pair[1], pair[2])
+        t1 = time.perf_counter()
+        predict_at_reference(robot, served, q[k], v[k], a[k])
+        t_pred[s] = time.perf_counter() - t1
+        t_learn[s] = t1 - t0
+    total = t_learn + t_pred
+    with tempfile.TemporaryDirectory() as tmp:
+        snap = learner.snapshot()
+        saved = SnapshotWriter(tmp).write(snap)
+        t0 = time.perf_counter()
+        load_served_model(robot, saved.model_dir, saved.checksum)
+        load_s = time.perf_counter() - t0
+        size = sum(os.path.getsize(os.path.join(saved.model_dir, f)) for f in os.listdir(saved.model_dir))
+    rfs = [m.n_receptive_fields for m in ms.models_ if m is not None]
+    ms_ = lambda x: round(1e3 * float(x), 4)  # noqa: E731
+    return {"warmup_samples": n_warmup, "timed_samples": n_samples,
+            "learn_ms_mean": ms_(t_learn.mean()), "learn_ms_p99": ms_(np.percentile(t_learn, 99)),
+            "predict_ms_mean": ms_(t_pred.mean()), "predict_ms_p99": ms_(np.percentile(t_pred, 99)),
+            "per_sample_ms_mean": ms_(total.mean()), "per_sample_ms_p99": ms_(np.percentile(total, 99)),
+            "target_ms": 4.0, "meets_target": bool(np.percentile(total, 99) * 1e3 <= 4.0),
+            "snapshot_copy_ms": ms_(snap.copy_seconds), "snapshot_write_ms": ms_(saved.write_seconds),
+            "snapshot_bytes": int(size), "server_load_ms": ms_(load_s),
+            "receptive_fields_total": int(sum(rfs))}

@@ -1,0 +1,259 @@
+"""The per-dimension model set: observed mask, ε (eq. 17), the model file format."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
+from ciml_learning.extraction import combined_error, learning_inputs
+from ciml_learning.models import (
+    MODEL_JSON,
+    MODEL_NPZ,
+    EpsilonFunction,
+    ModelFileError,
+    ModelSet,
+    ModelSetError,
+    load_epsilon_function,
+)
+from ciml_learning.projection import contact_invariant_basis
+from ciml_learning.robot import example_robot_data_dir, load_robot
+from ciml_learning.training import relative_rmse, synthetic_training_set
+
+ROBOT = load_robot()
+SMALL_SGPR = {"n_inducing": 15, "n_hyper_samples": 200, "max_iters": 3}
+
+
+def fit_args(data):
+    return data["inputs"], data["rbd_error"], data["rbd_observed"], data["actuation_error"], data["valid"]
+
+
+@pytest.fixture(scope="module")
+def data():
+    return synthetic_training_set(ROBOT, 12_000, seed=0)
+
+
+@pytest.fixture(scope="module")
+def lwpr_set(data):
+    return ModelSet.for_robot(ROBOT, "lwpr").fit(*fit_args(data))
+
+
+@pytest.fixture(scope="module")
+def sgpr_set(data):
+    small = {k: v[:1000] for k, v in data.items()}
+    return ModelSet.for_robot(ROBOT, "sgpr", SMALL_SGPR, SMALL_SGPR).fit(*fit_args(small))
+
+
+def state_at(robot=ROBOT, seed=0):
+    rng = np.random.default_rng(seed)
+    q = robot.neutral_configuration()
+    q[2] = 0.6
+    q[7:] = robot.standing_joints + rng.uniform(-0.1, 0.1, robot.n_joints)
+    return q, 0.2 * rng.standard_normal(robot.nv), rng.standard_normal(robot.nv)
+
+
+def test_observed_mask_and_valid_flag_are_respected(data):
+    """A foot's entries are learned only where that foot swings and the sample is valid:
+    unobserved entries and invalid samples hold garbage (1e3) that would ruin the fit if used."""
+    corrupted = dict(data)
+    rbd = np.where(data["rbd_observed"], data["rbd_error"], 1e3)
+    act = data["actuation_error"].copy()
+    rbd[~data["valid"]] = 1e3
+    act[~data["valid"]] = -1e3
+    corrupted["rbd_error"], corrupted["actuation_error"] = rbd, act
+    ms = ModelSet.for_robot(ROBOT, "lwpr").fit(*fit_args(corrupted))
+    usable = data["rbd_observed"] & data["valid"][:, None]
+    np.testing.assert_array_equal(ms.n_samples_[:18], usable.sum(axis=0))
+    np.testing.assert_array_equal(ms.n_samples_[18:], data["valid"].sum())
+    assert np.all(ms.n_samples_[6:18] < 0.5 * ms.n_samples_[0])  # feet: swing samples only
+    test = synthetic_training_set(ROBOT, 4_000, seed=1)
+    scores = relative_rmse(ms, test)
+    assert scores["rbd_relative_rmse_max"] < 0.4, scores      # low-SNR base torques are the worst
+    assert scores["rbd_relative_rmse_median"] < 0.15, scores
+    assert scores["actuation_relative_rmse_max"] < 0.3, scores
+    # a foot that never swings (standing) keeps no model: zero error, prior variance
+    standing = {k: v[:3000] for k, v in data.items()}
+    obs = standing["rbd_observed"].copy()
+    obs[:, 6:9] = False
+    standing["rbd_observed"] = obs
+    ms2 = ModelSet.for_robot(ROBOT, "lwpr").fit(*fit_args(standing))
+    assert all(ms2.models_[i] is None for i in (6, 7, 8)) and ms2.models_[9] is not None
+    pred = ms2.predict(test["inputs"][:10])
+    np.testing.assert_array_equal(pred.rbd[:, 6:9], 0.0)
+    np.testing.assert_allclose(pred.rbd_var[:, 6:9], np.tile(ms2.output_scale_[6:9] ** 2, (10, 1)))
+
+
+def test_online_partial_fit_matches_batch_and_snapshots(data, tmp_path):
+    """partial_fit_one sample by sample == partial_fit on the batch; a snapshot saved while
+    learning loads back to exactly that state."""
+    n = 3_000
+    part = {k: v[:n] for k, v in data.items()}
+    a = ModelSet.for_robot(ROBOT, "lwpr")
+    b = ModelSet.for_robot(ROBOT, "lwpr")
+    a.partial_fit(*fit_args(part))
+    snapshot_at = 2_000
+    for k in range(n):
+        if part["valid"][k]:
+            b.partial_fit_one(part["inputs"][k], part["rbd_error"][k], part["rbd_observed"][k],
+                              part["actuation_error"][k])
+        if k == snapshot_at:
+            b.save(str(tmp_path / "snap"))
+            expected = b.predict(data["inputs"][-50:])
+    np.testing.assert_array_equal(a.n_samples_, b.n_samples_)
+    pa, pb = a.predict(data["inputs"][-200:]), b.predict(data["inputs"][-200:])
+    np.testing.assert_array_equal(pa.rbd, pb.rbd)
+    np.testing.assert_array_equal(pa.actuation_var, pb.actuation_var)
+    snap = ModelSet.load(str(tmp_path / "snap"), ROBOT).predict(data["inputs"][-50:])
+    np.testing.assert_array_equal(snap.rbd, expected.rbd)
+    np.testing.assert_array_equal(snap.actuation, expected.actuation)
+    # predict_one equals predict
+    rbd, rbd_var, act, act_var = b.predict_one(data["inputs"][-1])
+    np.testing.assert_allclose(rbd, pb.rbd[-1], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(act_var, pb.actuation_var[-1], rtol=1e-12)
+
+
+def test_batch_only_learner_refuses_partial_fit(sgpr_set, data):
+    with pytest.raises(ModelSetError, match="partial_fit"):
+        sgpr_set.partial_fit_one(data["inputs"][0], data["rbd_error"][0], data["rbd_observed"][0],
+                                 data["actuation_error"][0])
+
+
+@pytest.mark.parametrize("which", ["lwpr", "sgpr"])
+def test_save_load_identical_predictions(which, lwpr_set, sgpr_set, data, tmp_path):
+    ms = lwpr_set if which == "lwpr" else sgpr_set
+    ms.training_ = {"bags": ["a.mcap"], "samples": 12_000}
+    out = str(tmp_path / "model")
+    meta = ms.save(out)
+    assert sorted(os.listdir(out)) == [MODEL_JSON, MODEL_NPZ]
+    with open(os.path.join(out, MODEL_JSON)) as f:
+        on_disk = json.load(f)
+    assert on_disk["format_version"] == 1 and on_disk["learner"] == which
+    assert on_disk["kernel"] in ("gaussian_receptive_fields", "matern32_ard")
+    assert on_disk["robot"]["joint_names"] == list(ROBOT.joint_names)
+    assert on_disk["outputs"]["rbd"] == list(ROBOT.rbd_error_names)
+    assert on_disk["training"]["bags"] == ["a.mcap"] and len(on_disk["npz"]["sha256"]) == 64
+    assert meta == on_disk
+    with np.load(os.path.join(out, MODEL_NPZ), allow_pickle=False) as npz:
+        assert all(npz[k].dtype != object for k in npz.files)
+    loaded = ModelSet.load(out, ROBOT)
+    X = data["inputs"][-300:]
+    p1, p2 = ms.predict(X), loaded.predict(X)
+    for field in ("rbd", "rbd_var", "actuation", "actuation_var"):
+        np.testing.assert_array_equal(getattr(p1, field), getattr(p2, field))
+
+
+def _saved(ms, tmp_path, name="m") -> str:
+    out = str(tmp_path / name)
+    ms.save(out)
+    return out
+
+
+def one_line_error(model_dir, match, robot=ROBOT):
+    with pytest.raises(ModelFileError, match=match) as info:
+        ModelSet.load(model_dir, robot)
+    assert "\n" not in str(info.value)
+
+
+def test_tampered_truncated_and_wrong_version_files_are_refused(lwpr_set, tmp_path):
+    good = _saved(lwpr_set, tmp_path, "good")
+    npz_bytes = open(os.path.join(good, MODEL_NPZ), "rb").read()
+    meta = json.load(open(os.path.join(good, MODEL_JSON)))
+
+    def variant(name: str, npz: bytes = npz_bytes, meta_obj=None, meta_text: str | None = None) -> str:
+        d = str(tmp_path / name)
+        os.makedirs(d)
+        with open(os.path.join(d, MODEL_NPZ), "wb") as f:
+            f.write(npz)
+        with open(os.path.join(d, MODEL_JSON), "w") as f:
+            f.write(meta_text if meta_text is not None else json.dumps(meta_obj or meta))
+        return d
+
+    tampered = bytearray(npz_bytes)
+    tampered[len(tampered) // 2] ^= 0xFF
+    one_line_error(variant("tampered", bytes(tampered)), "checksum")
+    one_line_error(variant("truncated_npz", npz_bytes[: len(npz_bytes) // 3]), "checksum")
+    one_line_error(variant("truncated_json", meta_text=json.dumps(meta)[:200]), "not valid JSON")
+    one_line_error(variant("v2", meta_obj={**meta, "format_version": 2}), "format_version 2")
+    one_line_error(variant("learner", meta_obj={**meta, "learner": "GPy.core.GP"}), "unknown learner")
+    # a consistent checksum does not make a malformed file acceptable
+    import hashlib
+    import io
+
+    with np.load(io.BytesIO(npz_bytes), allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    arrays["dim00.rf.c"] = arrays["dim00.rf.c"][:, :3]
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    bad = buf.getvalue()
+    forged = {**meta, "npz": {"file": MODEL_NPZ, "sha256": hashlib.sha256(bad).hexdigest(), "bytes": len(bad)}}
+    one_line_error(variant("malformed", bad, forged), "rf.c has shape")
+    # pickled object arrays are never loaded
+    arrays2 = dict(arrays)
+    arrays2["input_mean"] = np.array([{"evil": 1}], dtype=object)
+    buf = io.BytesIO()
+    np.savez(buf, **arrays2)
+    objs = buf.getvalue()
+    forged = {**meta, "npz": {"file": MODEL_NPZ, "sha256": hashlib.sha256(objs).hexdigest(), "bytes": len(objs)}}
+    one_line_error(variant("pickled", objs, forged), "not a readable npz|input_mean")
+    shutil.rmtree(os.path.join(good))
+    one_line_error(good, "not found")
+
+
+def test_wrong_robot_is_refused(lwpr_set, tmp_path):
+    out = _saved(lwpr_set, tmp_path)
+    solo = load_robot(os.path.join(example_robot_data_dir(), "solo_description", "robots", "solo12.urdf"),
+                      ["FL_FOOT", "FR_FOOT", "HL_FOOT", "HR_FOOT"])
+    one_line_error(out, "different robot", robot=solo)
+    with pytest.raises(ModelFileError, match="different robot"):
+        load_epsilon_function(solo, out)
+
+
+def test_model_set_works_for_another_robot():
+    """Nothing assumes HyQ: a model set for solo12 trains, saves and predicts ε."""
+    solo = load_robot(os.path.join(example_robot_data_dir(), "solo_description", "robots", "solo12.urdf"),
+                      ["FL_FOOT", "FR_FOOT", "HL_FOOT", "HR_FOOT"])
+    d = synthetic_training_set(solo, 2_000, seed=3)
+    ms = ModelSet.for_robot(solo, "lwpr").fit(*fit_args(d))
+    eps = EpsilonFunction(solo, ms).epsilon(*state_at(solo))
+    assert eps.shape == (solo.nv,) and np.all(np.isfinite(eps))
+
+
+def test_epsilon_is_eq17_at_the_reference(lwpr_set, tmp_path):
+    out = _saved(lwpr_set, tmp_path)
+    epsilon_fn = load_epsilon_function(ROBOT, out)
+    q, v, a = state_at()
+    ref = SimpleNamespace(t=0.0, q=q, v=v, a=a, contacts=np.ones(4, bool), phase=0.0, motion="trot_35")
+    eps = epsilon_fn(ref)
+    phi, phi_var, gamma, gamma_var = lwpr_set.predict_one(learning_inputs(q, v, a)[0])
+    basis = contact_invariant_basis(RigidBodyDynamics(ROBOT).foot_jacobians(q), ROBOT.leg_joints)
+    S = selection_matrix(ROBOT)
+    np.testing.assert_allclose(eps, combined_error(basis, phi, gamma, S), rtol=1e-12, atol=1e-9)
+    # J'ᵀ is invertible: Φ̃' is recovered from ε + SᵀΓ (eq. 8)
+    np.testing.assert_allclose(np.linalg.solve(basis.T, eps + S.T @ gamma), phi, rtol=1e-8, atol=1e-8)
+    assert np.abs(eps).max() > 1.0  # the learned error is not zero
+    e2, var = epsilon_fn.epsilon(q, v, a, return_var=True)
+    np.testing.assert_array_equal(e2, eps)
+    assert np.all(var > 0)
+    # NaN never reaches the controller
+    ref.q = q.copy()
+    ref.q[8] = np.nan
+    np.testing.assert_array_equal(epsilon_fn(ref), np.zeros(ROBOT.nv))
+    assert epsilon_fn.n_nonfinite == 1
+
+
+def test_bad_inputs_raise_one_line_errors(lwpr_set, data):
+    with pytest.raises(ModelSetError, match="shapes"):
+        ModelSet.for_robot(ROBOT, "lwpr").fit(data["inputs"][:, :10], data["rbd_error"], data["rbd_observed"],
+                                              data["actuation_error"], data["valid"])
+    with pytest.raises(ModelSetError, match="non-finite"):
+        lwpr_set.predict(np.full((1, 50), np.nan))
+    with pytest.raises(ModelSetError, match="calibrate"):
+        lwpr_set.calibrate(*fit_args(data))
+    from ciml_learning.learners import LearnerError
+
+    with pytest.raises(LearnerError, match="unknown lwpr hyper-parameter"):
+        ModelSet.for_robot(ROBOT, "lwpr", rbd_params={"n_inducing": 5})

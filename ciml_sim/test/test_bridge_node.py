@@ -1,0 +1,199 @@
+"""The mujoco_bridge node on the live graph: topics, damping without commands, rejected commands."""
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from ciml_learning.robot import load_robot
+from rosutil import start_node, stop
+
+ROBOT = load_robot()
+
+
+class _Graph:
+    """A private rclpy context: subscriptions with the bridge's QoS, a command publisher, a reset client."""
+
+    def __init__(self) -> None:
+        import rclpy
+        from ciml_msgs.msg import ContactState, TorqueCommand
+        from diagnostic_msgs.msg import DiagnosticArray
+        from nav_msgs.msg import Odometry
+        from rclpy.executors import SingleThreadedExecutor
+        from rosgraph_msgs.msg import Clock
+        from sensor_msgs.msg import JointState
+        from std_srvs.srv import Trigger
+
+        from ciml_learning.ros_common import COMMAND_QOS, SENSOR_QOS
+
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("bridge_test", context=self.context)
+        self.messages: dict[str, list] = {}
+        self._lock = threading.Lock()
+        for topic, cls, qos in (("/joint_states", JointState, SENSOR_QOS), ("/base_state", Odometry, SENSOR_QOS),
+                                ("/contact_state", ContactState, SENSOR_QOS), ("/clock", Clock, 10),
+                                ("/diagnostics", DiagnosticArray, 50)):
+            self.messages[topic] = []
+            self.node.create_subscription(cls, topic, lambda m, t=topic: self._add(t, m), qos)
+        self.commands = self.node.create_publisher(TorqueCommand, "/torque_command", COMMAND_QOS)
+        self.reset = self.node.create_client(Trigger, "/mujoco_bridge/reset")
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._stop = False
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _add(self, topic, msg) -> None:
+        with self._lock:
+            self.messages[topic].append(msg)
+
+    def _spin(self) -> None:
+        while not self._stop:
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def get(self, topic: str) -> list:
+        with self._lock:
+            return list(self.messages[topic])
+
+    def bridge_status(self) -> list:
+        return [s for m in self.get("/diagnostics") for s in m.status if "mujoco_bridge" in s.name]
+
+    def wait_for(self, predicate, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if predicate():
+                return True
+            time.sleep(0.05)
+        return predicate()
+
+    def close(self) -> None:
+        import rclpy
+
+        self._stop = True
+        self.thread.join(timeout=5)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def _values(status) -> dict[str, str]:
+    return {kv.key: kv.value for kv in status.values}
+
+
+def _command(valid: bool = True):
+    from ciml_control.standing import StandingController
+    from ciml_learning import conversions as cv
+    from ciml_sim.plant import Plant
+    from ciml_sim.scenario import nominal_scenario
+
+    q0 = Plant(ROBOT, nominal_scenario()).standing_configuration()
+    c = StandingController(ROBOT).compute(q0, np.ones(ROBOT.n_feet, dtype=bool))
+    ff = c.feedforward.copy()
+    if not valid:
+        ff[3] = math.nan
+    return cv.torque_command_msg(ROBOT, 0, cv.TorqueCommandArrays(0, ff, c.feedback_linearization, c.q_target,
+                                                                 c.qd_target, c.kp, c.kd))
+
+
+@pytest.mark.ros
+def test_bridge_publishes_damps_without_commands_and_rejects_nan():
+    from std_srvs.srv import Trigger
+
+    graph = _Graph()
+    proc = start_node("mujoco_bridge")
+    log = ""
+    try:
+        # 1. the documented topics, on one 4 ms simulation-time grid
+        assert graph.wait_for(lambda: all(len(graph.get(t)) >= 50 for t in
+                                          ("/joint_states", "/base_state", "/contact_state", "/clock")), 30)
+        js = graph.get("/joint_states")[-40:]
+        assert list(js[0].name) == list(ROBOT.joint_names) and len(js[0].effort) == ROBOT.n_joints
+        stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in js])
+        assert np.all(np.diff(stamps) > 0) and np.all(np.diff(stamps) % 4_000_000 == 0)
+        assert graph.get("/base_state")[-1].child_frame_id == "base"
+        assert list(graph.get("/contact_state")[-1].foot_names) == list(ROBOT.foot_frames)
+        clock = graph.get("/clock")[-1].clock
+        assert clock.sec * 10**9 + clock.nanosec >= stamps[0]
+
+        # 2. no command yet: damping mode, and /diagnostics says so
+        assert graph.wait_for(lambda: any(s.level == b"\x01" and "damping" in s.message
+                                          for s in graph.bridge_status()), 10)
+
+        # 3. a NaN command is rejected and counted; the joints stay damped
+        assert graph.wait_for(lambda: graph.node.count_subscribers("/torque_command") >= 1, 10)
+        for _ in range(3):
+            graph.commands.publish(_command(valid=False))
+            time.sleep(0.05)
+        assert graph.wait_for(lambda: any(int(_values(s).get("rejected_commands", 0)) >= 3 and "damping" in s.message
+                                          for s in graph.bridge_status()), 10)
+
+        # 4. valid commands: torque control (level OK); when they stop, damping again after the timeout
+        n_before = len(graph.bridge_status())
+        end = time.monotonic() + 2.5
+        while time.monotonic() < end:
+            graph.commands.publish(_command())
+            time.sleep(0.01)
+        recent = graph.bridge_status()[n_before:]
+        assert any(s.level == b"\x00" and s.message == "torque control" for s in recent), [s.message for s in recent]
+        assert graph.wait_for(lambda: any(int(_values(s).get("stale_command_damping", 0)) >= 1 and "damping" in s.message
+                                          for s in graph.bridge_status()), 10)
+        z = graph.get("/base_state")[-1].pose.pose.position.z
+        assert 0.05 < z < 0.8  # damped joints let the robot sink onto its trunk; nothing explodes
+
+        # 5. reset service
+        assert graph.reset.wait_for_service(timeout_sec=5)
+        future = graph.reset.call_async(Trigger.Request())
+        assert graph.wait_for(future.done, 10) and future.result().success
+    finally:
+        log = stop(proc)
+        graph.close()
+    assert "Traceback" not in log, log
+
+
+@pytest.mark.ros
+def test_bridge_command_handling_in_process():
+    """The node's command path without the graph: NaN, wrong joint names, negative gains and
+    unknown modes are dropped and counted; a valid command leaves damping mode; a stale one
+    re-enters it after command_timeout of simulation time; damping mode is a request too."""
+    import random
+
+    import rclpy
+    from ciml_msgs.msg import TorqueCommand
+    from rclpy.parameter import Parameter
+
+    from ciml_sim.bridge_node import MujocoBridge
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=random.SystemRandom().randint(1, 101))
+    try:
+        node = MujocoBridge(context=ctx, parameter_overrides=[Parameter("command_timeout", value=0.02)])
+        assert node.damping and node.plant.damping_mode
+        bad = [_command(valid=False), _command(), _command(), _command()]
+        bad[1].joint_names = [n.replace("lf_", "xx_") for n in bad[1].joint_names]
+        bad[2].damping = [-1.0] * ROBOT.n_joints
+        bad[3].mode = 7
+        for msg in bad:
+            node.on_command(msg)
+        assert node.health.counts["rejected_commands"] == 4 and node.damping and node.commands_received == 0
+        node.on_command(_command())
+        assert not node.damping and not node.plant.damping_mode and node.health.level == 0
+        for _ in range(3):
+            node._sample()  # 12 ms of simulation time: within the timeout
+        assert not node.damping
+        for _ in range(3):
+            node._sample()
+        assert node.damping and node.health.counts["stale_command_damping"] == 1
+        assert "damping mode" in node.health.message and node.health.level == 1
+        node.on_command(_command())
+        damp = _command()
+        damp.mode = TorqueCommand.MODE_DAMPING
+        node.on_command(damp)
+        assert node.damping and "requested" in node.health.message
+        m = node.plant.measure()
+        assert np.all(np.isfinite(m.tau_measured))
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)

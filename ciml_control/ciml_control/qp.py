@@ -240,13 +240,13 @@ class FeedforwardQP:
         self.eps_abs = eps_abs
         self.max_iter = max_iter
         self.tolerance = tolerance
-        self._solvers: dict[tuple[int, int, int], proxsuite.proxqp.dense.QP] = {}
+        self._solvers: dict[tuple[int, int, int], tuple] = {}  # size → (solver, H, g)
 
     def _solver(self, p: FeedforwardProblem):
         nj = p.H.shape[0]
         key = (nj, len(p.b), len(p.l))
-        qp = self._solvers.get(key)
-        if qp is None:
+        entry = self._solvers.get(key)
+        if entry is None:
             qp = proxsuite.proxqp.dense.QP(nj, len(p.b), len(p.l), True)
             qp.settings.eps_abs = self.eps_abs
             qp.settings.eps_rel = 0.0
@@ -254,10 +254,14 @@ class FeedforwardQP:
             qp.settings.verbose = False
             qp.settings.initial_guess = proxsuite.proxqp.InitialGuess.EQUALITY_CONSTRAINED_INITIAL_GUESS
             qp.init(p.H, p.g, p.A, p.b, p.C, p.l, p.c_u, p.lb, p.ub)
-            self._solvers[key] = qp
+            self._solvers[key] = (qp, p.H.copy(), p.g.copy())
             return qp, True
+        qp, H, g = entry
         qp.settings.initial_guess = proxsuite.proxqp.InitialGuess.WARM_START_WITH_PREVIOUS_RESULT
-        qp.update(p.H, p.g, p.A, p.b, p.C, p.l, p.c_u, p.lb, p.ub)
+        same_cost = np.array_equal(H, p.H) and np.array_equal(g, p.g)
+        qp.update(None if same_cost else p.H, None if same_cost else p.g, p.A, p.b, p.C, p.l, p.c_u, p.lb, p.ub)
+        if not same_cost:
+            self._solvers[key] = (qp, p.H.copy(), p.g.copy())
         return qp, False
 
     def solve(self, p: FeedforwardProblem) -> FeedforwardSolution:

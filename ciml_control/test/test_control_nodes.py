@@ -50,7 +50,7 @@ def test_reference_generator_publishes_reference():
 
 @pytest.mark.ros
 def test_id_controller_commands_limited_torque_and_damps_without_state():
-    from ciml_msgs.msg import ContactState, RobotReference, TorqueCommand
+    from ciml_msgs.msg import ContactState, ModelError, RobotReference, TorqueCommand
     from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import JointState
@@ -61,6 +61,7 @@ def test_id_controller_commands_limited_torque_and_damps_without_state():
         "/joint_states": listener.node.create_publisher(JointState, "/joint_states", 10),
         "/base_state": listener.node.create_publisher(Odometry, "/base_state", 10),
         "/contact_state": listener.node.create_publisher(ContactState, "/contact_state", 10),
+        "/model_error/predicted": listener.node.create_publisher(ModelError, "/model_error/predicted", 10),
     }
     node = start_node("id_controller")
     cmds = listener.messages["/torque_command"]
@@ -74,8 +75,14 @@ def test_id_controller_commands_limited_torque_and_damps_without_state():
         # a static standing state at 250 Hz → torque commands
         n_before = len(cmds)
         rng = np.random.default_rng(0)
-        for k in range(250):
+        phi = np.zeros(18)
+        phi[2] = 60.0  # the model says: 60 N more weight on the base
+        gamma = np.full(ROBOT.n_joints, -2.0)  # and every actuator delivers 2 Nm too little
+        for k in range(375):
             ns = time.time_ns()
+            if k >= 250:  # last phase: with a model-error prediction
+                pubs["/model_error/predicted"].publish(cv.model_error_msg(
+                    ROBOT, ns, "test", phi, np.ones(18, bool), gamma, np.ones(ROBOT.n_joints, bool)))
             qj = q_stand[7:] + 0.01 * rng.standard_normal(ROBOT.n_joints)
             pubs["/reference"].publish(reference_msg(ROBOT, ns, ref))
             pubs["/base_state"].publish(cv.odometry_msg(ns, q_stand[:3], q_stand[3:7], np.zeros(3), np.zeros(3)))
@@ -111,9 +118,21 @@ def test_id_controller_commands_limited_torque_and_damps_without_state():
 
     expected = IdController(ROBOT).compute(ref.q, ref.v, ref.contacts, ref, np.zeros(ROBOT.nv))
     assert expected.contact_forces[:, 2].sum() == pytest.approx(mg, rel=1e-3)
-    for m in torque[::10]:
+    for m in torque[:150:10]:
         assert np.allclose(cv.torque_command_arrays(ROBOT, m).feedforward, expected.feedforward, atol=1e-3)
+    # with the prediction: the feedforward of the QP with ε = J'ᵀ Φ̃' − Sᵀ Γ (eq. 17) at the reference
+    from ciml_control.conversions import epsilon_from_model_error
+    from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
+    from ciml_learning.projection import contact_invariant_basis
+
+    basis = contact_invariant_basis(RigidBodyDynamics(ROBOT).foot_jacobians(ref.q), ROBOT.leg_joints)
+    eps = epsilon_from_model_error(basis, phi, gamma, selection_matrix(ROBOT))
+    with_eps = IdController(ROBOT).compute(ref.q, ref.v, ref.contacts, ref, eps)
+    assert with_eps.contact_forces[:, 2].sum() == pytest.approx(mg + 60.0, rel=1e-3)
+    late = [cv.torque_command_arrays(ROBOT, m).feedforward for m in torque[-30:]]
+    assert all(np.allclose(ff, with_eps.feedforward, atol=1e-3) for ff in late)
     assert all(m.mode == TorqueCommand.MODE_DAMPING for m in after)
     keys = {kv.key: kv.value for kv in diags}
     assert int(keys.get("rejected_joint_states", 0)) >= 1, keys
     assert int(keys.get("stale_state", 0)) >= 1, keys
+    assert int(keys.get("model_error_used", 0)) >= 50, keys

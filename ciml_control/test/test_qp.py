@@ -184,3 +184,14 @@ def test_warm_started_solver_reused_per_size(robot, stance):
     assert len(qp._solvers) == 2
     c = qp.solve(_problem(robot, terms, [1, 1, 1, 1]))
     assert np.allclose(a.u, c.u, atol=1e-6)
+
+
+def test_cost_change_reaches_warm_started_solver(robot, stance):
+    q, terms = stance
+    W = np.diag(np.linspace(1.0, 5.0, robot.n_joints))
+    qp = FeedforwardQP()
+    qp.solve(_problem(robot, terms, [1, 1, 1, 1]))
+    warm = qp.solve(_problem(robot, terms, [1, 1, 1, 1], W_u=W))
+    cold = FeedforwardQP().solve(_problem(robot, terms, [1, 1, 1, 1], W_u=W))
+    assert np.allclose(warm.u, cold.u, atol=1e-6)
+    assert not np.allclose(warm.u, qp.solve(_problem(robot, terms, [1, 1, 1, 1])).u, atol=1e-3)

@@ -109,6 +109,76 @@ def quaternion_continuity(quat_xyzw: np.ndarray) -> np.ndarray:
     return q
 
 
+MAX_FILLED_SAMPLES = 2
+"""Longest run of missing samples bridged by interpolation instead of a restart.
+
+A best-effort sensor topic loses single messages under load; restarting the filter
+would cost a whole window (31 samples) of output each time. Short gaps on the regular
+grid are filled by linear interpolation (quaternions: normalised lerp, contacts held)
+before filtering; the filled instants themselves are never output. Offline and online
+filters bridge exactly the same gaps, so they still agree sample for sample.
+"""
+
+
+def missing_samples(dt: float, fs: float, max_gap_factor: float) -> int:
+    """Number of samples to fill for a step dt: 0 if regular, −1 if too long (restart)."""
+    if dt <= max_gap_factor / fs:
+        return 0
+    k = int(round(dt * fs)) - 1
+    if 1 <= k <= MAX_FILLED_SAMPLES and abs(dt * fs - (k + 1)) < 0.25:
+        return k
+    return -1
+
+
+def _interpolate_row(a: np.ndarray, b: np.ndarray, w: float, quat: slice | None) -> np.ndarray:
+    x = (1.0 - w) * a + w * b
+    if quat is not None:
+        qb = b[quat] if np.dot(a[quat], b[quat]) >= 0 else -b[quat]
+        qx = (1.0 - w) * a[quat] + w * qb
+        x[quat] = qx / np.linalg.norm(qx)
+    return x
+
+
+def fill_short_gaps(t: np.ndarray, signals: list[np.ndarray], contacts: np.ndarray, fs: float,
+                    max_gap_factor: float, quat: slice | None = slice(3, 7)):
+    """Insert interpolated rows into short gaps (see MAX_FILLED_SAMPLES).
+
+    signals[0] is the configuration (its quaternion columns `quat` are interpolated on
+    the sphere). Returns (t, signals, contacts, filled) with filled marking inserted rows.
+    """
+    n = len(t)
+    inserts = []
+    for k in range(1, n):
+        m = missing_samples(t[k] - t[k - 1], fs, max_gap_factor)
+        if m > 0 and all(np.all(np.isfinite(x[k - 1])) and np.all(np.isfinite(x[k])) for x in signals):
+            inserts.append((k, m))
+    if not inserts:
+        return t, signals, contacts, np.zeros(n, dtype=bool)
+    rows_t, rows_x, rows_c, filled = [], [[] for _ in signals], [], []
+    prev = 0
+    for k, m in inserts:
+        rows_t.append(t[prev:k])
+        for i, x in enumerate(signals):
+            rows_x[i].append(x[prev:k])
+        rows_c.append(contacts[prev:k])
+        filled.append(np.zeros(k - prev, dtype=bool))
+        for j in range(1, m + 1):
+            w = j / (m + 1)
+            rows_t.append([(1 - w) * t[k - 1] + w * t[k]])
+            for i, x in enumerate(signals):
+                rows_x[i].append(_interpolate_row(x[k - 1], x[k], w, quat if i == 0 else None)[None])
+            rows_c.append(contacts[k - 1][None])
+            filled.append(np.ones(1, dtype=bool))
+        prev = k
+    rows_t.append(t[prev:])
+    for i, x in enumerate(signals):
+        rows_x[i].append(x[prev:])
+    rows_c.append(contacts[prev:])
+    filled.append(np.zeros(n - prev, dtype=bool))
+    return (np.concatenate(rows_t), [np.concatenate(r) for r in rows_x], np.concatenate(rows_c),
+            np.concatenate(filled))
+
+
 @dataclass
 class FilteredLog:
     """A log after conditioning, in Pinocchio conventions, one row per sample.
@@ -159,6 +229,9 @@ def filter_state_log(
     if np.any(np.diff(t) <= 0):
         raise ValueError("time stamps must increase strictly")
     raw = [np.asarray(x, dtype=float) for x in (q, v, tau, u)]
+    t_in = t
+    t, raw, contacts, filled = fill_short_gaps(t, raw, np.asarray(contacts, dtype=bool), fs, max_gap_factor)
+    n = len(t)
     finite = np.all(np.isfinite(np.hstack([r.reshape(n, -1) for r in raw])), axis=1) & np.isfinite(t)
     gap = np.zeros(n, dtype=bool)
     gap[1:] = np.diff(t) > max_gap_factor / fs
@@ -194,10 +267,13 @@ def filter_state_log(
         counts["filter_edges"] += int((~ok & valid[seg]).sum())
         valid[seg] &= ok
     cmask = contact_change_mask(contacts)
-    counts["contact_change"] = int((~cmask & valid).sum())
+    counts["contact_change"] = int((~cmask & valid & ~filled).sum())
     valid &= cmask
-    return FilteredLog(t=t, q=out_q, v=out_v, a=out_a, tau=out_tau, tau_dot=out_tau_dot, u=out_u,
-                       contacts=np.asarray(contacts, dtype=bool), valid=valid, invalid_counts=counts, segment=segment)
+    keep = ~filled  # filled instants are never output
+    counts["filled_samples"] = int(filled.sum())
+    return FilteredLog(t=t_in, q=out_q[keep], v=out_v[keep], a=out_a[keep], tau=out_tau[keep],
+                       tau_dot=out_tau_dot[keep], u=out_u[keep], contacts=contacts[keep], valid=valid[keep],
+                       invalid_counts=counts, segment=segment[keep])
 
 
 @dataclass
@@ -218,14 +294,16 @@ class FilteredSample:
 class OnlineStateFilter:
     """Causal counterpart of filter_state_log for live data (the state_filter node).
 
-    push() takes one raw sample and returns the filtered sample of `delay` samples ago
-    (None while warming up). Its numbers equal filter_state_log's at interior samples.
-    A time gap > max_gap_factor/fs or a non-finite sample restarts the warm-up.
+    push() takes one raw sample and returns the filtered samples that became ready: the
+    one of `delay` samples ago, or none while warming up (or several after a bridged
+    gap). Its numbers equal filter_state_log's at interior samples: short gaps are
+    bridged the same way (fill_short_gaps); a longer gap, a non-increasing stamp or a
+    non-finite sample restarts the warm-up.
     """
 
     def __init__(self, fs: float = 250.0, max_gap_factor: float = 1.5) -> None:
         self.fs = fs
-        self.max_gap = max_gap_factor / fs
+        self.max_gap_factor = max_gap_factor
         self._lp = lowpass_taps(fs)
         self._dp = derivative_taps(fs)
         self.delay = delay_samples(len(self._lp))
@@ -234,33 +312,52 @@ class OnlineStateFilter:
     def reset(self) -> None:
         self._low = OnlineFilter(self._lp)
         self._der = OnlineFilter(self._dp)
-        self._history: deque = deque(maxlen=len(self._lp))  # (t, contacts, quat sign ref)
-        self._last_quat: np.ndarray | None = None
-        self._last_t: float | None = None
+        self._history: deque = deque(maxlen=len(self._lp))  # (t, contacts, filled)
+        self._last: tuple | None = None  # (t, q, v, tau, u, contacts) of the newest raw sample
 
     def push(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray, u: np.ndarray,
-             contacts: np.ndarray) -> FilteredSample | None:
+             contacts: np.ndarray) -> list[FilteredSample]:
         raw = np.concatenate([q, v, tau, u])
         if not np.all(np.isfinite(raw)) or not np.isfinite(t):
             self.reset()
             raise ValueError("non-finite sample")
-        if self._last_t is not None and (t <= self._last_t or t - self._last_t > self.max_gap):
-            self.reset()
         q = np.array(q, dtype=float)
-        if self._last_quat is not None and np.dot(q[3:7], self._last_quat) < 0:
+        contacts = np.asarray(contacts, dtype=bool).copy()
+        out: list[FilteredSample] = []
+        if self._last is not None:
+            missing = missing_samples(t - self._last[0], self.fs, self.max_gap_factor)
+            if t <= self._last[0] or missing < 0:
+                self.reset()
+            elif missing > 0:
+                t0, q0, v0, tau0, u0, c0 = self._last
+                new = (q, np.asarray(v, float), np.asarray(tau, float), np.asarray(u, float))
+                for j in range(1, missing + 1):
+                    w = j / (missing + 1)
+                    rows = [_interpolate_row(a, b, w, slice(3, 7) if i == 0 else None)
+                            for i, (a, b) in enumerate(zip((q0, v0, tau0, u0), new))]
+                    self._push_one((1 - w) * t0 + w * t, *rows, c0, filled=True, out=out)
+        self._push_one(t, q, np.asarray(v, float), np.asarray(tau, float), np.asarray(u, float), contacts,
+                       filled=False, out=out)
+        return out
+
+    def _push_one(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray, u: np.ndarray,
+                  contacts: np.ndarray, filled: bool, out: list[FilteredSample]) -> None:
+        if self._last is not None and np.dot(q[3:7], self._last[1][3:7]) < 0:
+            q = q.copy()
             q[3:7] = -q[3:7]  # hemisphere continuity, as quaternion_continuity
-        self._last_quat = q[3:7].copy()
-        self._last_t = t
+        self._last = (t, q, v, tau, u, contacts)
         nq, nv, nj = len(q), len(v), len(tau)
         low = self._low.push(np.concatenate([q, v, tau, u]))
         der = self._der.push(np.concatenate([v, tau]))
-        self._history.append((t, np.asarray(contacts, dtype=bool).copy()))
+        self._history.append((t, contacts, filled))
         if low is None:
-            return None
-        t_out, c_out = self._history[self.delay]
-        flags = np.array([c for _, c in self._history])
+            return
+        t_out, c_out, filled_out = self._history[self.delay]
+        if filled_out:
+            return  # filled instants are never output
+        flags = np.array([c for _, c, _ in self._history])
         valid = bool(np.all(flags == flags[0]))  # no contact change within ±delay
         qf = low[:nq].copy()
         qf[3:7] /= np.linalg.norm(qf[3:7])
-        return FilteredSample(t=t_out, q=qf, v=low[nq:nq + nv], a=der[:nv], tau=low[nq + nv:nq + nv + nj],
-                              tau_dot=der[nv:], u=low[nq + nv + nj:], contacts=c_out, valid=valid)
+        out.append(FilteredSample(t=t_out, q=qf, v=low[nq:nq + nv], a=der[:nv], tau=low[nq + nv:nq + nv + nj],
+                                  tau_dot=der[nv:], u=low[nq + nv + nj:], contacts=c_out, valid=valid))

@@ -85,11 +85,8 @@ def test_state_log_flags_non_finite_gaps_and_edges():
         filter_state_log(t[::-1], q, v, tau, tau, np.ones((n, 4), bool))
 
 
-def test_online_state_filter_matches_offline_log():
-    from ciml_learning.filters import OnlineStateFilter
-
-    rng = np.random.default_rng(3)
-    n = 300
+def _state_log(n: int, seed: int = 3):
+    rng = np.random.default_rng(seed)
     t = np.arange(n) / FS
     q = np.zeros((n, 19))
     q[:, 6] = 1.0
@@ -99,14 +96,58 @@ def test_online_state_filter_matches_offline_log():
     u = rng.normal(size=(n, 12))
     c = np.ones((n, 4), dtype=bool)
     c[150:, 0] = False
-    off = filter_state_log(t, q, v, tau, u, c)
+    return t, q, v, tau, u, c
+
+
+def _online(t, q, v, tau, u, c):
+    from ciml_learning.filters import OnlineStateFilter
+
     f = OnlineStateFilter(FS)
-    outs = [f.push(t[k], q[k], v[k], tau[k], u[k], c[k]) for k in range(n)]
-    for k in range(30, n):
-        s = outs[k]
-        i = k - 15
-        assert s.t == t[i]
+    return [s for k in range(len(t)) for s in f.push(t[k], q[k], v[k], tau[k], u[k], c[k])]
+
+
+def _assert_online_equals_offline(outs, off):
+    index = {round(x * 1e9): i for i, x in enumerate(off.t)}
+    assert outs
+    for s in outs:
+        i = index[round(s.t * 1e9)]
         np.testing.assert_allclose(s.q, off.q[i], atol=1e-9)
         np.testing.assert_allclose(s.a, off.a[i], atol=1e-9)
         np.testing.assert_allclose(s.u, off.u[i], atol=1e-9)
         assert s.valid == off.valid[i]
+
+
+def test_online_state_filter_matches_offline_log():
+    n = 300
+    t, q, v, tau, u, c = _state_log(n)
+    off = filter_state_log(t, q, v, tau, u, c)
+    outs = _online(t, q, v, tau, u, c)
+    assert [s.t for s in outs] == list(t[15:n - 15])
+    _assert_online_equals_offline(outs, off)
+
+
+def test_dropped_samples_are_bridged_alike_online_and_offline():
+    """A lost best-effort message (1–2 samples) costs no window of output; a longer gap does."""
+    n = 300
+    t, q, v, tau, u, c = _state_log(n)
+    keep = np.ones(n, dtype=bool)
+    keep[[100, 200, 201]] = False          # bridged: one and two missing samples
+    keep[250:254] = False                  # four missing: the filter restarts
+    t, q, v, tau, u, c = (x[keep] for x in (t, q, v, tau, u, c))
+    off = filter_state_log(t, q, v, tau, u, c)
+    assert off.invalid_counts["filled_samples"] == 3
+    assert off.invalid_counts["time_gap_segments"] == 1
+    assert len(off.t) == keep.sum() and np.all(np.isfinite(off.a))
+    outs = _online(t, q, v, tau, u, c)
+    _assert_online_equals_offline(outs, off)
+    out_t = {round(s.t * 1e9) for s in outs}
+    # the samples around the bridged gaps are output; the filled instants are not
+    assert round(99 / FS * 1e9) in out_t and round(101 / FS * 1e9) in out_t and round(100 / FS * 1e9) not in out_t
+    # interpolation is exact for a linear signal: a bridged gap leaves a ramp's filtered value intact
+    ramp = np.arange(n) / FS
+    q2 = np.zeros((n, 19)); q2[:, 6] = 1.0; q2[:, 7:] = ramp[:, None]
+    v2 = np.ones((n, 18))
+    lin = filter_state_log(np.arange(n)[keep] / FS, q2[keep], v2[keep], v2[keep, :12], v2[keep, :12], np.ones((keep.sum(), 4), bool))
+    k = int(np.flatnonzero(np.isclose(lin.t, 101 / FS))[0])
+    np.testing.assert_allclose(lin.q[k, 7:], 101 / FS, atol=1e-12)
+    np.testing.assert_allclose(lin.a[k], 0.0, atol=1e-9)

@@ -27,6 +27,7 @@ import numpy as np
 from ciml_msgs.msg import ContactState, ModelError, RobotReference, TorqueCommand
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 from ciml_learning import conversions as cv
@@ -43,6 +44,9 @@ from ..feedback import FeedbackGains
 
 MODE_TORQUE = 0
 MODE_DAMPING = 1
+
+STATE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
+"""State topics: only the newest sample matters to a controller (a backlog only adds latency)."""
 
 
 class IdControllerNode(Node):
@@ -80,9 +84,9 @@ class IdControllerNode(Node):
         self.model_error = None
         self.compute_times: deque = deque(maxlen=1000)
         self.pub = self.create_publisher(TorqueCommand, topics.TORQUE_COMMAND, COMMAND_QOS)
-        self.create_subscription(JointState, topics.JOINT_STATES, self.on_joints, SENSOR_QOS)
-        self.create_subscription(Odometry, topics.BASE_STATE, self.on_base, SENSOR_QOS)
-        self.create_subscription(ContactState, topics.CONTACT_STATE, self.on_contacts, SENSOR_QOS)
+        self.create_subscription(JointState, topics.JOINT_STATES, self.on_joints, STATE_QOS)
+        self.create_subscription(Odometry, topics.BASE_STATE, self.on_base, STATE_QOS)
+        self.create_subscription(ContactState, topics.CONTACT_STATE, self.on_contacts, STATE_QOS)
         self.create_subscription(RobotReference, topics.REFERENCE, self.on_reference, COMMAND_QOS)
         self.create_subscription(ModelError, topics.MODEL_ERROR_PREDICTED, self.on_model_error, COMMAND_QOS)
         self.create_timer(1.0 / rate, self.watchdog)

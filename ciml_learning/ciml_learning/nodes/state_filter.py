@@ -118,14 +118,14 @@ class StateFilterNode(Node):
         v = np.concatenate([twist, qdj])
         u = command.total(qj, qdj, self.robot.torque_limits)
         try:
-            out = self.filter.push(stamp * 1e-9, q, v, tau, u, contacts)
+            ready = self.filter.push(stamp * 1e-9, q, v, tau, u, contacts)
         except ValueError as err:
             self.health.count("rejected_samples", str(err))
             return
-        if out is None:
-            return
-        ns = int(round(out.t * 1e9))
-        self.pub.publish(cv.robot_state_msg(self.robot, ns, out.q, out.v, out.a, out.tau, out.u, out.contacts, out.valid))
+        for out in ready:
+            ns = int(round(out.t * 1e9))
+            self.pub.publish(cv.robot_state_msg(self.robot, ns, out.q, out.v, out.a, out.tau, out.u, out.contacts,
+                                                out.valid))
 
 
 def main(args=None) -> None:

@@ -6,7 +6,9 @@ import pytest
 
 from ciml_learning.learners import LEARNERS, LWPR, LearnerError, SparseGPR, learner_class
 from ciml_learning.learners.sgpr import kmeans, matern32
-from ciml_learning.training import cross_function, limit_blas_threads
+from threadpoolctl import threadpool_limits
+
+from ciml_learning.training import cross_function
 
 CROSS = dict(init_D=50.0, init_alpha=250.0, w_gen=0.2)  # the reference library's cross-function setup
 
@@ -156,7 +158,7 @@ def test_sgpr_posterior_matches_gpy_vardtc():
     X = rng.uniform(-2, 2, (400, 2))
     y = np.sin(2 * X[:, 0]) + 0.3 * X[:, 1] ** 2 + 0.1 * rng.standard_normal(400)
     model = SparseGPR(n_inducing=20, max_iters=0, lengthscale_init=[0.8, 1.2], noise_init=0.05, jitter=1e-8)
-    with limit_blas_threads(1):
+    with threadpool_limits(limits=1, user_api="blas"):
         model.fit(X, y)
     s2 = float(np.mean(y ** 2))
     kern = GPy.kern.Matern32(2, variance=s2, lengthscale=[0.8, 1.2], ARD=True)
@@ -175,7 +177,7 @@ def test_sgpr_falls_back_to_prior_and_round_trips():
     rng = np.random.default_rng(2)
     X = rng.uniform(-1, 1, (600, 3))
     y = 2.0 * X[:, 0] + np.sin(3 * X[:, 1]) + 0.05 * rng.standard_normal(600)
-    with limit_blas_threads(1):
+    with threadpool_limits(limits=1, user_api="blas"):
         model = SparseGPR(n_inducing=30, max_iters=30).fit(X, y)
     mean, std = model.predict(np.array([[0.0, 0.0, 0.0], [1e6, 1e6, 1e6]]), return_std=True)
     assert std[0] < 0.3 * std[1]
@@ -208,7 +210,7 @@ def test_known_friction_error_learned_within_10_percent(learner):
         model = LWPR(norm_in="auto", init_D=10.0, init_alpha=50.0, w_gen=0.2, n_epochs=2, shuffle=True)
     else:
         model = SparseGPR(n_inducing=50, n_hyper_samples=1000, max_iters=50)
-    with limit_blas_threads(1):
+    with threadpool_limits(limits=1, user_api="blas"):
         model.fit(X, y / scale)
     pred = model.predict(Xt) * scale
     assert relative_rmse(pred, ft) < 0.10

@@ -131,14 +131,15 @@ def plot_rmse(work: str, out: str) -> list[str]:
             evals[learner] = json.load(f)
     figures = []
     for group in ("rbd", "actuation"):
-        dims = evals["sgpr"][group]
-        names = list(dims)
-        nominal = [dims[n]["rmse_nominal"] for n in names]
+        by_learner = {lr: {d["name"]: d for d in evals[lr]["dimensions"] if d["kind"] == group and d["samples"]}
+                      for lr in evals}
+        names = list(by_learner["sgpr"])
+        nominal = [by_learner["sgpr"][n]["rmse_nominal"] for n in names]
         fig, ax = plt.subplots(figsize=(11, 3.5))
         x = np.arange(len(names))
         ax.bar(x - 0.27, nominal, 0.27, label="nominal")
         for k, learner in enumerate(("lwpr", "sgpr")):
-            ax.bar(x + k * 0.27, [evals[learner][group][n]["rmse_learned"] for n in names], 0.27, label=learner.upper())
+            ax.bar(x + k * 0.27, [by_learner[learner][n]["rmse_learned"] for n in names], 0.27, label=learner.upper())
         ax.set_xticks(x, names, rotation=60, ha="right", fontsize=8)
         ax.set_ylabel("RMSE [N, Nm]")
         ax.set_title(f"{group} error prediction on new motions")
@@ -180,7 +181,21 @@ def write_document(args, results, train_s, figures, bags, wall_s) -> None:
     for model in ("lwpr", "sgpr"):
         lines.append(f"| {model.upper()} | {100 * mean_reduction(results, TRAIN_MOTIONS, model):.0f} % "
                      f"| {100 * mean_reduction(results, NEW_MOTIONS, model):.0f} % |")
-    lines += ["", "## Prediction RMSE per dimension on new motions", ""]
+    lines += ["", "## Prediction RMSE per dimension on new motions", "",
+              "| model | base dims learned < nominal | actuators learned < nominal | RMSE reduction (rbd / actuation) |",
+              "|---|---|---|---|"]
+    for learner in ("lwpr", "sgpr"):
+        with open(os.path.join(args.work, f"evaluate_{learner}.json"), encoding="utf-8") as f:
+            ev = json.load(f)
+        dims = [d for d in ev["dimensions"] if d["samples"]]
+        base = [d for d in dims if d["name"].startswith("base_")]
+        act = [d for d in dims if d["kind"] == "actuation"]
+        better = (lambda ds: f"{sum(d['rmse_learned'] < d['rmse_nominal'] for d in ds)} / {len(ds)}")
+        red = ev["summary"]
+        lines.append(f"| {learner.upper()} | {better(base)} | {better(act)} | "
+                     f"{100 * red['rbd'].get('reduction', float('nan')):.0f} % / "
+                     f"{100 * red['actuation'].get('reduction', float('nan')):.0f} % |")
+    lines.append("")
     lines += [f"![{f}]({f})" for f in figures]
     path = os.path.join(args.out, "EXPERIMENT.md")
     with open(path + ".tmp", "w", encoding="utf-8") as f:

@@ -20,6 +20,7 @@ Safety (documented contract of `compute`):
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -38,6 +39,13 @@ from .standing import gravity_compensation
 
 class ControllerInputError(CimlError):
     """The controller was given a state, reference or contact vector it cannot use."""
+
+
+def _finite(x) -> bool:
+    """All entries finite (fast path: one dot product is finite unless an entry is
+    non-finite or huge; only then are the entries checked one by one)."""
+    x = np.asarray(x, dtype=float)
+    return math.isfinite(x @ x) or bool(np.isfinite(x).all())
 
 
 @dataclass
@@ -80,24 +88,46 @@ class IdController:
         self.f_min = f_min
         self.feedback_contacts = feedback_contacts
         self.limits = robot.torque_limits
+        self._neg_limits = -self.limits
         self.dyn_des = RigidBodyDynamics(robot)
         self.dyn_meas = RigidBodyDynamics(robot)
-        self._lower = np.tril_indices(robot.nv, -1)
+        self._J = (np.zeros((robot.n_feet, 3, robot.nv)), np.zeros((robot.n_feet, 3, robot.nv)))  # des, meas
+        self._M_des, self._h_des = np.zeros((robot.nv, robot.nv)), np.zeros(robot.nv)
+        self._des_key: tuple | None = None
         self.qp = FeedforwardQP()
+        self._zeros = np.zeros(robot.nv)  # ε of the nominal model (private, only read)
         self.qp_failures = 0
         self.epsilon_rejections = 0
         self.steps = 0
 
     def _terms(self, dyn: RigidBodyDynamics, q: np.ndarray, v: np.ndarray):
-        """M (symmetric), h and the foot Jacobians in one Pinocchio pass (as dyn.terms, cheaper)."""
+        """(M, h, foot Jacobians) in one Pinocchio pass (as dyn.terms, cheaper). M is
+        Pinocchio's own buffer with only its upper triangle filled (CRBA), valid until the
+        next pass on `dyn`; the kernels read the upper triangle only."""
         model, data = dyn.model, dyn.data
         pin.computeAllTerms(model, data, q, v)
         pin.updateFramePlacements(model, data)
-        M = data.M.copy()
-        M[self._lower] = M.T[self._lower]  # CRBA fills the upper triangle
-        J = np.array([pin.getFrameJacobian(model, data, f, pin.LOCAL_WORLD_ALIGNED)[:3]
-                      for f in self.robot.foot_frame_ids])
-        return M, data.nle.copy(), J
+        J = self._J[dyn is self.dyn_meas]
+        for i, f in enumerate(self.robot.foot_frame_ids):
+            J[i] = pin.getFrameJacobian(model, data, f, pin.LOCAL_WORLD_ALIGNED)[:3]
+        return data.M, data.nle, J
+
+    def desired_terms(self, ref: ReferencePoint) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(M, h, foot Jacobians) of the nominal model at the reference (qᵈ, q̇ᵈ): one
+        Pinocchio pass per reference point, shared with compute() — a model error ε that
+        needs the contact Jacobians at qᵈ (the contact-invariant basis of eq. 17) can take
+        them from here before compute(ref) without a second pass. M has only its upper
+        triangle filled; the arrays are the controller's buffers (read them, do not keep
+        them past the next call)."""
+        q, v = np.asarray(ref.q, float), np.asarray(ref.v, float)
+        key = (q.tobytes(), v.tobytes())
+        if key != self._des_key:
+            self._des_key = None
+            M, h, _ = self._terms(self.dyn_des, q, v)
+            np.copyto(self._M_des, M)  # private copies: other users of dyn_des cannot change them
+            np.copyto(self._h_des, h)
+            self._des_key = key
+        return self._M_des, self._h_des, self._J[0]
 
     def _check(self, q, v, contacts, ref: ReferencePoint):
         r = self.robot
@@ -106,12 +136,12 @@ class IdController:
         if q.shape != (r.nq,) or v.shape != (r.nv,) or contacts.shape != (r.n_feet,):
             raise ControllerInputError(
                 f"state sizes q {q.shape}, v {v.shape}, contacts {contacts.shape}; expected ({r.nq},), ({r.nv},), ({r.n_feet},)")
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+        if not (_finite(q) and _finite(v)):
             raise ControllerInputError("non-finite measured state")
         if (np.shape(ref.q) != (r.nq,) or np.shape(ref.v) != (r.nv,) or np.shape(ref.a) != (r.nv,)
                 or np.shape(ref.contacts) != (r.n_feet,)):
             raise ControllerInputError("reference sizes do not match the robot")
-        if not (np.all(np.isfinite(ref.q)) and np.all(np.isfinite(ref.v)) and np.all(np.isfinite(ref.a))):
+        if not (_finite(ref.q) and _finite(ref.v) and _finite(ref.a)):
             raise ControllerInputError("non-finite reference")
         return q, v, contacts
 
@@ -124,13 +154,13 @@ class IdController:
         r = self.robot
         nv = r.nv
         ref_contacts = np.asarray(ref.contacts, dtype=bool)
-        eps = np.zeros(nv) if epsilon is None else np.asarray(epsilon, float)
+        eps = self._zeros if epsilon is None else np.asarray(epsilon, float)
         eps_rejected = False
-        if eps.shape != (nv,) or not np.all(np.isfinite(eps)):
-            eps, eps_rejected = np.zeros(nv), True
+        if eps.shape != (nv,) or not _finite(eps):
+            eps, eps_rejected = self._zeros, True
             self.epsilon_rejections += 1
         # feedforward QP at the desired state, eq. (18–21)
-        M_des, h_des, J_des = self._terms(self.dyn_des, ref.q, ref.v)
+        M_des, h_des, J_des = self.desired_terms(ref)
         problem = build_feedforward_qp(M_des, h_des, J_des, ref_contacts, ref.a, eps, self.limits, self.mu, self.f_min)
         t1 = time.perf_counter()
         qp_failed, qp_error = False, ""
@@ -149,9 +179,9 @@ class IdController:
         fb_contacts = ref_contacts if self.feedback_contacts == "reference" else contacts
         M_meas, _, J_meas = self._terms(self.dyn_meas, q, v)
         u_lin = feedback_linearization(M_meas, J_meas, fb_contacts, e, e_dot, self.gains.kp_lin, self.gains.kd_lin)
-        total = np.clip(u_ff + u_lin, -self.limits, self.limits)
+        total = np.minimum(np.maximum(u_ff + u_lin, self._neg_limits), self.limits)  # np.clip, cheaper
         u_lin = total - u_ff
-        if not (np.all(np.isfinite(u_ff)) and np.all(np.isfinite(u_lin))):  # cannot happen with finite inputs
+        if not (_finite(u_ff) and _finite(u_lin)):  # cannot happen with finite inputs
             raise ControllerInputError("controller produced a non-finite torque")
         self.steps += 1
         t3 = time.perf_counter()
@@ -194,8 +224,8 @@ def compute_benchmark(motion: str = "trot_35", n_steps: int = 2000, seed: int = 
 
         epsilon_fn = load_epsilon_function(robot, model_dir)
     else:
-        def epsilon_fn(p):
-            basis = contact_invariant_basis(ctrl.dyn_des.foot_jacobians(p.q), robot.leg_joints)
+        def epsilon_fn(p):  # the contact Jacobians at qᵈ from the controller's pass at the reference
+            basis = contact_invariant_basis(ctrl.desired_terms(p)[2], robot.leg_joints)
             return combined_error(basis, phi, gamma, S)
     for p in points[:50]:  # warm-up
         ctrl.compute(p.q, p.v, p.contacts, p, epsilon_fn(p))

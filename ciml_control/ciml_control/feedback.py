@@ -22,7 +22,10 @@ import pinocchio as pin
 
 from ciml_learning.robot import RobotDescription
 
-from .qp import contact_decomposition
+from . import kernels
+
+CONTACT_RANK_TOL = 1e-9
+"""Relative eigenvalue tolerance of the rank test (as ciml_control.qp.contact_decomposition)."""
 
 # HyQ-like joint loop gains (stance and swing legs alike)
 JOINT_KP = 300.0   # [Nm/rad]
@@ -77,15 +80,14 @@ def feedback_linearization(M: np.ndarray, foot_jacobians: np.ndarray, contacts: 
 
     Computed as (Q_uᵀ Sᵀ)⁺ Q_uᵀ M q̈_fb; where Q_uᵀ Sᵀ loses rank (two feet on a line) its
     zero rows are dropped first (ciml_control.qp.contact_decomposition), leaving a
-    full-row-rank A with A⁺ = Aᵀ (A Aᵀ)⁻¹.
+    full-row-rank A with A⁺ = Aᵀ (A Aᵀ)⁻¹ (one compiled call:
+    ciml_control.kernels.projected_pinv_apply). M: the mass matrix; only its upper
+    triangle is read (as Pinocchio's CRBA fills it).
     """
-    dec = contact_decomposition(foot_jacobians, contacts)
     qdd_fb = -kd_lin * e_dot - kp_lin * e
-    A = dec.Q_u[6:].T                   # Q_uᵀ Sᵀ
-    y = dec.Q_u.T @ (M @ qdd_fb)
-    if dec.U_r is not None:
-        A, y = dec.U_r.T @ A, dec.U_r.T @ y
-    return A.T @ np.linalg.solve(A @ A.T, y)
+    arg = kernels.arg
+    return kernels.projected_pinv_apply(arg(M), arg(foot_jacobians), arg(contacts, np.bool_), arg(qdd_fb),
+                                        CONTACT_RANK_TOL)
 
 
 @dataclass

@@ -29,7 +29,8 @@ corrects what the reference asks for but the contacts cannot deliver.
 `build_feedforward_qp` only builds matrices (tested without a solver);
 `FeedforwardQP.solve` solves with proxsuite, keeps one warm-started solver per problem
 size, and raises `QPFailedError` (carrying the problem) instead of returning a torque
-when the solve fails or the answer violates a constraint.
+when the solve fails or the answer violates a constraint. The small dense algebra runs
+in compiled kernels (ciml_control.kernels); this module keeps the interfaces.
 """
 from __future__ import annotations
 
@@ -42,6 +43,8 @@ import numpy as np
 import proxsuite
 
 from ciml_learning.errors import CimlError
+
+from . import kernels
 
 DEFAULT_MU = 0.5
 """Friction coefficient of the cone (paper §IV)."""
@@ -69,17 +72,16 @@ def friction_cone_matrix(mu: float = DEFAULT_MU) -> np.ndarray:
 
 
 @lru_cache(maxsize=64)
-def _block_cone(mu: float, n_contacts: int) -> np.ndarray:
-    F = np.kron(np.eye(n_contacts), friction_cone_matrix(mu))
-    F.setflags(write=False)
-    return F
+def _cone(mu: float) -> np.ndarray:
+    return friction_cone_matrix(mu)  # private (never handed out): writable, as the kernels take it
 
 
 @lru_cache(maxsize=64)
-def _cone_bound(f_min: float, n_contacts: int) -> np.ndarray:
-    d = np.tile(np.r_[np.zeros(8), -f_min], n_contacts)
-    d.setflags(write=False)
-    return d
+def _constant(kind: str, n: int) -> np.ndarray:
+    """Read-only constants shared by all problems of a size: W_u = I, g = 0, l = −∞."""
+    a = {"eye": lambda: np.eye(n), "zeros": lambda: np.zeros(n), "minus_inf": lambda: np.full(n, -INFINITY)}[kind]()
+    a.setflags(write=False)
+    return a
 
 
 @dataclass
@@ -99,32 +101,13 @@ def contact_decomposition(foot_jacobians: np.ndarray, contacts: np.ndarray, tol:
     Q_uᵀ Sᵀ loses rank exactly along base motions that move no stance foot with the
     joints at rest, n_b ∈ null(J_c,base) (a rotation about the line through two feet,
     any base motion without contacts): then w = Q_uᵀ [n_b; 0] satisfies wᵀ Q_uᵀ Sᵀ = 0.
-    U_r spans the orthogonal complement of those w.
+    U_r spans the orthogonal complement of those w (one Householder reflection when
+    there is one such w, the common two-feet case). Computed by
+    ciml_control.kernels.contact_decomposition.
     """
-    nv = foot_jacobians.shape[-1]
-    contacts = np.asarray(contacts, dtype=bool)
-    Jc = foot_jacobians[contacts].reshape(-1, nv)
-    nc3 = Jc.shape[0]
-    if nc3:
-        Q, R = np.linalg.qr(Jc.T, mode="complete")
-        Q_c, Q_u, R = Q[:, :nc3], Q[:, nc3:], R[:nc3]
-        Jb = Jc[:, :6]
-        w, V = np.linalg.eigh(Jb.T @ Jb)
-        Nb = V[:, w < tol * max(w[-1], 1.0)]
-    else:
-        Q_c, Q_u, R = np.zeros((nv, 0)), np.eye(nv), np.zeros((0, 0))
-        Nb = np.eye(6)
-    if Nb.shape[1] == 0:
-        return ContactDecomposition(Q_c, Q_u, R, None)
-    W = Q_u[:6].T @ Nb                                      # Q_uᵀ [n_b; 0], orthonormal columns
-    if W.shape[1] == 1:  # the common case (two feet): complement from one Householder reflection
-        w = W[:, 0]
-        v = w.copy()
-        v[0] += 1.0 if w[0] >= 0 else -1.0
-        H = np.eye(len(w)) - (2.0 / (v @ v)) * np.outer(v, v)  # H e₁ = ∓w
-        return ContactDecomposition(Q_c, Q_u, R, H[:, 1:])
-    Qw, _ = np.linalg.qr(W, mode="complete")
-    return ContactDecomposition(Q_c, Q_u, R, Qw[:, Nb.shape[1]:])
+    Q_c, Q_u, R, U_r, has_ur = kernels.contact_decomposition(
+        kernels.arg(foot_jacobians), kernels.arg(contacts, np.bool_), float(tol))
+    return ContactDecomposition(Q_c, Q_u, R, U_r if has_ur else None)
 
 
 @dataclass
@@ -159,12 +142,10 @@ class FeedforwardProblem:
         return (self.lam0 - self.G @ u).reshape(-1, 3)
 
     def violation(self, u: np.ndarray) -> float:
-        """Largest violation of any constraint at u [N, Nm] (0 if feasible)."""
-        worst = float(np.max(np.abs(self.A @ u - self.b))) if len(self.b) else 0.0
-        if len(self.l):
-            cu = self.C @ u
-            worst = max(worst, float(np.max(np.maximum(self.l - cu, cu - self.c_u))))
-        return max(worst, float(np.max(np.maximum(self.lb - u, u - self.ub))))
+        """Largest violation of any constraint at u [N, Nm] (0 if feasible, NaN for NaN)."""
+        arg = kernels.arg
+        return float(kernels.max_violation(arg(self.A), arg(self.b), arg(self.C), arg(self.l), arg(self.c_u),
+                                           arg(self.lb), arg(self.ub), arg(u)))
 
 
 def build_feedforward_qp(
@@ -188,37 +169,16 @@ def build_feedforward_qp(
     """
     nv = M.shape[0]
     nj = nv - 6
-    contacts = np.asarray(contacts, dtype=bool)
-    rhs = M @ qdd_des + h + epsilon
-    dec = contact_decomposition(foot_jacobians, contacts, rank_tol)
-    Q_c, Q_u, R, U_r = dec.Q_c, dec.Q_u, dec.R, dec.U_r
-    nc3 = Q_c.shape[1]
-    # equality Q_uᵀ Sᵀ u = Q_uᵀ rhs, kept on the row space of Q_uᵀ Sᵀ (module docstring)
-    A_full = Q_u[6:].T
-    b_full = Q_u.T @ rhs
-    if U_r is None:
-        A, b, unrealizable = A_full, b_full, 0.0
-    else:
-        A, b = U_r.T @ A_full, U_r.T @ b_full
-        unrealizable = float(np.linalg.norm(b_full - U_r @ b))
-    # contact forces λ = R⁻¹ Q_cᵀ (rhs − Sᵀ u) = lam0 − G u
-    if nc3:
-        sol = np.linalg.solve(R, np.column_stack([Q_c.T @ rhs, Q_c[6:].T]))  # (numpy: scipy's BLAS threads spin on tiny solves)
-        lam0, G = sol[:, 0], sol[:, 1:]
-        n_c = nc3 // 3
-        Fb = _block_cone(mu, n_c)                              # (9 n_c × 3 n_c)
-        d = _cone_bound(f_min, n_c)                             # Fb λ ≤ d
-        C = -Fb @ G                                           # Fb (lam0 − G u) ≤ d
-        c_u = d - Fb @ lam0
-        l = np.full(len(c_u), -INFINITY)
-    else:
-        lam0, G = np.zeros(0), np.zeros((0, nj))
-        C, l, c_u = np.zeros((0, nj)), np.zeros(0), np.zeros(0)
-    H = np.eye(nj) if W_u is None else np.asarray(W_u, float)
-    return FeedforwardProblem(H=H, g=np.zeros(nj), A=A, b=b, C=C, l=l, c_u=c_u,
-                              lb=-np.asarray(torque_limits, float), ub=np.asarray(torque_limits, float),
-                              lam0=lam0, G=G, contacts=contacts.copy(), Q_u=Q_u, rhs=rhs,
-                              unrealizable=unrealizable)
+    contacts = np.array(contacts, dtype=np.bool_)  # a copy: the problem keeps it
+    arg = kernels.arg
+    A, b, unrealizable, lam0, G, C, c_u, Q_u, rhs = kernels.feedforward_matrices(
+        arg(M), arg(h), arg(foot_jacobians), contacts, arg(qdd_des), arg(epsilon), arg(_cone(float(mu))),
+        float(f_min), float(rank_tol))
+    H = _constant("eye", nj) if W_u is None else np.asarray(W_u, float)
+    limits = np.asarray(torque_limits, float)
+    return FeedforwardProblem(H=H, g=_constant("zeros", nj), A=A, b=b, C=C, l=_constant("minus_inf", len(c_u)),
+                              c_u=c_u, lb=-limits, ub=limits.copy(), lam0=lam0, G=G, contacts=contacts, Q_u=Q_u,
+                              rhs=rhs, unrealizable=float(unrealizable))
 
 
 @dataclass
@@ -254,20 +214,21 @@ class FeedforwardQP:
             qp.settings.verbose = False
             qp.settings.initial_guess = proxsuite.proxqp.InitialGuess.EQUALITY_CONSTRAINED_INITIAL_GUESS
             qp.init(p.H, p.g, p.A, p.b, p.C, p.l, p.c_u, p.lb, p.ub)
-            self._solvers[key] = (qp, p.H.copy(), p.g.copy())
+            self._solvers[key] = (qp, _keep(p.H), _keep(p.g))
             return qp, True
         qp, H, g = entry
         qp.settings.initial_guess = proxsuite.proxqp.InitialGuess.WARM_START_WITH_PREVIOUS_RESULT
-        same_cost = np.array_equal(H, p.H) and np.array_equal(g, p.g)
+        # the cost is the shared read-only W_u = I, g = 0 unless a caller passes its own
+        same_cost = (p.H is H or np.array_equal(H, p.H)) and (p.g is g or np.array_equal(g, p.g))
         qp.update(None if same_cost else p.H, None if same_cost else p.g, p.A, p.b, p.C, p.l, p.c_u, p.lb, p.ub)
         if not same_cost:
-            self._solvers[key] = (qp, p.H.copy(), p.g.copy())
+            self._solvers[key] = (qp, _keep(p.H), _keep(p.g))
         return qp, False
 
     def solve(self, p: FeedforwardProblem) -> FeedforwardSolution:
         """Solve; raise QPFailedError (with the problem) if no valid torque is found."""
-        if not (np.isfinite(p.rhs).all() and np.isfinite(p.C).all() and np.isfinite(p.c_u).all()
-                and np.isfinite(p.A).all() and np.isfinite(p.b).all()):
+        arg = kernels.arg
+        if not kernels.problem_finite(arg(p.rhs), arg(p.C), arg(p.c_u), arg(p.A), arg(p.b)):
             raise QPFailedError("feedforward QP: non-finite problem data", p, "non_finite")
         qp, fresh = self._solver(p)
         qp.solve()
@@ -282,13 +243,18 @@ class FeedforwardQP:
             # drop the solver: its state after a failure is no good warm start
             self._solvers.pop((p.H.shape[0], len(p.b), len(p.l)), None)
             raise QPFailedError(f"feedforward QP not solved ({status.name}, {p.n_contacts} contacts)", p, status.name)
-        u = np.array(qp.results.x, dtype=float)
-        # remove the solver's residual from the equality (min-norm correction, ~eps_abs)
-        if len(p.b):
-            u = u - p.A.T @ np.linalg.solve(p.A @ p.A.T, p.A @ u - p.b)  # A has full row rank
-        scale = max(1.0, float(np.max(np.abs(p.b))) if len(p.b) else 1.0, float(np.max(np.abs(p.c_u))) if len(p.c_u) else 1.0)
-        worst = p.violation(u)
-        if not np.all(np.isfinite(u)) or worst > self.tolerance * scale:
+        # remove the solver's residual from the equality (min-norm correction, ~eps_abs; A has full row rank),
+        # then check every constraint at the corrected torque (one compiled call)
+        u, lam, worst, scale, finite = kernels.polish_and_check(
+            arg(p.A), arg(p.b), arg(p.C), arg(p.l), arg(p.c_u), arg(p.lb), arg(p.ub), arg(p.lam0), arg(p.G),
+            np.array(qp.results.x, dtype=float))
+        if not finite or not worst <= self.tolerance * scale:
             self._solvers.pop((p.H.shape[0], len(p.b), len(p.l)), None)
             raise QPFailedError(f"feedforward QP answer violates its constraints by {worst:.3g}", p, "violation")
-        return FeedforwardSolution(u=u, contact_forces=p.contact_forces(u), iterations=int(qp.results.info.iter), problem=p)
+        return FeedforwardSolution(u=u, contact_forces=lam.reshape(-1, 3), iterations=int(qp.results.info.iter),
+                                   problem=p)
+
+
+def _keep(a: np.ndarray) -> np.ndarray:
+    """The array itself if read-only (shared constant), else a private copy."""
+    return a if not a.flags.writeable else a.copy()

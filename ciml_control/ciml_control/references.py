@@ -47,6 +47,8 @@ from scipy.optimize import linprog
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import RobotDescription
 
+from . import kernels
+
 
 class ReferenceError_(CimlError):
     """Base of reference-generation errors (unknown motion, unreachable foot target)."""
@@ -209,17 +211,23 @@ class LegIK:
         self.qidx = [7 + np.asarray(leg) for leg in robot.leg_joints]
         self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         n = robot.n_feet
-        self._rows = np.arange(n)[:, None, None]
-        self._r3 = np.arange(3)[None, :, None]
-        self._cols3 = np.array(self.cols)[:, None, :]
         self._qidx_all = np.concatenate(self.qidx)
         self._vidx_all = np.concatenate(self.cols)
+        self._qidx2 = np.ascontiguousarray(self.qidx, dtype=np.int64)   # n_feet × n_leg
+        self._cols2 = np.ascontiguousarray(self.cols, dtype=np.int64)
+        self._J = np.zeros((n, 3, robot.model.nv))
+        self._feet = np.zeros((n, 3))
+        self._zeros6 = np.zeros(6)
 
     def _jacobians(self, q: np.ndarray) -> np.ndarray:
-        pin.computeJointJacobians(self.model, self.data, q)
-        pin.updateFramePlacements(self.model, self.data)
-        return np.array([pin.getFrameJacobian(self.model, self.data, f, pin.LOCAL_WORLD_ALIGNED)[:3]
-                         for f in self.robot.foot_frame_ids])
+        """Foot Jacobians (world-aligned, linear) at q into self._J, foot positions into self._feet."""
+        model, data, J, feet = self.model, self.data, self._J, self._feet
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        for i, f in enumerate(self.robot.foot_frame_ids):
+            J[i] = pin.getFrameJacobian(model, data, f, pin.LOCAL_WORLD_ALIGNED)[:3]
+            feet[i] = data.oMf[f].translation
+        return J
 
     def solve(self, base: BaseState, feet_p: np.ndarray, feet_v: np.ndarray, feet_a: np.ndarray,
               guess: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -236,19 +244,16 @@ class LegIK:
         elif self._last is not None and np.max(np.abs(self._last[0] - feet_p)) < 0.05 \
                 and np.max(np.abs(self._last[1] - q[:7])) < 0.05:
             q[7:] = self._last[2]  # warm start from the previous solution (same branch)
+        feet_p = kernels.arg(feet_p)
         for _ in range(self.max_iter):
             J = self._jacobians(q)  # also places the frames at q
-            err = feet_p - np.array([data.oMf[f].translation for f in self.robot.foot_frame_ids])
-            if np.max(np.abs(err)) < self.tol:
+            # damped Newton per leg (ciml_control.kernels.leg_newton_step): (BᵀB + 1e-12 I) s = Bᵀ e, |s| ≤ 0.5
+            done, worst = kernels.leg_newton_step(J, self._feet, feet_p, q, self._qidx2, self._cols2, self.tol, 1e-12, 0.5)
+            if done:
                 break
-            B = J[self._rows, self._r3, self._cols3]                  # leg blocks (n_feet × 3 × 3)
-            Bt = np.transpose(B, (0, 2, 1))
-            step = np.linalg.solve(Bt @ B + 1e-12 * np.eye(3), (Bt @ err[:, :, None]))[:, :, 0]  # damped Newton
-            n = np.linalg.norm(step, axis=1, keepdims=True)
-            q[self._qidx_all] += (step * np.minimum(1.0, 0.5 / np.maximum(n, 1e-300))).ravel()
         else:
             raise InverseKinematicsError(
-                f"leg inverse kinematics did not converge (foot error {np.max(np.abs(err)):.2e} m): "
+                f"leg inverse kinematics did not converge (foot error {worst:.2e} m): "
                 "a foot target is out of reach")
         self._last = (feet_p.copy(), q[:7].copy(), q[7:].copy())
         # velocities: J_leg q̇_leg = ṗ − J_base v_base
@@ -260,16 +265,16 @@ class LegIK:
         nv = model.nv
         v = np.zeros(nv)
         v[:3], v[3:6] = v_lin, omega
-        B = J[self._rows, self._r3, self._cols3]
-        v[self._vidx_all] = np.linalg.solve(B, (feet_v - J[:, :, :6] @ v[:6])[:, :, None])[:, :, 0].ravel()
+        v[self._vidx_all] = kernels.leg_solve(J, kernels.arg(feet_v), v[:6], self._cols2).ravel()
         # accelerations: classical foot acceleration with zero joint acceleration = J_base a_base + J̇ q̇
         a = np.zeros(nv)
         a[:3], a[3:6] = a_lin, domega
         pin.forwardKinematics(model, data, q, v, a)
         pin.updateFramePlacements(model, data)
-        drift = np.array([pin.getFrameClassicalAcceleration(model, data, f, pin.LOCAL_WORLD_ALIGNED).linear
-                          for f in self.robot.foot_frame_ids])
-        a[self._vidx_all] = np.linalg.solve(B, (feet_a - drift)[:, :, None])[:, :, 0].ravel()
+        rhs = np.array(feet_a, dtype=float)  # p̈ − drift
+        for i, f in enumerate(self.robot.foot_frame_ids):
+            rhs[i] -= pin.getFrameClassicalAcceleration(model, data, f, pin.LOCAL_WORLD_ALIGNED).linear
+        a[self._vidx_all] = kernels.leg_solve(J, rhs, self._zeros6, self._cols2).ravel()
         return q, v, a
 
 

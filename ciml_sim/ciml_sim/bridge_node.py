@@ -14,9 +14,19 @@ Topics: /joint_states, /base_state, /contact_state (sensor-data QoS), /clock (si
 /diagnostics; optional /sim/ ground truth (`publish_ground_truth`); subscribes
 /torque_command (reliable). Service ~/reset (std_srvs/Trigger).
 
-Safety: until the first command, after `command_timeout` (simulation time) without a
-valid command, or on a MODE_DAMPING command, the joints are only damped
-(u = −damping_gain·q̇) and /diagnostics says so (level WARN). Commands with non-finite
+Start-up: after start and after ~/reset the plant stands in its standing pose, and
+until the first valid MODE_TORQUE command arrives the bridge *holds* it there with the
+standing controller (ciml_control.standing: the joint PD on the standing joint angles
+plus gravity compensation with the weight shared by the four feet, computed once on
+the nominal model), so a controller that starts late finds the robot standing instead
+of collapsed on its trunk. /diagnostics says so (level WARN, message starting
+`holding the standing pose:`). With `hold_standing_until_command` false the bridge
+damps instead, as a stopped controller's robot does.
+
+Safety: after `command_timeout` (simulation time) without a valid command once torque
+control has started, or on a MODE_DAMPING command, the joints are only damped
+(u = −damping_gain·q̇) and /diagnostics says so (level WARN, `damping mode:`): a
+controller that stops is not replaced by a posture controller. Commands with non-finite
 values, wrong joint names or sizes, or negative gains are dropped and counted; NaN
 never reaches the actuators.
 """
@@ -59,6 +69,9 @@ class MujocoBridge(Node):
                                "Damping mode after this long without a valid command [s, sim time]", 0.004, 5.0)
         self.kd_safe = declare(self, "damping_gain", 10.0, "Joint damping in damping mode [Nm s/rad]", 0.0, 200.0)
         self.rtf = declare(self, "real_time_factor", 1.0, "Simulation seconds per wall-clock second", 0.05, 20.0)
+        self.hold_at_start = declare(self, "hold_standing_until_command", True,
+                                     "Hold the standing pose (joint PD + gravity compensation) after start and "
+                                     "reset until the first torque command; false: damp the joints instead")
         self.publish_truth = declare(self, "publish_ground_truth", False,
                                      "Also publish the simulation-only /sim/ topics (true v̇, contact and effect forces)")
         urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
@@ -75,7 +88,9 @@ class MujocoBridge(Node):
         self.create_subscription(TorqueCommand, topics.TORQUE_COMMAND, self.on_command, COMMAND_QOS)
         self.create_service(Trigger, "~/reset", self.on_reset)
         self.commands_received = 0
-        self._enter_damping("damping mode: waiting for the first /torque_command")
+        self.damping = self.holding = False
+        self._hold_command = self._standing_command()
+        self._start_waiting("waiting for the first /torque_command")
         self.last_command_time = -np.inf
         self._wall0 = time.monotonic()
         self._steps_done = 0  # physics steps accounted against the wall clock (dropped debt included)
@@ -90,13 +105,33 @@ class MujocoBridge(Node):
             f"{1000.0 / self.steps_per_sample:g} Hz of simulation time, real-time factor {self.rtf:g}")
 
     # --- commands ------------------------------------------------------------------------
+    def _standing_command(self):
+        """(u_ff, q_t, q̇_t, K_p, K_d) holding the plant's standing pose on all feet."""
+        from ciml_control.standing import StandingController
+
+        q0 = self.plant.standing_configuration()
+        c = StandingController(self.robot).compute(q0, np.ones(self.robot.n_feet, dtype=bool))
+        return (c.feedforward + c.feedback_linearization, c.q_target, c.qd_target, c.kp, c.kd)
+
+    def _start_waiting(self, why: str) -> None:
+        """After start or reset: hold the standing pose (or damp) until a torque command."""
+        if self.hold_at_start:
+            self.plant.set_command(*self._hold_command)
+            self.damping, self.holding = False, True
+            self.health.set(WARN, f"holding the standing pose: {why}")
+            self.health.counts["damping_mode"] = 0
+            self.health.counts["holding_standing_pose"] = 1
+        else:
+            self._enter_damping(f"damping mode: {why}")
+
     def _enter_damping(self, why: str) -> None:
         n = self.robot.n_joints
         z = np.zeros(n)
         self.plant.set_command(z, z, z, z, np.full(n, self.kd_safe), damping_mode=True)
-        self.damping = True
+        self.damping, self.holding = True, False
         self.health.set(WARN, why)
         self.health.counts["damping_mode"] = 1
+        self.health.counts["holding_standing_pose"] = 0
 
     def on_command(self, msg: TorqueCommand) -> None:
         try:
@@ -108,7 +143,7 @@ class MujocoBridge(Node):
                                        cmd.velocity_target, cmd.stiffness, cmd.damping)
         except CimlError as err:  # ConversionError, RobotDescriptionError (joint names), PlantError
             self.health.count("rejected_commands")
-            if not self.damping:
+            if not (self.damping or self.holding):
                 self.health.set(WARN, f"command rejected: {err}")
             self.get_logger().warning(f"command rejected: {err} (rejected_commands: "
                                       f"{self.health.counts['rejected_commands']})", throttle_duration_sec=1.0)
@@ -119,9 +154,10 @@ class MujocoBridge(Node):
         if cmd.mode == TorqueCommand.MODE_DAMPING:
             if not self.damping:
                 self._enter_damping("damping mode: requested by /torque_command")
-        elif self.damping:
-            self.damping = False
+        elif self.damping or self.holding:
+            self.damping = self.holding = False
             self.health.counts["damping_mode"] = 0
+            self.health.counts["holding_standing_pose"] = 0
             self.health.set(OK, "torque control")
 
     def on_reset(self, request, response):
@@ -129,10 +165,11 @@ class MujocoBridge(Node):
         self.plant.reset()
         self.plant.data.time = t  # keep /clock monotonic
         self.last_command_time = -np.inf
-        self._enter_damping("damping mode: reset, waiting for /torque_command")
+        self._start_waiting("reset, waiting for /torque_command")
         self.health.count("resets")
         response.success = True
-        response.message = "plant reset to the standing pose; joints damped until the next command"
+        response.message = ("plant reset to the standing pose; "
+                            + ("held there" if self.holding else "joints damped") + " until the next command")
         return response
 
     # --- the loop ----------------------------------------------------------------------------
@@ -158,7 +195,7 @@ class MujocoBridge(Node):
         self._stats(now)
 
     def _sample(self) -> None:
-        if not self.damping and self.plant.time - self.last_command_time > self.timeout:
+        if not (self.damping or self.holding) and self.plant.time - self.last_command_time > self.timeout:
             self.health.count("stale_command_damping")
             self._enter_damping(f"damping mode: no valid /torque_command for {self.timeout:g} s")
         self.plant.step(self.steps_per_sample)

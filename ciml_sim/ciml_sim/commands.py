@@ -54,24 +54,6 @@ def load_epsilon_function(robot: RobotDescription, spec: str) -> Callable | None
                             f"({type(err).__name__}: {' '.join(str(err).split())})") from err
 
 
-def compress_chunks(writer) -> bool:
-    """zstd-compress the MCAP chunks of a not yet opened ciml_learning.bagio.BagWriter.
-
-    Standard MCAP chunk compression (as rosbag2's MCAP storage presets `zstd_fast` and
-    `zstd_small` write it): ros2 bag, Foxglove and rosbags read it; bags shrink ~4× (the
-    joint and DoF names repeat in every message).
-    BagWriter has no option for it yet, so this reaches into its rosbags writer; returns
-    False (an uncompressed bag) if that is not possible.
-    """
-    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
-
-    inner = getattr(writer, "_writer", None)
-    if inner is None or not hasattr(inner, "set_compression"):
-        return False
-    inner.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-    return True
-
-
 def record(args: argparse.Namespace) -> int:
     from ciml_learning.bagio import BagWriter
     from ciml_learning.cli import robot_from_args
@@ -83,8 +65,8 @@ def record(args: argparse.Namespace) -> int:
     robot = robot_from_args(args)
     scenario = resolve_scenario(args.scenario, robot)
     check_motion(args.motion)
-    writer = BagWriter(args.out)
-    compress_chunks(writer)
+    # zstd MCAP chunks (~4× smaller: the joint and DoF names repeat in every message)
+    writer = BagWriter(args.out, compression="zstd")
     with writer:
         result = run_headless(robot, scenario, args.motion, args.duration, args.seed, writer=writer,
                               ground_truth=not args.no_ground_truth, progress=True)

@@ -30,7 +30,13 @@ of the nominal model:
     M(q) v̇ + h(q, v) = Sᵀ u + Σ_feet J_footᵀ f_foot + Σ_effects f_effect.
 
 Encoder noise is drawn once per 1 ms joint-loop reading (the loop and the published
-sample at that instant see the same reading); the other sensor noise once per sample.
+sample at that instant see the same reading); the other sensor noise once per sample
+(both in blocks of 1000 draws: the same numbers as one draw at a time).
+
+Speed: measure() runs mj_forward at the sample instant; the first physics step after it
+(with the new command) reuses that pass's position and velocity stages (mj_step2
+instead of mj_step: bit-identical, as long as nothing but the command changes in
+between — a changed state is detected and stepped in full).
 """
 from __future__ import annotations
 
@@ -48,9 +54,9 @@ from .mjcf import (
     FOOT_RADIUS,
     TIMESTEP,
     build_mjcf,
-    mj_to_pin_acceleration,
     mj_to_pin_state,
     pin_to_mj_state,
+    quat_xyzw_to_matrix,
 )
 from .scenario import Effect, Scenario
 
@@ -219,6 +225,10 @@ class Plant:
                 raise CimlError(f"effect type {e.type} has no implementation")
         self.model.dof_frictionloss[6:] = self.coulomb
         self.model.dof_damping[6:] = self.viscous
+        # ground truth: per effect (effect, joint indices, (true model, data) of an inertial effect)
+        inertial_of = {id(e): (m, md) for e, m, md in self._inertial}
+        self._gt_effects = [(e, np.asarray(e.joints, dtype=int), inertial_of.get(id(e))) for e in scenario.effects]
+        self._gt_kinds = {e.type for e in scenario.effects}
         self._alpha = DT / (self.lag_time_constant + DT)  # backward-Euler lag: τ_k = τ_{k−1} + α (u_k − τ_{k−1})
         self._has_lag = bool(np.any(self.lag_time_constant > 0))
         self._has_gain = bool(np.any(self.gain != 1.0) or np.any(self.offset != 0.0))
@@ -235,6 +245,8 @@ class Plant:
         self._base_body = int(self.model.jnt_bodyid[0])
         self._noise_std = np.array([self.noise[k] for k in ("base_orientation", "tau", "base_position",
                                                               "base_velocity")])
+        # standard-normal draws per sample: orientation (3), torque (n_j), position (3), twist (6)
+        self._meas_noise_len = int(sum(n for n, std in zip((3, nj, 3, 6), self._noise_std) if std > 0))
         # views into MjData (stable buffers)
         d = self.data
         self._qj = d.qpos[7:]
@@ -283,7 +295,9 @@ class Plant:
         self._rng_joint = np.random.default_rng(seeds[0])
         self._rng_meas = np.random.default_rng(seeds[1])
         self._noise_start = -_NOISE_BLOCK
+        self._meas_noise_i = _NOISE_BLOCK
         self._k = 0
+        self._forward_state: bytes | None = None
         self._lag = np.zeros(nj)
         self._c = np.zeros(nj)  # u_ff + K_p q_t + K_d q̇_t
         self._kp = np.zeros(nj)
@@ -297,6 +311,7 @@ class Plant:
         """Set simulation time to 0 without touching the state (after a settling pre-roll)."""
         self.data.time = 0.0
         self._meas = None
+        self._forward_state = None
 
     def set_command(self, u_ff: np.ndarray, q_target: np.ndarray, qd_target: np.ndarray, kp: np.ndarray,
                     kd: np.ndarray, damping_mode: bool = False) -> None:
@@ -382,7 +397,10 @@ class Plant:
         has_lag, has_gain, noisy = self._has_lag, self._has_gain, self._encoder_noise
         alpha, gain, offset, lag = self._alpha, self.gain, self.offset, self._lag
         u = tau = self.u
-        for _ in range(n):
+        # measure() left mj_forward's position and velocity stages of this very state in MjData
+        reuse = (self._meas is not None and self._forward_state is not None
+                 and self._forward_state == d.qpos.tobytes() + d.qvel.tobytes())
+        for i in range(n):
             if noisy:
                 q_m, qd_m = self._readings()
             else:
@@ -400,12 +418,16 @@ class Plant:
                 self._apply(tau)
             else:
                 ctrl[:] = tau
-            mujoco.mj_step(m, d)
+            if i == 0 and reuse:
+                mujoco.mj_step2(m, d)  # = mj_step here: actuation, acceleration, constraints, integration
+            else:
+                mujoco.mj_step(m, d)
             self._k += 1
         if n > 0:
             self._lag = lag
             self.u, self.tau = u, tau
             self._meas = None
+            self._forward_state = None
 
     # --- sensors ----------------------------------------------------------------------------
     def _foot_forces(self) -> np.ndarray:
@@ -418,6 +440,19 @@ class Plant:
         mujoco.mj_rnePostConstraint(self.model, self.data)
         return self.data.cfrc_ext[self._foot_bodies, 3:6].copy()
 
+    def _measurement_noise(self) -> np.ndarray | None:
+        """This sample's standard-normal draws of the enabled sensor noises (orientation,
+        torque, position, twist, in that order), from blocks of _NOISE_BLOCK samples: the
+        same numbers as drawing each sensor's noise at each sample."""
+        if self._meas_noise_len == 0:
+            return None
+        i = self._meas_noise_i
+        if i >= _NOISE_BLOCK:
+            self._meas_noise = self._rng_meas.standard_normal((_NOISE_BLOCK, self._meas_noise_len))
+            i = 0
+        self._meas_noise_i = i + 1
+        return self._meas_noise[i]
+
     def measure(self) -> Measurement:
         """Sensor readings at the current instant (cached until the next step)."""
         if self._meas is not None:
@@ -426,8 +461,11 @@ class Plant:
         self._apply(tau)
         d = self.data
         mujoco.mj_forward(self.model, d)  # accelerations and contact forces at t under τ(t)
+        self._forward_state = d.qpos.tobytes() + d.qvel.tobytes()
         forces = self._foot_forces()
-        rng, nz = self._rng_meas, self._noise_std
+        nz = self._noise_std
+        z = self._measurement_noise()
+        o = 0
         qpos, qvel = d.qpos, d.qvel
         quat = qpos[3:7].copy()  # w x y z
         lin = d.xmat[self._base_body].reshape(3, 3).T @ qvel[:3]  # base frame
@@ -437,15 +475,21 @@ class Plant:
             mujoco.mju_mulQuat(quat, quat.copy(), self._imu_tilt)
         if nz[0] > 0:  # base_orientation
             dq = np.zeros(4)
-            mujoco.mju_axisAngle2Quat(dq, *_axis_angle(nz[0] * rng.standard_normal(3)))
+            mujoco.mju_axisAngle2Quat(dq, *_axis_angle(nz[0] * z[0:3]))
             mujoco.mju_mulQuat(quat, quat.copy(), dq)
+            o = 3
         quat /= np.sqrt(quat @ quat)
-        tau_meas = tau + nz[1] * rng.standard_normal(tau.size) if nz[1] > 0 else tau.copy()
+        if nz[1] > 0:  # torque
+            tau_meas = tau + nz[1] * z[o:o + tau.size]
+            o += tau.size
+        else:
+            tau_meas = tau.copy()
         if nz[2] > 0:  # base_position
-            pos += nz[2] * rng.standard_normal(3)
+            pos += nz[2] * z[o:o + 3]
+            o += 3
         if nz[3] > 0:  # base_velocity
-            lin += nz[3] * rng.standard_normal(3)
-            ang += nz[3] * rng.standard_normal(3)
+            lin += nz[3] * z[o:o + 3]
+            ang += nz[3] * z[o + 3:o + 6]
         meas = Measurement(
             time=float(d.time),
             q=q_m.copy(),
@@ -468,31 +512,44 @@ class Plant:
             self.measure()
         _, u, lag, tau, forces = self._meas
         d = self.data
-        q, v = mj_to_pin_state(d.qpos, d.qvel)
-        vdot = mj_to_pin_acceleration(q, v, d.qacc)
+        # mjcf.mj_to_pin_state / mj_to_pin_acceleration, inlined (same arithmetic, no np.cross)
+        qpos, qvel = d.qpos, d.qvel
+        quat = np.array([qpos[4], qpos[5], qpos[6], qpos[3]])
+        quat /= np.linalg.norm(quat)
+        R = quat_xyzw_to_matrix(quat)
+        q = np.concatenate([qpos[:3], quat, qpos[7:]])
+        v = np.concatenate([R.T @ qvel[:3], qvel[3:]])
+        vdot = np.array(d.qacc, dtype=float)
+        w, vl = v[3:6], v[:3]
+        vdot[:3] = R.T @ d.qacc[:3] - np.array([w[1] * vl[2] - w[2] * vl[1], w[2] * vl[0] - w[0] * vl[2],
+                                                 w[0] * vl[1] - w[1] * vl[0]])
         nv = self.robot.nv
         effects: dict[str, np.ndarray] = {}
+        kinds = self._gt_kinds
 
         def joint_force(j: np.ndarray, values: np.ndarray) -> np.ndarray:
             f = np.zeros(nv)
             f[6 + j] = values
             return f
 
-        # joint friction constraint forces, shared among the effects by their current levels
-        friction = np.zeros(nv)
-        rows = d.efc_type[: d.nefc] == mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF
-        np.add.at(friction, d.efc_id[: d.nefc][rows], d.efc_force[: d.nefc][rows])
-        level = self.coulomb.copy()
-        stribeck_levels = self._stribeck_levels()
-        for (e, j), lv in zip(self._stribeck, stribeck_levels):
-            level[j] += lv
-        share = np.divide(friction[6:], level, out=np.zeros_like(level), where=level > 0)
-        strib = dict(zip((id(e) for e, _ in self._stribeck), stribeck_levels))
-        side = dict(zip((id(e) for e, _ in self._springs + self._ripples), self._side_torques()))
-        inertial = {id(e): (m, md) for e, m, md in self._inertial}
-        lag_share = np.divide(lag - u, self.lag_time_constant, out=np.zeros_like(u), where=self.lag_time_constant > 0)
-        for e in self.scenario.effects:
-            j = np.asarray(e.joints, dtype=int)
+        if kinds & {"joint_coulomb_friction", "joint_stribeck_friction"}:
+            # joint friction constraint forces, shared among the effects by their current levels
+            friction = np.zeros(nv)
+            rows = d.efc_type[: d.nefc] == mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF
+            np.add.at(friction, d.efc_id[: d.nefc][rows], d.efc_force[: d.nefc][rows])
+            level = self.coulomb.copy()
+            stribeck_levels = self._stribeck_levels()
+            for (e, j), lv in zip(self._stribeck, stribeck_levels):
+                level[j] += lv
+            share = np.divide(friction[6:], level, out=np.zeros_like(level), where=level > 0)
+            strib = dict(zip((id(e) for e, _ in self._stribeck), stribeck_levels))
+        side = dict(zip((id(e) for e, _ in self._springs + self._ripples), self._side_torques())) if self._has_side else {}
+        if "actuator_lag" in kinds:
+            lag_share = np.divide(lag - u, self.lag_time_constant, out=np.zeros_like(u),
+                                  where=self.lag_time_constant > 0)
+        if self._inertial:
+            nominal_id = pin.rnea(self.robot.model, self._nominal_data, q, v, vdot)
+        for e, j, inertial in self._gt_effects:
             p = e.params
             if e.type == "joint_coulomb_friction":
                 f = joint_force(j, share[j] * p["value"])
@@ -509,8 +566,8 @@ class Plant:
             elif e.type == "torque_offset":
                 f = joint_force(j, np.full(len(j), p["value"]))
             elif e.type in ("payload", "link_mass_scale"):
-                m, md = inertial[id(e)]
-                f = -(pin.rnea(m, md, q, v, vdot) - pin.rnea(self.robot.model, self._nominal_data, q, v, vdot))
+                m, md = inertial
+                f = -(pin.rnea(m, md, q, v, vdot) - nominal_id)
             else:  # encoder_offset, base_imu_tilt: measurement only
                 continue
             effects[e.label] = f

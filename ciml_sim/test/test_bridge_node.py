@@ -1,4 +1,5 @@
-"""The mujoco_bridge node on the live graph: topics, damping without commands, rejected commands."""
+"""The mujoco_bridge node on the live graph: topics, standing hold until the first command,
+damping when commands stop, rejected commands."""
 from __future__ import annotations
 
 import math
@@ -83,6 +84,13 @@ def _values(status) -> dict[str, str]:
     return {kv.key: kv.value for kv in status.values}
 
 
+def _standing_height() -> float:
+    from ciml_sim.plant import Plant
+    from ciml_sim.scenario import nominal_scenario
+
+    return float(Plant(ROBOT, nominal_scenario()).standing_configuration()[2])
+
+
 def _command(valid: bool = True):
     from ciml_control.standing import StandingController
     from ciml_learning import conversions as cv
@@ -118,17 +126,25 @@ def test_bridge_publishes_damps_without_commands_and_rejects_nan():
         clock = graph.get("/clock")[-1].clock
         assert clock.sec * 10**9 + clock.nanosec >= stamps[0]
 
-        # 2. no command yet: damping mode, and /diagnostics says so
-        assert graph.wait_for(lambda: any(s.level == b"\x01" and "damping" in s.message
+        # 2. no command yet: the bridge holds the standing pose (not damping), and /diagnostics
+        #    says so; the base stays at the standing height (pure damping drops it to ~0.27 m)
+        assert graph.wait_for(lambda: any(s.level == b"\x01" and "holding the standing pose" in s.message
                                           for s in graph.bridge_status()), 10)
+        assert graph.wait_for(lambda: len(graph.get("/base_state")) >= 300, 30)  # ≥ 1.2 s of simulation
+        z_stand = _standing_height()
+        z = np.array([m.pose.pose.position.z for m in graph.get("/base_state")])
+        assert np.all(np.abs(z - z_stand) < 0.02), (z.min(), z.max(), z_stand)
+        assert not any("damping" in s.message for s in graph.bridge_status())
 
-        # 3. a NaN command is rejected and counted; the joints stay damped
+        # 3. a NaN command is rejected and counted; the robot keeps standing
         assert graph.wait_for(lambda: graph.node.count_subscribers("/torque_command") >= 1, 10)
         for _ in range(3):
             graph.commands.publish(_command(valid=False))
             time.sleep(0.05)
-        assert graph.wait_for(lambda: any(int(_values(s).get("rejected_commands", 0)) >= 3 and "damping" in s.message
+        assert graph.wait_for(lambda: any(int(_values(s).get("rejected_commands", 0)) >= 3
+                                          and "holding the standing pose" in s.message
                                           for s in graph.bridge_status()), 10)
+        assert abs(graph.get("/base_state")[-1].pose.pose.position.z - z_stand) < 0.02
 
         # 4. valid commands: torque control (level OK); when they stop, damping again after the timeout
         n_before = len(graph.bridge_status())
@@ -155,9 +171,11 @@ def test_bridge_publishes_damps_without_commands_and_rejects_nan():
 
 @pytest.mark.ros
 def test_bridge_command_handling_in_process():
-    """The node's command path without the graph: NaN, wrong joint names, negative gains and
-    unknown modes are dropped and counted; a valid command leaves damping mode; a stale one
-    re-enters it after command_timeout of simulation time; damping mode is a request too."""
+    """The node's command path without the graph: before the first command the standing pose
+    is held (no timeout applies); NaN, wrong joint names, negative gains and unknown modes
+    are dropped and counted; a valid command starts torque control; a stale one enters
+    damping mode after command_timeout of simulation time; damping mode is a request too;
+    a reset holds the standing pose again."""
     import random
 
     import rclpy
@@ -170,20 +188,26 @@ def test_bridge_command_handling_in_process():
     rclpy.init(context=ctx, domain_id=random.SystemRandom().randint(1, 101))
     try:
         node = MujocoBridge(context=ctx, parameter_overrides=[Parameter("command_timeout", value=0.02)])
-        assert node.damping and node.plant.damping_mode
+        assert node.holding and not node.damping and not node.plant.damping_mode
+        assert "holding the standing pose" in node.health.message and node.health.level == 1
+        z_stand = float(node.plant.standing_configuration()[2])
+        for _ in range(250):  # 1 s of simulation time without a command: no timeout, still standing
+            node._sample()
+        assert node.holding and not node.damping and "stale_command_damping" not in node.health.counts
+        assert abs(node.plant.data.qpos[2] - z_stand) < 0.01
         bad = [_command(valid=False), _command(), _command(), _command()]
         bad[1].joint_names = [n.replace("lf_", "xx_") for n in bad[1].joint_names]
         bad[2].damping = [-1.0] * ROBOT.n_joints
         bad[3].mode = 7
         for msg in bad:
             node.on_command(msg)
-        assert node.health.counts["rejected_commands"] == 4 and node.damping and node.commands_received == 0
+        assert node.health.counts["rejected_commands"] == 4 and node.holding and node.commands_received == 0
         node.on_command(_command())
-        assert not node.damping and not node.plant.damping_mode and node.health.level == 0
+        assert not node.damping and not node.holding and not node.plant.damping_mode and node.health.level == 0
         for _ in range(3):
             node._sample()  # 12 ms of simulation time: within the timeout
         assert not node.damping
-        for _ in range(3):
+        for _ in range(4):  # past the timeout (not on its edge: simulation time is a float sum of 1 ms steps)
             node._sample()
         assert node.damping and node.health.counts["stale_command_damping"] == 1
         assert "damping mode" in node.health.message and node.health.level == 1
@@ -194,6 +218,9 @@ def test_bridge_command_handling_in_process():
         assert node.damping and "requested" in node.health.message
         m = node.plant.measure()
         assert np.all(np.isfinite(m.tau_measured))
+        response = node.on_reset(None, type("Response", (), {})())
+        assert response.success and node.holding and not node.damping and not node.plant.damping_mode
+        assert node.health.counts["resets"] == 1 and "holding the standing pose" in node.health.message
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=ctx)

@@ -1,0 +1,489 @@
+"""Compiled (numba) small dense linear algebra of the 250 Hz control step.
+
+The controller's matrices are tiny (18 × 18 at most); numpy spends far more time in
+its Python wrappers than in arithmetic on them (an `np.linalg.qr(..., "complete")`
+takes ~20 µs for 18 × 12). These kernels do the same algebra in one compiled call
+each, with explicit loops (no BLAS threads involved):
+
+- `qr_complete`: Householder QR with LAPACK's conventions (dgeqr2/dorg2r: β = −sign(α)‖x‖,
+  Q = H₁⋯H_n), so Q and R equal numpy's `np.linalg.qr(A, "complete")` to rounding;
+- `contact_decomposition`: QR of J_cᵀ and the row space of Q_uᵀSᵀ (see ciml_control.qp);
+- `feedforward_matrices`: the QP matrices of eq. (18–21);
+- `projected_pinv_apply`: (Q_uᵀSᵀ)⁺ Q_uᵀ x of the feedback linearisation, eq. (24);
+- `min_norm_correction`, `max_violation`: the QP answer's equality polish and check.
+
+Compiled on first use and cached on disk (numba `cache=True`).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+def arg(x, dtype=np.float64) -> np.ndarray:
+    """x as a C-contiguous array of dtype (no copy if it is one already). numba compiles
+    one specialisation per argument layout (and per read-only flag): the control path
+    passes writable C arrays."""
+    return np.ascontiguousarray(x, dtype=dtype)
+
+
+@njit(cache=True)
+def qr_complete(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A (m × n, m ≥ n) = Q [R; 0]: Q (m × m) orthogonal, R (n × n) upper triangular."""
+    m, n = A.shape
+    W = A.copy()
+    tau = np.zeros(n)
+    for j in range(n):
+        alpha = W[j, j]
+        xn2 = 0.0
+        for i in range(j + 1, m):
+            xn2 += W[i, j] * W[i, j]
+        if xn2 == 0.0:
+            continue  # H_j = I (LAPACK dlarfg with a zero tail)
+        beta = -math.copysign(math.sqrt(alpha * alpha + xn2), alpha)
+        tau[j] = (beta - alpha) / beta
+        scale = 1.0 / (alpha - beta)
+        for i in range(j + 1, m):
+            W[i, j] *= scale
+        W[j, j] = beta
+        for k in range(j + 1, n):  # H_j applied to the trailing columns
+            s = W[j, k]
+            for i in range(j + 1, m):
+                s += W[i, j] * W[i, k]
+            s *= tau[j]
+            W[j, k] -= s
+            for i in range(j + 1, m):
+                W[i, k] -= s * W[i, j]
+    Q = np.eye(m)
+    for j in range(n - 1, -1, -1):  # Q = H_0 (H_1 (⋯ H_{n−1} I)), rows/columns ≥ j only
+        t = tau[j]
+        if t == 0.0:
+            continue
+        for k in range(j, m):
+            s = Q[j, k]
+            for i in range(j + 1, m):
+                s += W[i, j] * Q[i, k]
+            s *= t
+            Q[j, k] -= s
+            for i in range(j + 1, m):
+                Q[i, k] -= s * W[i, j]
+    R = np.zeros((n, n))
+    for i in range(n):
+        for k in range(i, n):
+            R[i, k] = W[i, k]
+    return Q, R
+
+
+@njit(cache=True)
+def contact_jacobian(foot_jacobians: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+    """Stacked linear Jacobians (3 n_c × nv) of the feet in contact."""
+    nf, _, nv = foot_jacobians.shape
+    nc = 0
+    for i in range(nf):
+        if contacts[i]:
+            nc += 1
+    Jc = np.empty((3 * nc, nv))
+    r = 0
+    for i in range(nf):
+        if contacts[i]:
+            for a in range(3):
+                for k in range(nv):
+                    Jc[r, k] = foot_jacobians[i, a, k]
+                r += 1
+    return Jc
+
+
+@njit(cache=True)
+def contact_decomposition(foot_jacobians: np.ndarray, contacts: np.ndarray, tol: float):
+    """(Q_c, Q_u, R, U_r, has_U_r): J_cᵀ = [Q_c Q_u][R; 0]; U_r an orthonormal basis of the
+    row space of Q_uᵀSᵀ when it is rank deficient (has_U_r), see ciml_control.qp."""
+    nv = foot_jacobians.shape[2]
+    Jc = contact_jacobian(foot_jacobians, contacts)
+    nc3 = Jc.shape[0]
+    if nc3 > 0:
+        Q, R = qr_complete(np.ascontiguousarray(Jc.T))
+        Q_c = np.ascontiguousarray(Q[:, :nc3])
+        Q_u = np.ascontiguousarray(Q[:, nc3:])
+        B = np.zeros((6, 6))  # J_c,baseᵀ J_c,base
+        for i in range(6):
+            for j in range(6):
+                s = 0.0
+                for r in range(nc3):
+                    s += Jc[r, i] * Jc[r, j]
+                B[i, j] = s
+        w, V = np.linalg.eigh(B)
+        thr = tol * max(w[5], 1.0)
+        nb = 0
+        for i in range(6):
+            if w[i] < thr:
+                nb += 1
+        Nb = np.empty((6, nb))
+        c = 0
+        for i in range(6):
+            if w[i] < thr:
+                Nb[:, c] = V[:, i]
+                c += 1
+    else:
+        Q_c = np.zeros((nv, 0))
+        Q_u = np.eye(nv)
+        R = np.zeros((0, 0))
+        nb = 6
+        Nb = np.eye(6)
+    nu = Q_u.shape[1]
+    if nb == 0:
+        return Q_c, Q_u, R, np.zeros((nu, 0)), False
+    W = np.zeros((nu, nb))  # Q_uᵀ [n_b; 0]
+    for i in range(nu):
+        for c in range(nb):
+            s = 0.0
+            for k in range(6):
+                s += Q_u[k, i] * Nb[k, c]
+            W[i, c] = s
+    if nb == 1:  # complement of one vector from one Householder reflection
+        v = W[:, 0].copy()
+        v[0] += 1.0 if W[0, 0] >= 0 else -1.0
+        f = 2.0 / np.dot(v, v)
+        U = np.empty((nu, nu - 1))
+        for i in range(nu):
+            for k in range(1, nu):
+                U[i, k - 1] = (1.0 if i == k else 0.0) - f * v[i] * v[k]
+        return Q_c, Q_u, R, U, True
+    Qw, _ = qr_complete(W)
+    return Q_c, Q_u, R, np.ascontiguousarray(Qw[:, nb:]), True
+
+
+@njit(cache=True)
+def _row_space(Q_u: np.ndarray, x: np.ndarray, U_r: np.ndarray, has_ur: bool):
+    """(A, y): A = Q_uᵀSᵀ (joint rows of Q_u) and y = Q_uᵀ x, both rotated onto the row
+    space by U_rᵀ when Q_uᵀSᵀ is rank deficient; also ‖dropped part of y‖."""
+    nv, nu = Q_u.shape
+    nj = nv - 6
+    A = np.empty((nu, nj))
+    y = np.empty(nu)
+    for i in range(nu):
+        s = 0.0
+        for k in range(nv):
+            s += Q_u[k, i] * x[k]
+        y[i] = s
+        for j in range(nj):
+            A[i, j] = Q_u[6 + j, i]
+    if not has_ur:
+        return A, y, 0.0
+    nr = U_r.shape[1]
+    A2 = np.zeros((nr, nj))
+    y2 = np.zeros(nr)
+    for r in range(nr):
+        s = 0.0
+        for i in range(nu):
+            u = U_r[i, r]
+            s += u * y[i]
+            for j in range(nj):
+                A2[r, j] += u * A[i, j]
+        y2[r] = s
+    dropped = 0.0
+    for i in range(nu):
+        s = y[i]
+        for r in range(nr):
+            s -= U_r[i, r] * y2[r]
+        dropped += s * s
+    return A2, y2, math.sqrt(dropped)
+
+
+@njit(cache=True)
+def _spd_solve(S: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """S x = b for a symmetric positive definite S (Cholesky); NaN if S is not."""
+    n = S.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        d = S[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not d > 0.0:
+            return np.full(n, np.nan)
+        L[j, j] = math.sqrt(d)
+        for i in range(j + 1, n):
+            s = S[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / L[j, j]
+    z = np.empty(n)
+    for i in range(n):
+        s = b[i]
+        for k in range(i):
+            s -= L[i, k] * z[k]
+        z[i] = s / L[i, i]
+    x = np.empty(n)
+    for i in range(n - 1, -1, -1):
+        s = z[i]
+        for k in range(i + 1, n):
+            s -= L[k, i] * x[k]
+        x[i] = s / L[i, i]
+    return x
+
+
+@njit(cache=True)
+def min_norm_apply(A: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """A⁺ y = Aᵀ (A Aᵀ)⁻¹ y for A with full row rank."""
+    m, n = A.shape
+    S = np.empty((m, m))
+    for i in range(m):
+        for j in range(i, m):
+            s = 0.0
+            for k in range(n):
+                s += A[i, k] * A[j, k]
+            S[i, j] = s
+            S[j, i] = s
+    z = _spd_solve(S, y)
+    out = np.zeros(n)
+    for i in range(m):
+        for k in range(n):
+            out[k] += A[i, k] * z[i]
+    return out
+
+
+@njit(cache=True)
+def projected_pinv_apply(M_upper: np.ndarray, foot_jacobians: np.ndarray, contacts: np.ndarray,
+                         qdd: np.ndarray, tol: float) -> np.ndarray:
+    """(P_c Sᵀ)⁺ P_c M q̈ = (Q_uᵀSᵀ)⁺ Q_uᵀ M q̈, eq. (24), with M given by its upper triangle."""
+    nv = qdd.shape[0]
+    Mq = np.zeros(nv)
+    for i in range(nv):
+        s = 0.0
+        for k in range(nv):
+            s += (M_upper[i, k] if k >= i else M_upper[k, i]) * qdd[k]
+        Mq[i] = s
+    _, Q_u, _, U_r, has_ur = contact_decomposition(foot_jacobians, contacts, tol)
+    A, y, _ = _row_space(Q_u, Mq, U_r, has_ur)
+    return min_norm_apply(A, y)
+
+
+@njit(cache=True)
+def feedforward_matrices(M_upper: np.ndarray, h: np.ndarray, foot_jacobians: np.ndarray, contacts: np.ndarray,
+                         qdd: np.ndarray, epsilon: np.ndarray, F: np.ndarray, f_min: float, tol: float):
+    """The QP of eq. (18–21) (see ciml_control.qp.build_feedforward_qp):
+    (A, b, unrealizable, lam0, G, C, c_u, Q_u, rhs) with M given by its upper triangle
+    and F the 9 × 3 friction-cone rows of one foot."""
+    nv = h.shape[0]
+    nj = nv - 6
+    rhs = np.empty(nv)
+    for i in range(nv):
+        s = 0.0
+        for k in range(nv):
+            s += (M_upper[i, k] if k >= i else M_upper[k, i]) * qdd[k]
+        rhs[i] = s + h[i] + epsilon[i]
+    Q_c, Q_u, R, U_r, has_ur = contact_decomposition(foot_jacobians, contacts, tol)
+    A, b, unrealizable = _row_space(Q_u, rhs, U_r, has_ur)
+    nc3 = Q_c.shape[1]
+    # λ = R⁻¹ Q_cᵀ (rhs − Sᵀu) = lam0 − G u (back substitution: R is upper triangular)
+    X = np.empty((nc3, 1 + nj))
+    for i in range(nc3):
+        s = 0.0
+        for k in range(nv):
+            s += Q_c[k, i] * rhs[k]
+        X[i, 0] = s
+        for j in range(nj):
+            X[i, 1 + j] = Q_c[6 + j, i]
+    for c in range(1 + nj):
+        for i in range(nc3 - 1, -1, -1):
+            s = X[i, c]
+            for k in range(i + 1, nc3):
+                s -= R[i, k] * X[k, c]
+            X[i, c] = s / R[i, i]
+    lam0 = np.ascontiguousarray(X[:, 0])
+    G = np.ascontiguousarray(X[:, 1:])
+    n_c = nc3 // 3
+    nr = F.shape[0]
+    C = np.empty((nr * n_c, nj))
+    c_u = np.empty(nr * n_c)
+    for f in range(n_c):  # F λ_f ≤ d: C = −F G_f, c_u = d − F lam0_f
+        for r in range(nr):
+            row = f * nr + r
+            s = 0.0
+            for a in range(3):
+                s += F[r, a] * lam0[3 * f + a]
+            c_u[row] = (-f_min if r == nr - 1 else 0.0) - s
+            for j in range(nj):
+                t = 0.0
+                for a in range(3):
+                    t += F[r, a] * G[3 * f + a, j]
+                C[row, j] = -t
+    return A, b, unrealizable, lam0, G, C, c_u, Q_u, rhs
+
+
+@njit(cache=True)
+def min_norm_correction(A: np.ndarray, b: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """x − Aᵀ (A Aᵀ)⁻¹ (A x − b): the nearest point to x on A u = b (A full row rank)."""
+    m, n = A.shape
+    if m == 0:
+        return x.copy()
+    r = np.empty(m)
+    for i in range(m):
+        s = -b[i]
+        for k in range(n):
+            s += A[i, k] * x[k]
+        r[i] = s
+    return x - min_norm_apply(A, r)
+
+
+@njit(cache=True)
+def max_violation(A, b, C, l, c_u, lb, ub, u) -> float:
+    """Largest violation of A u = b, l ≤ C u ≤ c_u, lb ≤ u ≤ ub (0 if feasible; NaN if
+    any of them is NaN)."""
+    worst = 0.0
+    n = u.shape[0]
+    for i in range(A.shape[0]):
+        s = -b[i]
+        for k in range(n):
+            s += A[i, k] * u[k]
+        worst = max(worst, abs(s))
+        if s != s:
+            return np.nan
+    for i in range(C.shape[0]):
+        s = 0.0
+        for k in range(n):
+            s += C[i, k] * u[k]
+        worst = max(worst, l[i] - s, s - c_u[i])
+        if s != s:
+            return np.nan
+    for k in range(n):
+        worst = max(worst, lb[k] - u[k], u[k] - ub[k])
+        if u[k] != u[k]:
+            return np.nan
+    return worst
+
+
+@njit(cache=True)
+def all_finite(a: np.ndarray) -> bool:
+    for x in a.flat:
+        if not np.isfinite(x):
+            return False
+    return True
+
+
+# --- leg inverse kinematics (ciml_control.references.LegIK) ---------------------------------
+
+
+@njit(cache=True)
+def _solve_small(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """A x = b by Gaussian elimination with partial pivoting (A small and square)."""
+    n = A.shape[0]
+    M = A.copy()
+    x = b.copy()
+    for c in range(n):
+        p = c
+        for r in range(c + 1, n):
+            if abs(M[r, c]) > abs(M[p, c]):
+                p = r
+        if p != c:
+            for k in range(n):
+                M[c, k], M[p, k] = M[p, k], M[c, k]
+            x[c], x[p] = x[p], x[c]
+        for r in range(c + 1, n):
+            f = M[r, c] / M[c, c]
+            for k in range(c, n):
+                M[r, k] -= f * M[c, k]
+            x[r] -= f * x[c]
+    for r in range(n - 1, -1, -1):
+        s = x[r]
+        for k in range(r + 1, n):
+            s -= M[r, k] * x[k]
+        x[r] = s / M[r, r]
+    return x
+
+
+@njit(cache=True)
+def leg_newton_step(J: np.ndarray, feet: np.ndarray, targets: np.ndarray, q: np.ndarray, qidx: np.ndarray,
+                    cols: np.ndarray, tol: float, damping: float, max_step: float):
+    """One damped-Newton step of every leg on the foot positions, q updated in place.
+
+    J (n_feet × 3 × nv) world-aligned foot Jacobians and `feet` (n_feet × 3) the foot
+    positions at q; the step of leg i solves (BᵢᵀBᵢ + damping I) s = Bᵢᵀ eᵢ (Bᵢ: the leg's
+    3 × n_leg block, eᵢ the foot error) and is shortened to at most `max_step` [rad].
+    Returns (converged, largest |error|): converged (no step taken) when every error
+    component is below tol; NaN errors never converge."""
+    nf = J.shape[0]
+    nl = cols.shape[1]
+    converged = True
+    worst = 0.0
+    for i in range(nf):
+        for a in range(3):
+            e = abs(targets[i, a] - feet[i, a])
+            if not e < tol:
+                converged = False
+            if e > worst or e != e:
+                worst = e
+    if converged:
+        return True, worst
+    for i in range(nf):
+        N = np.empty((nl, nl))
+        r = np.empty(nl)
+        for b in range(nl):
+            s = 0.0
+            for a in range(3):
+                s += J[i, a, cols[i, b]] * (targets[i, a] - feet[i, a])
+            r[b] = s
+            for c in range(nl):
+                t = 0.0
+                for a in range(3):
+                    t += J[i, a, cols[i, b]] * J[i, a, cols[i, c]]
+                N[b, c] = t + (damping if b == c else 0.0)
+        step = _solve_small(N, r)
+        norm = 0.0
+        for b in range(nl):
+            norm += step[b] * step[b]
+        scale = min(1.0, max_step / max(math.sqrt(norm), 1e-300))
+        for b in range(nl):
+            q[qidx[i, b]] += step[b] * scale
+    return False, worst
+
+
+@njit(cache=True)
+def leg_solve(J: np.ndarray, targets: np.ndarray, base: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Joint rates of every leg (n_feet × n_leg): Bᵢ xᵢ = targetᵢ − J_base,ᵢ base."""
+    nf = J.shape[0]
+    nl = cols.shape[1]
+    out = np.empty((nf, nl))
+    for i in range(nf):
+        B = np.empty((3, nl))
+        r = np.empty(3)
+        for a in range(3):
+            s = targets[i, a]
+            for k in range(6):
+                s -= J[i, a, k] * base[k]
+            r[a] = s
+            for b in range(nl):
+                B[a, b] = J[i, a, cols[i, b]]
+        out[i] = _solve_small(B, r)
+    return out
+
+
+# --- the QP answer (ciml_control.qp.FeedforwardQP.solve) ------------------------------------
+
+
+@njit(cache=True)
+def problem_finite(rhs, C, c_u, A, b) -> bool:
+    """All entries of the QP data finite."""
+    return all_finite(rhs) and all_finite(C) and all_finite(c_u) and all_finite(A) and all_finite(b)
+
+
+@njit(cache=True)
+def polish_and_check(A, b, C, l, c_u, lb, ub, lam0, G, x):
+    """(u, λ, worst violation, scale, u finite) of a solver answer x: u = the min-norm
+    correction of x onto A u = b, λ = lam0 − G u (eq. 20), the largest constraint
+    violation at u and the scale max(1, ‖b‖∞, ‖c_u‖∞) it is judged against."""
+    u = min_norm_correction(A, b, x)
+    scale = 1.0
+    for i in range(b.shape[0]):
+        scale = max(scale, abs(b[i]))
+    for i in range(c_u.shape[0]):
+        scale = max(scale, abs(c_u[i]))
+    worst = max_violation(A, b, C, l, c_u, lb, ub, u)
+    lam = np.empty(lam0.shape[0])
+    for i in range(lam0.shape[0]):
+        s = lam0[i]
+        for k in range(u.shape[0]):
+            s -= G[i, k] * u[k]
+        lam[i] = s
+    return u, lam, worst, scale, all_finite(u)

@@ -37,15 +37,17 @@ def test_reference_generator_publishes_reference():
     assert np.all(np.diff(stamps) > 0)
     rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
     assert 150 < rate < 300  # 250 Hz nominal on a shared machine
-    # the samples are the motion's reference at the elapsed time (made exact with the phase)
+    # the samples are the motion's reference at its phase in some gait cycle k (the exact
+    # start instant is unknown here: the listener may see a few samples before the node
+    # sees the subscription and starts the motion clock)
     ref = make_reference(ROBOT, "trot_35", q_stand)
     p = points[-1]
     assert p.t - points[0].t > ref.t0 + 0.1
-    elapsed = p.t - points[0].t
-    k = round((elapsed - ref.t0) / ref.period - p.phase)
-    expected = ref.sample(ref.t0 + (k + p.phase) * ref.period)
-    assert abs(ref.t0 + (k + p.phase) * ref.period - elapsed) < 0.05
-    assert np.allclose(p.q, expected.q, atol=1e-6) and np.array_equal(p.contacts, expected.contacts)
+    cycles = int((p.t - points[0].t - ref.t0) / ref.period) + 2
+    matches = [k for k in range(cycles)
+               if np.allclose(p.q, (e := ref.sample(ref.t0 + (k + p.phase) * ref.period)).q, atol=1e-6)
+               and np.array_equal(p.contacts, e.contacts)]
+    assert matches, "the last reference sample is not the motion's reference at its phase"
 
 
 @pytest.mark.ros

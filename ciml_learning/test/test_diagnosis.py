@@ -187,3 +187,21 @@ def test_bad_input_one_line_error(tmp_path, capsys, scenario_bag):
     f.write_text("x")
     assert main(["diagnose", "--bag", scenario_bag, "--out", str(f)]) == 1
     assert "not a directory" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_command_update_sampling_is_a_baseline_not_an_effect(tmp_path):
+    """A log taken at the controller tick before each new command acts (as ciml_sim.recorder writes
+    it) carries −½Δu ≈ −(Δt/2)(u̇ + K_p q̇ + K_d q̈) in Φ̃: the baseline absorbs it with the expected
+    coefficients, and the nominal scenario gets no effect named."""
+    bag = str(tmp_path / "nominal_recorder_timing")
+    info = record_plant_bag(ROBOT, {"name": "nominal", "effects": []}, bag, seconds=12.0, seed=6, timing="recorder")
+    assert not info["fell"]
+    d = diagnose(ROBOT, [bag], None, None, progress=False)
+    assert d["effects"] == []
+    p = d["baseline"]["params"]
+    dt, kp = 1 / 250.0, 800.0  # the generator's tick and joint stiffness
+    assert p["udot"] == pytest.approx(-dt / 2, rel=0.3)
+    assert p["qd"] == pytest.approx(-kp * dt / 2, rel=0.3)
+    b = d["shrink"]["baseline"]
+    assert b["heldout_rms_after_baseline"] < 0.5 * b["heldout_rms_before_baseline"]

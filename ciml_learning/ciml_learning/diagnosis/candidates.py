@@ -19,7 +19,14 @@ Features (e-convention, per sample; q, q̇, q̈, τ, τ̇ are the filtered log):
     root inertial parameters   e = Y_root(q, q̇, q̈) Δπ_root             (payload: Δπ of a point mass)
     link mass scale l          e = Y_joint(l)(q, q̇, q̈) π_l            θ = s − 1
     joint torque j             e_{6+j} = 1   (no candidate: a unit torque error at joint j, for the
-                               stiction of Coulomb friction and the joint-level localisation)
+                               stiction of Coulomb friction)
+
+Command-update sampling (the baseline, part of every model, not an effect of the robot): a log
+sampled at the controller tick reports the joint loop's torque under the command *before* the
+new one takes effect; the torque acting around the tick is on average ½ Δu higher, with
+Δu ≈ Δt (u̇ + K_p q̇ + K_d q̈) for a PD joint loop that tracks moving targets (Δt the tick).
+So e_j = θ₁ q̇_j + θ₂ q̈_j + θ₃ u̇_j on every joint, with θ₃ ≈ −Δt/2, θ₁ ≈ −K_p Δt/2,
+θ₂ ≈ −K_d Δt/2 — three numbers for the whole robot, fitted with every candidate set.
     actuation, joint j         Γ_j = a τ_j + b − c τ̇_j                 a = 1 − 1/g, b = o/g, c = T/g
 
 The actuation line is exact for τ = g·ℓ + o, T ℓ̇ + ℓ = u (a first-order lag ℓ of the command,
@@ -167,6 +174,7 @@ class FeatureLayout:
             + [f"root:{k}" for k in range(10)]
             + [f"link:{link.name}" for link in self.links]
             + [f"joint_torque:{j}" for j in jn]
+            + ["baseline:qd", "baseline:qdd", "baseline:udot"]
         )
         self.n_rbd = len(self.names)
         for j in jn:
@@ -176,6 +184,7 @@ class FeatureLayout:
         self.root0 = self.imu0 + 2
         self.link0 = self.root0 + 10
         self.torque0 = self.link0 + len(self.links)
+        self.baseline0 = self.torque0 + nj
         self.act0 = self.n_rbd
 
     @property
@@ -184,6 +193,13 @@ class FeatureLayout:
 
     def actuation_feature(self, joint: int, what: str) -> int:
         return self.act0 + 3 * joint + {"lag": 0, "gain": 1, "offset": 2}[what]
+
+    @cached_property
+    def baseline(self) -> Candidate:
+        """The command-update sampling term (module docstring): part of every model, never an effect."""
+        b = self.baseline0
+        return Candidate("command_update_sampling", "rbd", ("qd", "qdd", "udot"), (-np.inf,) * 3, (np.inf,) * 3,
+                         (b, b + 1, b + 2), joints=tuple(self.robot.joint_names))
 
     @cached_property
     def candidates(self) -> list[Candidate]:
@@ -215,11 +231,14 @@ class FeatureLayout:
                              joints=tuple(r.joint_names)))
         return out
 
-    def matrix(self, cand: Candidate, payload_com: np.ndarray | None = None) -> np.ndarray:
+    def matrix(self, cand: Candidate, payload_com: np.ndarray | None = None,
+               lag_scale: dict[str, float] | None = None) -> np.ndarray:
         """A (n_features × n_params): the candidate's columns as combinations of features.
 
         The payload's mass column carries the rotational inertia of a point mass at
-        `payload_com` (refined by the identification; zero at first).
+        `payload_com` (refined by the identification; zero at first). The all-joint lag's
+        column for joint j is scaled by lag_scale[j] = 1/g_j = 1 − a_j where a torque gain is
+        identified too (its coefficient there is c_j = T/g_j, candidates docstring).
         """
         A = np.zeros((self.n_features, cand.n_params))
         if cand.type == "payload":
@@ -229,11 +248,14 @@ class FeatureLayout:
                 A[r0 + 4:r0 + 10, 0] = point_mass_rotational(payload_com)
             for k in range(3):
                 A[r0 + 1 + k, 1 + k] = 1.0
-        elif cand.type == "base_imu_tilt":
-            A[cand.features[0], 0] = 1.0
-            A[cand.features[1], 1] = 1.0
+        elif cand.type in ("base_imu_tilt", "command_update_sampling"):
+            for k, f in enumerate(cand.features):
+                A[f, k] = 1.0
         else:  # one parameter; several features only for the all-joint lag (one joint per row)
             A[list(cand.features), 0] = 1.0
+            if len(cand.joints) > 1 and lag_scale:
+                for name, scale in lag_scale.items():
+                    A[self.actuation_feature(self.robot.joint_names.index(name), "lag"), 0] = scale
         return A
 
 
@@ -264,10 +286,11 @@ class RegressorEvaluator:
         self.link_cols = [(10 * (link.joint - 1), link.params) for link in layout.links]
 
     def chunk(self, q: np.ndarray, v: np.ndarray, a: np.ndarray, contacts: np.ndarray, residual: np.ndarray,
-              coulomb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+              coulomb: np.ndarray, u_dot: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Generalized-force features E (n × nv × n_rbd) and foot Jacobians (n × n_feet × 3 × nv).
 
-        residual: measured r = Sᵀτ − M q̈ − h (for the contact-force estimate of the encoder term).
+        residual: measured r = Sᵀτ − M q̈ − h (for the contact-force estimate of the encoder term);
+        u_dot: derivative of the commanded torque (for the command-update sampling term).
         """
         r, lay, model, data = self.robot, self.layout, self.model, self.data
         n, nv, nj = len(q), r.nv, r.n_joints
@@ -277,6 +300,10 @@ class RegressorEvaluator:
         E[:, 6 + jidx, lay.coulomb0 + jidx] = coulomb
         E[:, 6 + jidx, lay.viscous0 + jidx] = v[:, 6:]
         E[:, 6 + jidx, lay.torque0 + jidx] = 1.0
+        E[:, 6:, lay.baseline0] = v[:, 6:]
+        E[:, 6:, lay.baseline0 + 1] = a[:, 6:]
+        if u_dot is not None:
+            E[:, 6:, lay.baseline0 + 2] = u_dot
         frames = r.foot_frame_ids
         unit = np.zeros(nv)
         for k in range(n):

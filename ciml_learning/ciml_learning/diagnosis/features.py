@@ -33,6 +33,9 @@ class Rows:
     X_act: np.ndarray      # N × n_j × 3 actuation features (lag, gain, offset)
     y_act: np.ndarray      # N × n_j measured Γ
     signal_rbd: np.ndarray  # M_r the measured joint torques seen through eq. (11), O Sᵀτ (the "signal")
+    raw_G: np.ndarray | None = None       # nv × n_rbd × n_rbd: Σ_k E_k[i]ᵀ E_k[i], features before eq. (11)
+    raw_signal: np.ndarray | None = None  # nv: Σ_k s_k,i², s = (M q̈ + h) for the base, τ for the joints
+    n_raw: int = 0                        # samples in raw_G (a subset keeps its parent's)
 
     @property
     def n_dims(self) -> int:
@@ -44,7 +47,19 @@ class Rows:
         new_pos = np.cumsum(keep) - 1
         r_keep = keep[self.sample_rbd]
         return Rows(self.layout, self.samples[keep], self.X_rbd[r_keep], self.y_rbd[r_keep], self.dim_rbd[r_keep],
-                    new_pos[self.sample_rbd[r_keep]], self.X_act[keep], self.y_act[keep], self.signal_rbd[r_keep])
+                    new_pos[self.sample_rbd[r_keep]], self.X_act[keep], self.y_act[keep], self.signal_rbd[r_keep],
+                    self.raw_G, self.raw_signal, self.n_raw)
+
+
+def command_rate(log) -> np.ndarray:
+    """u̇ (N × n_j) of the low-passed command, per segment (central differences)."""
+    seg = log.segment if log.segment is not None else np.zeros(len(log.t), int)
+    out = np.zeros_like(log.u)
+    for s in np.unique(seg):
+        idx = np.flatnonzero(seg == s)
+        if len(idx) >= 2:
+            out[idx] = np.gradient(log.u[idx], log.t[idx], axis=0)
+    return out
 
 
 def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples: np.ndarray,
@@ -54,9 +69,12 @@ def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples:
     samples = np.asarray(samples, dtype=int)
     samples = samples[targets.valid[samples]]
     coulomb = coulomb_regressor(log.v[:, 6:], log.segment)
+    u_dot = command_rate(log)
     ev = RegressorEvaluator(robot, layout)
     Xr, yr, dr, sr, gr = [], [], [], [], []
     nv = robot.nv
+    raw_G = np.zeros((nv, layout.n_rbd, layout.n_rbd))
+    raw_signal = np.zeros(nv)
     chunks = [samples[i:i + CHUNK] for i in range(0, len(samples), CHUNK)]
     bar = None
     if progress:
@@ -64,10 +82,14 @@ def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples:
 
         bar = tqdm(total=len(samples), desc=desc, unit="sample", leave=False, mininterval=0.5)
     for c_i, idx in enumerate(chunks):
-        E, jac = ev.chunk(log.q[idx], log.v[idx], log.a[idx], log.contacts[idx], targets.residual[idx], coulomb[idx])
+        E, jac = ev.chunk(log.q[idx], log.v[idx], log.a[idx], log.contacts[idx], targets.residual[idx], coulomb[idx],
+                          u_dot[idx])
         basis = contact_invariant_bases(jac, robot.leg_joints)
         O, _ = observation_operators(jac, basis, log.contacts[idx])
         phi = np.einsum("nij,njf->nif", O, E)
+        raw_G += np.einsum("nif,nig->ifg", E, E)
+        raw_signal[:6] += np.sum(targets.residual[idx, :6] ** 2, axis=0)  # Sᵀτ has no base rows: r = −(M q̈ + h)
+        raw_signal[6:] += np.sum(log.tau[idx] ** 2, axis=0)
         sig = np.einsum("nij,nj->ni", O[:, :, 6:], log.tau[idx]) if nv > 6 else np.zeros((len(idx), nv))
         mask = targets.rbd_observed[idx]
         n_i, d_i = np.nonzero(mask)
@@ -92,6 +114,9 @@ def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples:
         X_act=actuation_features(log.tau[samples], log.tau_dot[samples]),
         y_act=targets.actuation_error[samples].copy(),
         signal_rbd=cat(gr, (0,), float),
+        raw_G=raw_G,
+        raw_signal=raw_signal,
+        n_raw=len(samples),
     )
 
 

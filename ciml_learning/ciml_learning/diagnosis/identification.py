@@ -1,6 +1,10 @@
 """Which effect causes the gap: noise-normalised, sign-constrained least squares and greedy
 forward selection of the smallest candidate set that explains the error on held-out data.
 
+Baseline. Every model includes the command-update sampling term (candidates.py: a property of
+how the log samples a faster joint loop, not of the robot); "nominal" means nominal model plus
+this baseline, and the gap is what remains after it.
+
 Metric. Every output dimension d (18 Φ̃' entries, then one Γ per joint) is divided by its
 noise level σ_d, so a dimension with a larger noise floor does not dominate and the gap is
 measured in units of what the data can resolve. σ_d is the residual RMS of a fit of *all*
@@ -9,13 +13,20 @@ robustly over dimensions of the same kind (base forces, base torques, each foot 
 actuation): σ_d = clip(σ_d,own, ½ σ_pool, 2 σ_pool) with σ_pool the median of the pool, so an
 effect outside the catalogue that hits one joint or leg keeps its size relative to the others.
 
-Selection. Starting from the nominal model, each step refits every current candidate plus one
-new candidate on the identification data (bounds: friction, viscosity, lag, mass ≥ 0,
-mass scale > 0, gain > 0; proxsuite QP) and measures the normalised residual on held-out
-data. The candidate with the largest held-out reduction is accepted if that reduction is at
-least MIN_SHARE of the nominal held-out residual and its parameters are not stuck on a bound;
-a cheaper candidate (fewer parameters) within PARSIMONY of the best wins a near-tie. After
-the forward pass, effects whose removal costs less than MIN_SHARE are dropped again.
+Selection. Rigid-body and actuation candidates explain disjoint rows, so each kind is selected
+on its own. Starting from the baseline, each step refits every current candidate plus one new
+candidate on the identification data (bounds: friction, viscosity, lag, mass ≥ 0, mass scale
+> 0, gain > 0; proxsuite QP) and measures the normalised residual on held-out data. The
+candidate with the largest held-out reduction is accepted if that reduction is at least
+MIN_SHARE of the kind's nominal held-out residual (and MIN_NOISE_GAIN of its noise power), its
+parameters are not on a physical bound, and it is not negligible (relevance_function: at least
+MIN_RELEVANCE of the robot's own forces where it acts); a candidate with fewer parameters
+within PARSIMONY of the best wins a near-tie. After each acceptance, swaps of a selected effect
+for an unselected one are tried (an effect chosen before the others were modelled may be the
+wrong one); at the end, effects on a bound or no longer paying for themselves are dropped.
+Finally effects whose parameter is not consistent across contact configurations and bags
+(consistency() > MAX_SPREAD) are rejected: a physical effect has one value everywhere, a
+stand-in for an effect outside the catalogue does not.
 
 Shares. unexplained_share = held-out residual / nominal held-out residual (normalised sums of
 squares); the explained part 1 − unexplained_share is split among the effects in proportion
@@ -50,6 +61,9 @@ MAX_PAYLOAD_LEVER = 1.0
 """[m] a payload sits on the robot: its CoM is at most this far from the base origin."""
 SIGMA_FLOOR = 0.01
 """[N or Nm] smallest noise level (sensor resolution): noise-free simulations have none."""
+MIN_RELEVANCE = 0.005
+"""Smallest size of an effect relative to the robot's own forces where it acts (relevance_function):
+a systematic but negligible term (0.5 % of the torque a joint carries) is not named."""
 MAX_SPREAD = 0.5
 """Largest relative spread of an effect's parameter across data subsets (consistency())."""
 MIN_SUBSET_INFORMATION = 0.05
@@ -96,11 +110,12 @@ class Model:
     candidates: list[Candidate]
     theta: np.ndarray
     payload_com: np.ndarray | None = None
+    lag_scale: dict[str, float] | None = None
 
     def matrix(self) -> np.ndarray:
         if not self.candidates:
             return np.zeros((self.layout.n_features, 0))
-        return np.hstack([self.layout.matrix(c, self.payload_com) for c in self.candidates])
+        return np.hstack([self.layout.matrix(c, self.payload_com, self.lag_scale) for c in self.candidates])
 
     def feature_theta(self) -> np.ndarray:
         """Coefficients on the feature columns (A θ)."""
@@ -112,6 +127,13 @@ class Model:
             out.append(slice(k, k + c.n_params))
             k += c.n_params
         return out
+
+    def part(self, cands: list[Candidate]) -> "Model":
+        """The same fitted parameters, restricted to some of the candidates (no refit)."""
+        sl = self.slices()
+        theta = [self.theta[sl[self.candidates.index(c)]] for c in cands]
+        return Model(self.layout, list(cands), np.concatenate(theta) if theta else np.zeros(0), self.payload_com,
+                     self.lag_scale)
 
     def params_of(self, cand: Candidate) -> np.ndarray:
         i = self.candidates.index(cand)
@@ -128,25 +150,30 @@ def fit_model(layout: FeatureLayout, cands: list[Candidate], G: np.ndarray, c: n
               refine_payload: int = 3) -> Model:
     """Fit the parameters of a candidate set on weighted Grams (G = Σ w_d G_d, c = Σ w_d c_d).
 
-    A payload's point-mass rotational inertia depends on its CoM: refit with the CoM of the
-    previous fit (refine_payload iterations)."""
+    Two terms are bilinear and refined by refitting (refine iterations): a payload's point-mass
+    rotational inertia depends on its CoM; the all-joint lag's coefficient on a joint with an
+    identified torque gain is T/g_j."""
     model = Model(layout, list(cands), np.zeros(sum(k.n_params for k in cands)))
     if not cands:
         return model
     lo, hi = _bounds(model.candidates)
-    has_payload = any(k.type == "payload" for k in cands)
-    for _ in range(1 + (refine_payload if has_payload else 0)):
+    payload = next((k for k in cands if k.type == "payload"), None)
+    gains = [k for k in cands if k.type == "torque_gain"]
+    coupled = bool(gains) and any(k.type == "actuator_lag" and len(k.joints) > 1 for k in cands)
+    refine = refine_payload if (payload is not None or coupled) else 0
+    for _ in range(1 + refine):
         A = model.matrix()
         model.theta = bounded_least_squares(A.T @ G @ A, A.T @ c, lo, hi)
-        if not has_payload:
-            break
-        p = model.params_of(next(k for k in cands if k.type == "payload"))
-        if p[0] < MIN_PAYLOAD_MASS:
-            model.payload_com = None
-            break
-        com = p[1:4] / p[0]
-        n = np.linalg.norm(com)
-        model.payload_com = com if n <= MAX_PAYLOAD_LEVER else com * (MAX_PAYLOAD_LEVER / n)
+        if coupled:
+            model.lag_scale = {k.joint: float(1.0 - model.params_of(k)[0]) for k in gains}
+        if payload is not None:
+            p = model.params_of(payload)
+            if p[0] < MIN_PAYLOAD_MASS:
+                model.payload_com = None
+            else:
+                com = p[1:4] / p[0]
+                n = np.linalg.norm(com)
+                model.payload_com = com if n <= MAX_PAYLOAD_LEVER else com * (MAX_PAYLOAD_LEVER / n)
     return model
 
 
@@ -183,7 +210,7 @@ def noise_levels(layout: FeatureLayout, g: Grams, fallback: Grams | None = None)
     rms_y = np.sqrt(g.s / n)
     w0 = np.where(g.n > 0, 1.0 / np.maximum(rms_y, 1e-9) ** 2, 0.0)
     Gw, cw, _ = g.weighted(w0)
-    used = np.unique(np.concatenate([np.asarray(c.features) for c in layout.candidates]))
+    used = np.unique(np.concatenate([np.asarray(c.features) for c in layout.candidates + [layout.baseline]]))
     Gw, cw = Gw[np.ix_(used, used)], cw[used]
     # ridge relative to each feature's scale: the full catalogue is collinear (lag per joint and all)
     diag = np.maximum(np.diag(Gw), 1e-300)
@@ -223,7 +250,13 @@ class Selection:
     steps: list[Step] = field(default_factory=list)
     full_fit_rms: np.ndarray | None = None
     spread: list[float] = field(default_factory=list)           # consistency() of each selected effect
+    raw_nominal_ss: float = 0.0                                  # held-out normalised SS without the baseline
+    n_baseline: int = 0                                          # model.candidates[:n_baseline] = the baseline
     rejected: list[tuple[str, float]] = field(default_factory=list)  # (label, spread) rejected as inconsistent
+
+    @property
+    def effects(self) -> list[Candidate]:
+        return self.model.candidates[self.n_baseline:]
 
     @property
     def unexplained_share(self) -> float:
@@ -233,6 +266,36 @@ class Selection:
 def _heldout_ss(model: Model, Gh: np.ndarray, ch: np.ndarray, sh: float) -> float:
     t = model.feature_theta()
     return float(sh - 2 * ch @ t + t @ Gh @ t)
+
+
+def relevance_function(rows: Rows, train: Grams):
+    """relevance(model, cand) → the effect's size relative to the robot's own forces: the largest,
+    over generalized coordinates, RMS of its generalized force (before eq. 11; Γ for actuation
+    effects) divided by the RMS of the signal there (M q̈ + h on the base, τ on the joints)."""
+    lay = rows.layout
+    n_rbd_dims = 6 + 3 * lay.robot.n_feet
+    n = max(rows.n_raw, 1)
+    raw_rms = np.sqrt(np.maximum(rows.raw_signal, 0) / n) if rows.raw_signal is not None else None
+
+    def relevance(model: Model, cand: Candidate) -> float:
+        t = model.matrix()[:, model.slices()[model.candidates.index(cand)]] @ model.params_of(cand)
+        if cand.kind == "rbd":
+            if rows.raw_G is None:
+                return np.inf
+            tr = t[:lay.n_rbd]
+            size = np.sqrt(np.maximum(np.einsum("f,ifg,g->i", tr, rows.raw_G, tr), 0) / n)
+            return float(np.max(size / np.maximum(raw_rms, 1e-9)))
+        best = 0.0
+        for j in range(lay.robot.n_joints):
+            d = n_rbd_dims + j
+            if train.n[d] <= 0:
+                continue
+            g = lay.actuation_feature(j, "gain")
+            tau_rms = np.sqrt(train.G[d][g, g] / train.n[d])
+            best = max(best, float(np.sqrt(max(t @ train.G[d] @ t, 0) / train.n[d]) / max(tau_rms, 1e-9)))
+        return best
+
+    return relevance
 
 
 def kind_dimensions(layout: FeatureLayout) -> dict[str, np.ndarray]:
@@ -259,9 +322,11 @@ class _Problem:
 
 
 def _select_kind(prob: _Problem, cands: list[Candidate], steps: list[Step], total_nominal: float,
-                 progress=None) -> list[Candidate]:
-    """Forward selection, swaps and backward pruning within one kind (module docstring)."""
-    nominal = prob.sh
+                 fixed: list[Candidate], progress=None, relevance=None) -> list[Candidate]:
+    """Forward selection, swaps and backward pruning within one kind (module docstring).
+
+    `fixed` candidates (the baseline) are part of every fit and never selected or dropped."""
+    nominal = prob.ss(prob.fit(fixed))
     threshold = max(MIN_SHARE * nominal, MIN_NOISE_GAIN * prob.rows)
     current: list[Candidate] = []
     current_ss = nominal
@@ -269,8 +334,8 @@ def _select_kind(prob: _Problem, cands: list[Candidate], steps: list[Step], tota
     usable = [k for k in cands if np.any(diag[list(k.features)] > 0)]
 
     def trial(cset: list[Candidate], k: Candidate | None) -> tuple[float, Model] | None:
-        m = prob.fit(cset)
-        if k is not None and _at_bound(m, k):
+        m = prob.fit(fixed + cset)
+        if k is not None and (_at_bound(m, k) or (relevance is not None and relevance(m, k) < MIN_RELEVANCE)):
             return None
         return prob.ss(m), m
 
@@ -302,7 +367,7 @@ def _select_kind(prob: _Problem, cands: list[Candidate], steps: list[Step], tota
         while improved:
             improved = False
             best = (current_ss - SWAP_MARGIN * threshold, None, None)
-            for i, old in enumerate(current):
+            for i in range(len(current)):
                 for k2 in usable:
                     if k2 in current:
                         continue
@@ -316,44 +381,48 @@ def _select_kind(prob: _Problem, cands: list[Candidate], steps: list[Step], tota
                 current[best[1]] = best[2]
                 current_ss = best[0]
                 improved = True
-    # effects pushed onto a physical bound once the others are modelled do not explain the data
+    # effects pushed onto a physical bound (or to a negligible size) once the others are modelled
+    # do not explain the data
     while current:
-        m = prob.fit(current)
-        stuck = [k for k in current if _at_bound(m, k)]
+        m = prob.fit(fixed + current)
+        stuck = [k for k in current if _at_bound(m, k) or (relevance is not None and relevance(m, k) < MIN_RELEVANCE)]
         if not stuck:
             break
         for k in stuck:
             current.remove(k)
-            steps.append(Step(f"dropped {k.label} (parameter on its physical bound)", 0.0, None, 0.0))
-        current_ss = prob.ss(prob.fit(current))
+            steps.append(Step(f"dropped {k.label} (parameter on its physical bound or negligible)", 0.0, None, 0.0))
+        current_ss = prob.ss(prob.fit(fixed + current))
     # backward pruning: drop effects that no longer pay for themselves
     while current:
         costs = []
         for k in current:
-            m = prob.fit([x for x in current if x is not k])
+            m = prob.fit(fixed + [x for x in current if x is not k])
             costs.append((prob.ss(m) - current_ss, k))
         cost, k = min(costs, key=lambda x: x[0])
         if cost >= threshold:
             break
         current.remove(k)
-        current_ss = prob.ss(prob.fit(current))
+        current_ss = prob.ss(prob.fit(fixed + current))
         steps.append(Step(f"dropped {k.label}", -cost / total_nominal, None, 0.0))
     return current
 
 
-def consistency(model: Model, subsets: list[Grams], weights: np.ndarray) -> list[float]:
+def consistency(model: Model, subsets: list[Grams], weights: np.ndarray, extra=None) -> list[float]:
     """Relative spread of each effect's main parameter over data subsets (contact configurations,
     bags): refit that effect alone on each subset, the others held at their estimates, and take
     the information-weighted RMS deviation from the overall estimate, divided by its size.
     A physical effect has one value everywhere; a stand-in for an effect outside the catalogue
-    (a term that fits on average but not condition by condition) has not."""
+    (a term that fits on average but not condition by condition) has not. extra(candidate) → more
+    subsets for that candidate (e.g. a joint friction's sliding-speed bins: a friction whose level
+    changes with speed, like Stribeck friction, is not Coulomb friction)."""
     theta = model.feature_theta()
     A = model.matrix()
     out = []
     for i, sl in enumerate(model.slices()):
         Ak, tk = A[:, sl], model.theta[sl]
         ests, infos = [], []
-        for g in subsets:
+        cand = model.candidates[i]
+        for g in list(subsets) + (list(extra(cand)) if extra is not None else []):
             G, c, _ = g.weighted(weights)
             H = Ak.T @ G @ Ak
             info = float(np.trace(H))
@@ -373,50 +442,55 @@ def consistency(model: Model, subsets: list[Grams], weights: np.ndarray) -> list
 
 
 def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
-           candidates: list[Candidate] | None = None, subsets: list[Grams] | None = None) -> Selection:
+           candidates: list[Candidate] | None = None, subsets: list[Grams] | None = None,
+           relevance=None, candidate_subsets=None) -> Selection:
     """Greedy forward selection with swaps and backward pruning (module docstring).
 
     Rigid-body and actuation candidates explain disjoint rows (Φ̃' and Γ), so each kind is
-    selected separately with thresholds relative to its own nominal residual. With `subsets`
-    (Grams of parts of the identification data), effects whose parameter is not consistent
-    across them (consistency() > MAX_SPREAD) are rejected."""
+    selected separately with thresholds relative to its own nominal residual. The baseline
+    (command-update sampling, candidates.py) is part of every model: the "nominal" residual is
+    the one after it. With `subsets` (Grams of parts of the identification data), effects whose
+    parameter is not consistent across them (consistency() > MAX_SPREAD) are rejected."""
     cands = list(layout.candidates if candidates is None else candidates)
+    base = [layout.baseline]
     sigma, full_rms = noise_levels(layout, train, heldout)
     w = 1.0 / sigma ** 2
     Gt, ct, _ = train.weighted(w)
     Gh, ch, sh = heldout.weighted(w)
-    nominal = float(sh)
+    nominal = _heldout_ss(fit_model(layout, base, Gt, ct), Gh, ch, sh)
     steps: list[Step] = []
     current: list[Candidate] = []
     for kind, dims in kind_dimensions(layout).items():
         prob = _Problem(layout, train, heldout, w, dims)
-        current += _select_kind(prob, [k for k in cands if k.kind == kind], steps, nominal, progress)
-    model = fit_model(layout, current, Gt, ct)
+        fixed = [b for b in base if b.kind == kind]
+        current += _select_kind(prob, [k for k in cands if k.kind == kind], steps, nominal, fixed, progress,
+                                relevance)
+    model = fit_model(layout, base + current, Gt, ct)
     rejected: list[tuple[str, float]] = []
-    if subsets:
-        spread = consistency(model, subsets, w)
-        bad = [(k, sp) for k, sp in zip(model.candidates, spread) if sp > MAX_SPREAD]
-        for k, sp in bad:
+    if (subsets or candidate_subsets) and current:
+        spread = consistency(model, subsets or [], w, candidate_subsets)[len(base):]
+        for k, sp in [(k, sp) for k, sp in zip(current, spread) if sp > MAX_SPREAD]:
             current.remove(k)
             rejected.append((k.label, sp))
             steps.append(Step(f"rejected {k.label}: its parameter varies by {sp:.0%} across contact "
                               "configurations and bags", 0.0, None, 0.0))
-        model = fit_model(layout, current, Gt, ct)
+        model = fit_model(layout, base + current, Gt, ct)
     current_ss = _heldout_ss(model, Gh, ch, sh)
     # shares: explained part split by the drop-one cost of each effect
     explained = max(0.0, 1.0 - current_ss / nominal) if nominal > 0 else 0.0
     drop = []
     for k in current:
-        m = fit_model(layout, [x for x in current if x is not k], Gt, ct)
+        m = fit_model(layout, base + [x for x in current if x is not k], Gt, ct)
         drop.append(max(0.0, _heldout_ss(m, Gh, ch, sh) - current_ss))
     total = sum(drop)
     shares = [explained * d / total if total > 0 else explained / len(current) for d in drop] if current else []
-    order = np.argsort(shares)[::-1]
-    model = fit_model(layout, [current[i] for i in order], Gt, ct)
-    spread = consistency(model, subsets, w) if subsets else [0.0] * len(model.candidates)
+    order = list(np.argsort(shares)[::-1])
+    model = fit_model(layout, base + [current[i] for i in order], Gt, ct)
+    spread = (consistency(model, subsets or [], w, candidate_subsets)[len(base):]
+              if (subsets or candidate_subsets) else [0.0] * len(order))
     return Selection(model=model, sigma=sigma, weights=w, nominal_ss=nominal, final_ss=current_ss,
                      shares=[shares[i] for i in order], steps=steps, full_fit_rms=full_rms,
-                     spread=spread, rejected=rejected)
+                     spread=spread, rejected=rejected, raw_nominal_ss=float(sh), n_baseline=len(base))
 
 
 # --- physical parameters ---------------------------------------------------------------------
@@ -427,8 +501,6 @@ def physical_parameters(model: Model) -> list[dict]:
     Actuation parameters of one joint are converted together: with a = 1 − 1/g, b = o/g,
     c = T/g (candidates.py), g = 1/(1 − a), o = b g, T = c g.
     """
-    layout = model.layout
-    robot = layout.robot
     gain = {}
     for cand in model.candidates:
         if cand.type == "torque_gain":
@@ -452,8 +524,10 @@ def physical_parameters(model: Model) -> list[dict]:
         elif cand.type == "torque_offset":
             p = {"value": float(th[0]) * gain.get(cand.joint, 1.0)}
         elif cand.type == "actuator_lag":
-            g = gain.get(cand.joint, 1.0) if cand.joint else float(np.median([gain.get(j, 1.0) for j in robot.joint_names]))
-            p = {"time_constant": float(th[0]) * g}
+            # a joint's own lag: c = T/g; the all-joint lag's column already carries 1/g_j (fit_model)
+            p = {"time_constant": float(th[0]) * (gain.get(cand.joint, 1.0) if cand.joint else 1.0)}
+        elif cand.type == "command_update_sampling":
+            p = {"qd": float(th[0]), "qdd": float(th[1]), "udot": float(th[2])}
         else:  # pragma: no cover
             raise ValueError(cand.type)
         out.append(p)

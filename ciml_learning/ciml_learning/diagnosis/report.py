@@ -31,6 +31,14 @@ def _fmt_params(params: dict, std: dict) -> str:
     return "; ".join(parts)
 
 
+def unit_of(item: dict) -> str:
+    """N for forces (base_fx… and feet), Nm for torques (base roll/pitch/yaw, actuators)."""
+    name = item["dimension"]
+    if item["kind"] == "actuation" or name in ("base_roll", "base_pitch", "base_yaw"):
+        return "Nm"
+    return "N"
+
+
 def _where(e: dict) -> str:
     return e.get("joint") or e.get("link") or ("all joints" if e.get("joints") == "all" else "base")
 
@@ -38,8 +46,7 @@ def _where(e: dict) -> str:
 def answers(result: dict) -> list[str]:
     """The three answers in a few lines of plain text (also printed by `ciml diagnose`)."""
     loc = result["localization"]
-    top = [f"{d['dimension']} ({d['share']:.0%}, RMS {d['rms_error']:.3g} {'Nm' if d['kind'] == 'actuation' or 'roll' in d['dimension'] or 'pitch' in d['dimension'] or 'yaw' in d['dimension'] else 'N'})"
-           for d in loc[:3] if d["share"] > 0]
+    top = [f"{d['dimension']} ({d['share']:.0%}, RMS {d['rms_error']:.3g} {unit_of(d)})" for d in loc[:3] if d["share"] > 0]
     legs = sorted(result.get("localization_by_leg", {}).items(), key=lambda x: -x[1])
     where = "Where: " + (", ".join(top) if top else "no dimension stands above its noise level")
     if legs and legs[0][1] > 0:
@@ -55,6 +62,62 @@ def answers(result: dict) -> list[str]:
     far = (f"How far: on held-out data the gap shrinks by {s['ratio']:.0%} "
            f"(noise-normalised RMS {s['heldout_rms_nominal']:.3g} → {s['heldout_rms_with_effects']:.3g})")
     return [where, which, far]
+
+
+def _gapped(t: np.ndarray, *ys: np.ndarray):
+    """Time axis without the gaps between bags, and NaN where samples are missing (breaks the lines)."""
+    if len(t) == 0:
+        return (t, *ys)
+    dt = np.diff(t)
+    step = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1.0
+    jumps = (dt <= 0) | (dt > 1.0)               # a new bag (time restarts or jumps)
+    tt = np.concatenate([[0.0], np.cumsum(np.where(jumps, step, dt))])
+    gap = np.concatenate([[False], dt > 1.5 * step])
+    out = [np.where(gap, np.nan, y) for y in ys]
+    return (tt, *out)
+
+
+CLOSED_LOOP_BEGIN, CLOSED_LOOP_END = "<!--closed-loop-->", "<!--/closed-loop-->"
+
+
+def closed_loop_html(closed_loop: dict | None) -> str:
+    """Table of closed-loop metrics per model (nominal / identified effects / learned)."""
+    if not closed_loop:
+        return ("<p>No closed-loop run attached yet: <code>ciml closed-loop --scenario S.yaml --motion M "
+                "--model DIR</code> runs the controller with the nominal model plus these effects (DIR = this "
+                "report's folder); <code>ciml_learning.diagnosis.report.attach_closed_loop(DIR, {name: metrics})"
+                "</code> adds the results here.</p>")
+    keys = [("rms_feedback_effort_nm", "RMS feedback effort [Nm]"), ("rms_joint_error_deg", "RMS joint error [deg]"),
+            ("rms_attitude_error_deg", "RMS attitude error [deg]"),
+            ("rms_base_position_error_mm", "RMS base position error [mm]"), ("fell", "fell")]
+    head = "".join(f"<th>{html.escape(label)}</th>" for _, label in keys)
+    body = ""
+    for name, m in closed_loop.items():
+        cells = "".join(f"<td>{m.get(k):.3g}</td>" if isinstance(m.get(k), (int, float)) and not isinstance(m.get(k), bool)
+                        else f"<td>{html.escape(str(m.get(k, '')))}</td>" for k, _ in keys)
+        body += f"<tr><td>{html.escape(name)}</td>{cells}</tr>"
+    return f"<table><tr><th>model</th>{head}</tr>{body}</table>"
+
+
+def attach_closed_loop(diagnosis_dir: str, closed_loop: dict) -> None:
+    """Add closed-loop metrics ({model name: `ciml closed-loop` metrics}) to DIR/diagnosis.json and
+    DIR/report.html (both rewritten atomically)."""
+    import json
+    import os
+
+    from ..fileio import atomic_write_json, atomic_write_text
+
+    jpath, hpath = os.path.join(diagnosis_dir, "diagnosis.json"), os.path.join(diagnosis_dir, "report.html")
+    with open(jpath, encoding="utf-8") as f:
+        doc = json.load(f)
+    doc["closed_loop"] = closed_loop
+    atomic_write_json(jpath, doc)
+    with open(hpath, encoding="utf-8") as f:
+        page = f.read()
+    a, b = page.find(CLOSED_LOOP_BEGIN), page.find(CLOSED_LOOP_END)
+    if a >= 0 and b > a:
+        page = page[:a + len(CLOSED_LOOP_BEGIN)] + closed_loop_html(closed_loop) + page[b:]
+        atomic_write_text(hpath, page)
 
 
 def render_report(robot, result: dict, series: dict, rows_ho, selection) -> str:
@@ -129,16 +192,18 @@ def render_report(robot, result: dict, series: dict, rows_ho, selection) -> str:
     ax.axhline(1.0, color="k", lw=0.8, ls="--", label="noise level")
     ax.set_xticks(x, names, rotation=70, fontsize=8)
     ax.set_ylabel("held-out RMS / noise level")
-    ax.set_title("How far: held-out residual per dimension")
+    ax.set_yscale("log")
+    ax.set_title("How far: held-out residual per dimension (log scale)")
     ax.legend(fontsize=8)
     ax = axes[1]
-    t = series["t"] - series["t"][0] if len(series["t"]) else series["t"]
-    ax.plot(t, series["nominal"], lw=0.8, color="tab:red", label="nominal model")
-    ax.plot(t, series["with_effects"], lw=0.8, color="tab:green", label="with identified effects")
+    t, nominal, with_eff = _gapped(series["t"], series["nominal"], series["with_effects"])
+    ax.plot(t, nominal, lw=0.8, color="tab:red", label="nominal model")
+    ax.plot(t, with_eff, lw=0.8, color="tab:green", label="with identified effects")
     ax.axhline(1.0, color="k", lw=0.8, ls="--")
-    ax.set_xlabel("held-out sample time [s] (bags concatenated)")
+    ax.set_xlabel("held-out time [s] (valid samples; bags one after the other)")
     ax.set_ylabel("RMS over dimensions of error / noise")
-    ax.set_title("held-out residual over time")
+    ax.set_yscale("log")
+    ax.set_title("held-out residual over time (log scale)")
     ax.legend(fontsize=8)
     fig.tight_layout()
     figs["far"] = _png(fig)
@@ -147,7 +212,8 @@ def render_report(robot, result: dict, series: dict, rows_ho, selection) -> str:
     e = html.escape
     rows = "".join(
         f"<tr><td>{e(x['type'])}</td><td>{e(_where(x))}</td><td>{e(_fmt_params(x['params'], x['std']))}</td>"
-        f"<td>{x['share']:.1%}</td></tr>" for x in eff) or "<tr><td colspan=4>none</td></tr>"
+        f"<td>{x['share']:.1%}</td><td>{e(x.get('confidence', ''))} (spread {x.get('consistency_spread', 0):.0%})</td></tr>"
+        for x in eff) or "<tr><td colspan=5>none</td></tr>"
     loc_rows = "".join(
         f"<tr><td>{e(d['dimension'])}</td><td>{d['kind']}</td><td>{d['rms_error']:.3g}</td>"
         f"<td>{d['relative_error']:.2%}</td><td>{d['noise_level']:.3g}</td><td>{d['share']:.1%}</td></tr>"
@@ -167,23 +233,31 @@ table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:3px 8px;te
 <h2>1. Where does the gap lie?</h2>
 <p>Error of the nominal model per dimension: the contact-invariant error Φ̃' (eq. 11: base force and
 torque always, each foot's force while it swings) and the actuation error Γ = τ − u per joint (eq. 14),
-over {d['samples'] + d['heldout_samples']} valid samples. Noise level: what no catalogue effect explains.</p>
+over {d['samples'] + d['heldout_samples']} valid samples, after the baseline (below). Noise level: what no
+catalogue effect explains; share: of the error above the noise level.</p>
 <table><tr><th>dimension</th><th>kind</th><th>RMS error [N|Nm]</th><th>relative to signal</th>
 <th>noise level</th><th>share of gap</th></tr>{loc_rows}</table>
 <img src="{figs['where']}" style="width:100%">
 <h2>2. Which unmodelled effect causes it?</h2>
-<table><tr><th>effect</th><th>where</th><th>parameters ± std</th><th>share</th></tr>{rows}
-<tr><td colspan=3>unexplained (no candidate explains it)</td><td>{result['unexplained_share']:.1%}</td></tr></table>
+<table><tr><th>effect</th><th>where</th><th>parameters ± std</th><th>share</th>
+<th>confidence (parameter spread across contact configurations, bags, sliding speeds)</th></tr>{rows}
+<tr><td colspan=3>unexplained (no candidate explains it)</td><td>{result['unexplained_share']:.1%}</td><td></td></tr></table>
 <img src="{figs['which']}" style="max-width:100%">
 <p>Selection on held-out data ({len(eff)} of {result['selection']['candidates']} candidates kept):</p><ul>{steps}</ul>
 <h2>3. How far does it shrink?</h2>
 <p>Held-out: {e(d['heldout'])}; {d['heldout_samples']} samples. Noise-normalised RMS
 {s['heldout_rms_nominal']:.3g} → {s['heldout_rms_with_effects']:.3g} (gap removed: {s['ratio']:.1%});
 physical RMS (N and Nm mixed) {s['heldout_rms_nominal_physical']:.3g} → {s['heldout_rms_with_effects_physical']:.3g}.</p>
+<p>With the stiction of the identified Coulomb frictions estimated per sample (shrink.py): {s['ratio']:.1%};
+without: {s['ratio_without_stiction_estimate']:.1%}.</p>
 <img src="{figs['far']}" style="width:100%">
+<h3>Closed loop: feedback effort and tracking, nominal vs identified effects vs learned</h3>
+{CLOSED_LOOP_BEGIN}{closed_loop_html(result.get("closed_loop"))}{CLOSED_LOOP_END}
 <h2>Data</h2><p>Identification bags: {e(', '.join(d['bags']))}<br>Held-out bags: {e(', '.join(d['heldout_bags']) or '(part of the above)')}<br>
 Samples: {d['samples']} identification, {d['heldout_samples']} held-out. Rejected while reading: {e(str(d['rejected']))}.</p>
-<p>Closed-loop check: <code>ciml closed-loop --scenario S.yaml --motion M --model DIR</code> runs the controller
-with the nominal model plus these effects (DIR = this report's folder).</p>
+<h3>Baseline: command-update sampling</h3>
+<p>{e(result["baseline"]["description"])} Fitted: {e(_fmt_params(result["baseline"]["params"], result["baseline"]["std"]))}.
+Held-out noise-normalised RMS before → after the baseline: {s["baseline"]["heldout_rms_before_baseline"]:.3g} →
+{s["baseline"]["heldout_rms_after_baseline"]:.3g} (the "nominal" above is after it).</p>
 </body></html>
 """

@@ -43,7 +43,7 @@ step "5/6 closed loop on a new execution of trot 35 cm: nominal vs learned vs id
 for model in nominal "$OUT/model_sgpr" "$OUT/diagnosis"; do
   name=$(basename "$model")
   $CIML closed-loop --scenario "$SCENARIO" --motion trot_35 --duration 8 --seed 21 \
-    --model "$model" --out "$OUT/closed_loop_$name.json"
+    --model "$model" --out "$OUT/closed_loop_$name.json" --report "$OUT/diagnosis"
 done
 
 step "6/6 report"

@@ -80,6 +80,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--duration", type=float, default=None, help="[s] (default: 10 gait cycles)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--out", required=True, help="result .json")
+    s.add_argument("--report", metavar="DIAG_DIR",
+                   help="also add the result to the closed-loop comparison of this diagnosis report")
     s.set_defaults(func=_run("ciml_sim.commands", "closed_loop"))
 
     s = sub.add_parser("diagnose", help="where the sim-to-real gap lies, which effect causes it, how far it shrinks")

@@ -84,9 +84,9 @@ def closed_loop_html(closed_loop: dict | None) -> str:
     """Table of closed-loop metrics per model (nominal / identified effects / learned)."""
     if not closed_loop:
         return ("<p>No closed-loop run attached yet: <code>ciml closed-loop --scenario S.yaml --motion M "
-                "--model DIR</code> runs the controller with the nominal model plus these effects (DIR = this "
-                "report's folder); <code>ciml_learning.diagnosis.report.attach_closed_loop(DIR, {name: metrics})"
-                "</code> adds the results here.</p>")
+                "--model DIR --report DIR</code> runs the controller with the nominal model plus these effects "
+                "(DIR = this report's folder) and adds the result here; with <code>--model nominal</code> or "
+                "<code>--model MODEL_DIR</code> (a learned model) it adds those for comparison.</p>")
     keys = [("rms_feedback_effort_nm", "RMS feedback effort [Nm]"), ("rms_joint_error_deg", "RMS joint error [deg]"),
             ("rms_attitude_error_deg", "RMS attitude error [deg]"),
             ("rms_base_position_error_mm", "RMS base position error [mm]"), ("fell", "fell")]

@@ -100,8 +100,36 @@ def closed_loop(args: argparse.Namespace) -> int:
     out = {"format_version": 1, "motion": args.motion, "model": args.model, "scenario": args.scenario,
            "seed": args.seed, "metrics": metrics}
     atomic_write_json(args.out, _jsonable(out))
+    if args.report:
+        _add_to_report(args.report, _model_label(args.model), _jsonable(metrics))
     print(json.dumps(_jsonable(metrics)))
     return 0
+
+
+def _model_label(model: str) -> str:
+    """How a model appears in the report's comparison: nominal / identified effects / learned."""
+    if model == "nominal":
+        return "nominal"
+    if os.path.isfile(os.path.join(model, "diagnosis.json")):
+        return "identified effects"
+    try:
+        with open(os.path.join(model, "model.json"), encoding="utf-8") as f:
+            return f"learned ({json.load(f).get('learner', '?').upper()})"
+    except (OSError, ValueError):
+        return os.path.basename(os.path.normpath(model))
+
+
+def _add_to_report(diagnosis_dir: str, label: str, metrics: dict) -> None:
+    """Add one closed-loop result to DIAG_DIR's comparison (diagnosis.json and report.html)."""
+    from ciml_learning.diagnosis.report import attach_closed_loop
+
+    path = os.path.join(diagnosis_dir, "diagnosis.json")
+    try:
+        with open(path, encoding="utf-8") as f:
+            existing = json.load(f).get("closed_loop") or {}
+    except (OSError, ValueError) as err:
+        raise CimlError(f"--report {diagnosis_dir}: no readable diagnosis.json ({err})") from err
+    attach_closed_loop(diagnosis_dir, {**existing, label: metrics})
 
 
 def _jsonable(x):

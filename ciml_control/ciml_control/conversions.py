@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ciml_learning.conversions import ConversionError, _finite, _vector, header_msg, stamp_to_ns
+from ciml_learning.conversions import (ConversionError, _finite, _vector, header_msg, robot_reference_arrays,
+                                       stamp_to_ns)
 from ciml_learning.extraction import combined_error
 from ciml_learning.robot import RobotDescription
 
@@ -41,28 +42,10 @@ def reference_msg(robot: RobotDescription, stamp_ns: int, ref: ReferencePoint):
     )
 
 
-def _six(m) -> list[float]:
-    return [m.linear.x, m.linear.y, m.linear.z, m.angular.x, m.angular.y, m.angular.z]
-
-
 def reference_point(robot: RobotDescription, msg) -> ReferencePoint:
     """RobotReference → ReferencePoint in the robot's joint and foot order (t = header stamp [s])."""
-    perm = robot.joint_permutation(list(msg.joint_names))
-    n = len(msg.joint_names)
-    p, o = msg.base_pose.position, msg.base_pose.orientation
-    quat = np.array([o.x, o.y, o.z, o.w], float)
-    q = np.concatenate([[p.x, p.y, p.z], quat, _vector(msg.position, n, "reference.position")[perm]])
-    v = np.concatenate([_six(msg.base_twist), _vector(msg.velocity, n, "reference.velocity")[perm]])
-    a = np.concatenate([_six(msg.base_acceleration), _vector(msg.acceleration, n, "reference.acceleration")[perm]])
-    _finite("reference", q, v, a, np.array([msg.phase], float))
-    norm = np.linalg.norm(quat)
-    if not 0.9 < norm < 1.1:
-        raise ConversionError(f"reference: orientation quaternion has norm {norm:.3f}, expected 1")
-    q[3:7] /= norm
-    flags = np.asarray(msg.in_contact, dtype=bool)
-    if flags.shape != (len(msg.foot_names),):
-        raise ConversionError("reference: foot names and contact flags differ in length")
-    contacts = flags[robot.foot_permutation(list(msg.foot_names))]
+    q, v, a, contacts = robot_reference_arrays(robot, msg)
+    _finite("reference.phase", np.array([msg.phase], float))
     return ReferencePoint(t=stamp_to_ns(msg.header.stamp) * 1e-9, q=q, v=v, a=a, contacts=contacts,
                           phase=float(msg.phase), motion=str(msg.motion))
 

@@ -239,7 +239,9 @@ def load_sensor_log(robot: RobotDescription, path: str | os.PathLike, max_age_s:
 
     Samples are taken at the joint-state stamps; base state and contacts are the latest
     at or before each stamp, the command the latest strictly before it (zero-order hold,
-    at most `max_age_s` old); u is the joint loop's total torque under that command.
+    at most `max_age_s` old); u is the joint loop's total torque under that command at
+    the sample's stamp (position target advanced along the velocity target by the time
+    since the command's stamp, TorqueCommand.msg).
     Non-finite or malformed messages are dropped and counted in `rejected`; a missing
     topic, an empty log, or decreasing stamps raise BagError.
     """
@@ -294,7 +296,8 @@ def load_sensor_log(robot: RobotDescription, path: str | os.PathLike, max_age_s:
         v[k, :6], v[k, 6:] = twist, qdj
         tau[k] = tj_
         cmd = cmds[iu[i]]
-        u[k] = cmd.total(qj, qdj, robot.torque_limits)
+        # the joint loop's target moves along the velocity target from the command's stamp
+        u[k] = cmd.total(qj, qdj, robot.torque_limits, elapsed=(tj[i] - tu[iu[i]]) * 1e-9)
         con[k] = contacts[ic[i]]
     return SensorLog(bag=str(path), t=tj[ok] * 1e-9, q=q, v=v, tau=tau, u=u, contacts=con, rejected=rejected)
 

@@ -58,16 +58,20 @@ def commanded_torque(
     q_measured: np.ndarray,
     qd_measured: np.ndarray,
     limits: np.ndarray,
+    elapsed: float = 0.0,
 ) -> np.ndarray:
     """Total joint torque command u of the low-level joint loop [Nm] (TorqueCommand.msg).
 
-    u = u_ff + u_fb,lin + K_p (q_target − q) + K_d (q̇_target − q̇), clipped to ±limits.
-    The bridge's 1 kHz loop and the learning side (Γ = τ − u, eq. 14) both use this.
+    u = u_ff + u_fb,lin + K_p (q_target + q̇_target·Δ − q) + K_d (q̇_target − q̇), clipped
+    to ±limits, where Δ = `elapsed` [s] is the time since the command's header stamp:
+    between commands the joint loop follows the position target along the velocity
+    target. The plant's 1 kHz loop (ciml_sim.plant) and the learning side (Γ = τ − u,
+    eq. 14) both use this.
     """
     u = (
         feedforward
         + feedback_linearization
-        + stiffness * (position_target - q_measured)
+        + stiffness * (position_target + velocity_target * elapsed - q_measured)
         + damping * (velocity_target - qd_measured)
     )
     return np.clip(u, -limits, limits)
@@ -170,9 +174,10 @@ class TorqueCommandArrays:
     stiffness: np.ndarray
     damping: np.ndarray
 
-    def total(self, q: np.ndarray, qd: np.ndarray, limits: np.ndarray) -> np.ndarray:
+    def total(self, q: np.ndarray, qd: np.ndarray, limits: np.ndarray, elapsed: float = 0.0) -> np.ndarray:
+        """Joint-loop torque u at `elapsed` seconds after the command's stamp (commanded_torque)."""
         return commanded_torque(self.feedforward, self.feedback_linearization, self.position_target,
-                                self.velocity_target, self.stiffness, self.damping, q, qd, limits)
+                                self.velocity_target, self.stiffness, self.damping, q, qd, limits, elapsed)
 
 
 def torque_command_msg(robot: RobotDescription, stamp_ns: int, cmd: TorqueCommandArrays):

@@ -91,9 +91,12 @@ def record_plant_bag(robot: RobotDescription, scenario: dict, path: str | os.Pat
 
     timing: how the 250 Hz commands reach the 1 kHz joint loop. "foh": targets and feedforward
     interpolated every 1 ms, so the torque sampled at a tick is the torque that acts around it;
-    "recorder": held from the tick on, as ciml_sim.recorder does (the sample at a tick reports the
-    torque under the previous command, which then jumps); "delayed": held from half a tick later
-    (a compute delay: no jump at the sample instant).
+    "recorder": held from the tick on, as ciml_sim.recorder did before the joint loop's target
+    followed the velocity target (the sample at a tick reports the torque under the previous
+    command, which then jumps); "delayed": held from half a tick later (a compute delay: no jump
+    at the sample instant). Both hold the position target (TorqueCommand.msg now moves it): the
+    command is set again, stamped now, at every 1 ms step and before each sample, and is stamped
+    in the bag 1 ns before the next sample, so the bag's u there is the held target's torque.
 
     Returns {"samples", "fell", "ground_truth_topics"}.
     """
@@ -116,6 +119,7 @@ def record_plant_bag(robot: RobotDescription, scenario: dict, path: str | os.Pat
     gt_topics: set[str] = set()
     kp_v, kd_v = np.full(nj, kp), np.full(nj, kd)
     u_prev = None
+    held = None  # recorder/delayed: the command in force
     with bagio.BagWriter(path) as w:
         for k in range(n_ticks):
             t_k = plant.time
@@ -137,6 +141,8 @@ def record_plant_bag(robot: RobotDescription, scenario: dict, path: str | os.Pat
                     # so the torque sampled at t_k is the torque acting right after t_k (no command jump)
                     dt = s / (FS * STEPS_PER_TICK)
                     plant.set_command(u_ff + du * dt, q_des[7:] + qd_des * dt, qd_des, kp_v, kd_v)
+                elif held is not None:
+                    plant.set_command(*held)  # stamped now: zero elapsed time, the target held
                 if s == 0:
                     m = plant.measure()
                     ns = int(round(m.time * 1e9)) + STAMP_OFFSET_NS
@@ -146,7 +152,8 @@ def record_plant_bag(robot: RobotDescription, scenario: dict, path: str | os.Pat
                     w.write(topics.CONTACT_STATE, ns, cv.contact_state_msg(robot, ns, m.contacts))
                     # foh: stamped just before t_k, the command in force at t_k (bagio pairs strictly-before);
                     # otherwise stamped t_k: computed from this sample, in force for the next one
-                    stamp = ns - 1 if timing == "foh" else ns
+                    # recorder/delayed: in force for the next sample, with its target held (see above)
+                    stamp = ns - 1 if timing == "foh" else ns + round(1e9 / FS) - 1
                     w.write(topics.TORQUE_COMMAND, stamp, cv.torque_command_msg(robot, stamp, cmd))
                     if ground_truth:
                         gt = plant.ground_truth()
@@ -156,7 +163,8 @@ def record_plant_bag(robot: RobotDescription, scenario: dict, path: str | os.Pat
                         fell = True
                         break
                 if (timing == "recorder" and s == 0) or (timing == "delayed" and s == STEPS_PER_TICK // 2):
-                    plant.set_command(u_ff, q_des[7:], qd_des, kp_v, kd_v)
+                    held = (u_ff, q_des[7:], qd_des, kp_v, kd_v)
+                    plant.set_command(*held)
                 plant.step(1)
             if fell:
                 break

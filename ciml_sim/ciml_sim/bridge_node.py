@@ -139,8 +139,10 @@ class MujocoBridge(Node):
             if cmd.mode not in (TorqueCommand.MODE_TORQUE, TorqueCommand.MODE_DAMPING):
                 raise cv.ConversionError(f"torque_command: unknown mode {cmd.mode}")
             if cmd.mode == TorqueCommand.MODE_TORQUE:
+                # the position target moves along the velocity target from the header stamp
                 self.plant.set_command(cmd.feedforward + cmd.feedback_linearization, cmd.position_target,
-                                       cmd.velocity_target, cmd.stiffness, cmd.damping)
+                                       cmd.velocity_target, cmd.stiffness, cmd.damping,
+                                       stamp=cv.stamp_to_ns(msg.header.stamp) * 1e-9)
         except CimlError as err:  # ConversionError, RobotDescriptionError (joint names), PlantError
             self.health.count("rejected_commands")
             if not (self.damping or self.holding):

@@ -2,9 +2,11 @@
 
 Where each effect acts (DESIGN §5), from command to motion:
 
-    command (u_ff, q_t, q̇_t, K_p, K_d)            held until the next one
-    → joint loop, every 1 ms, on the *measured* q, q̇ (encoder offset and noise included,
-      as on the robot):  u = clip(u_ff + K_p (q_t − q_meas) + K_d (q̇_t − q̇_meas), ±limits)
+    command (u_ff, q_t, q̇_t, K_p, K_d, stamp t_c)  held until the next one
+    → joint loop, every 1 ms (time s), on the *measured* q, q̇ (encoder offset and noise
+      included, as on the robot), the position target moving along the velocity target
+      from the command's stamp (TorqueCommand.msg):
+          u = clip(u_ff + K_p (q_t + q̇_t (s − t_c) − q_meas) + K_d (q̇_t − q̇_meas), ±limits)
     → actuator:  τ = g · L(u) + o            actuator_lag (L: first-order lag, backward
                                               Euler), torque_gain (g), torque_offset (o)
     → torque sensor reads τ (+ noise)         so these effects show in Γ = τ − u (eq. 14)
@@ -22,7 +24,8 @@ Where each effect acts (DESIGN §5), from command to motion:
 
 Timing convention (the one ciml_learning.bagio.load_sensor_log rebuilds): a sample at
 time t reports the state at t and the joint loop's u and the actuator's τ at t *under
-the command in force before t* (a command computed from that sample acts after it);
+the command in force before t*, its position target advanced to t (a command computed
+from that sample acts after it);
 GroundTruth at t is evaluated at the same instant with that same torque: v̇(t),
 the contact forces, and each effect's generalized force, which together close eq. (3)
 of the nominal model:
@@ -300,6 +303,8 @@ class Plant:
         self._forward_state: bytes | None = None
         self._lag = np.zeros(nj)
         self._c = np.zeros(nj)  # u_ff + K_p q_t + K_d q̇_t
+        self._c_rate: np.ndarray | None = None  # K_p q̇_t (None: zero), d(_c)/ds since the stamp
+        self._stamp = 0.0  # the command's stamp t_c [s of simulation time]
         self._kp = np.zeros(nj)
         self._kd = np.zeros(nj)
         self.damping_mode = False
@@ -308,15 +313,20 @@ class Plant:
         self._meas: tuple | None = None
 
     def rewind_clock(self) -> None:
-        """Set simulation time to 0 without touching the state (after a settling pre-roll)."""
+        """Set simulation time to 0 without touching the state (after a settling pre-roll);
+        the held command's stamp moves with the clock."""
+        self._stamp -= float(self.data.time)
         self.data.time = 0.0
         self._meas = None
         self._forward_state = None
 
     def set_command(self, u_ff: np.ndarray, q_target: np.ndarray, qd_target: np.ndarray, kp: np.ndarray,
-                    kd: np.ndarray, damping_mode: bool = False) -> None:
+                    kd: np.ndarray, damping_mode: bool = False, stamp: float | None = None) -> None:
         """Hold a TorqueCommand until the next one; in damping mode u = −kd·q̇ only.
 
+        `stamp`: the simulation time [s] the command was computed for (its header stamp;
+        None: now); the joint loop's position target at time s is
+        q_target + qd_target·(s − stamp) (module docstring, TorqueCommand.msg).
         Non-finite values or negative gains raise PlantError (nodes drop such commands
         before they get here; NaN never reaches the actuators).
         """
@@ -329,11 +339,17 @@ class Plant:
             raise PlantError(f"command: expected {nj} finite values per field")
         if (c[3:] < 0).any():
             raise PlantError("command: negative stiffness or damping")
+        stamp = self.time if stamp is None else float(stamp)
+        if not np.isfinite(stamp):
+            raise PlantError("command: non-finite stamp")
         self.damping_mode = bool(damping_mode)
+        self._stamp = stamp
         if damping_mode:
-            self._c, self._kp, self._kd = np.zeros(nj), np.zeros(nj), c[4]
+            self._c, self._kp, self._kd, self._c_rate = np.zeros(nj), np.zeros(nj), c[4], None
         else:
             self._c, self._kp, self._kd = c[0] + c[3] * c[1] + c[4] * c[2], c[3], c[4]
+            rate = c[3] * c[2]
+            self._c_rate = rate if rate.any() else None
 
     # --- the 1 kHz joint loop -------------------------------------------------------------------
     def _readings(self) -> tuple[np.ndarray, np.ndarray]:
@@ -352,6 +368,8 @@ class Plant:
         """(q_meas, q̇_meas, u, lag state, τ) at the current step under the held command."""
         q_m, qd_m = self._readings()
         u = self._c - self._kp * q_m - self._kd * qd_m
+        if self._c_rate is not None:
+            u += self._c_rate * (self.data.time - self._stamp)
         np.minimum(u, self.limits, out=u)
         np.maximum(u, self._neg_limits, out=u)
         lag = self._lag + self._alpha * (u - self._lag) if self._has_lag else u
@@ -394,6 +412,7 @@ class Plant:
         extra = bool(self._stribeck) or self._has_side
         qj, vj, ctrl, enc = self._qj, self._vj, self._ctrl, self.encoder_offset
         c, kp, kd, hi, lo = self._c, self._kp, self._kd, self.limits, self._neg_limits
+        rate, stamp = self._c_rate, self._stamp
         has_lag, has_gain, noisy = self._has_lag, self._has_gain, self._encoder_noise
         alpha, gain, offset, lag = self._alpha, self.gain, self.offset, self._lag
         u = tau = self.u
@@ -407,6 +426,8 @@ class Plant:
                 q_m, qd_m = qj + enc, vj
             u = c - kp * q_m
             u -= kd * qd_m
+            if rate is not None:
+                u += rate * (d.time - stamp)
             np.minimum(u, hi, out=u)
             np.maximum(u, lo, out=u)
             if has_lag:

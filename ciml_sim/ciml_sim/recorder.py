@@ -228,7 +228,8 @@ def run_headless(
         m = plant.measure()
         q, v = measured_configuration(m)
         out = controller.compute(q, v, m.contacts, ref0, eps(ref0))
-        plant.set_command(out.feedforward + out.feedback_linearization, out.q_target, out.qd_target, out.kp, out.kd)
+        plant.set_command(out.feedforward + out.feedback_linearization, out.q_target, out.qd_target, out.kp, out.kd,
+                          stamp=m.time)
         plant.step(PHYSICS_STEPS_PER_TICK)
     plant.rewind_clock()
 
@@ -275,7 +276,8 @@ def run_headless(
             if _fallen(qpos_now, min_base_height, cos_tilt):
                 result.fell, result.fall_time = True, m.time
                 break
-            plant.set_command(out.feedforward + out.feedback_linearization, out.q_target, out.qd_target, out.kp, out.kd)
+            plant.set_command(out.feedforward + out.feedback_linearization, out.q_target, out.qd_target, out.kp, out.kd,
+                              stamp=m.time)  # computed for this sample (its /torque_command stamp)
             plant.step(PHYSICS_STEPS_PER_TICK)
             t5 = time.perf_counter()
             timing["plant_s"] += (t1 - t0) + (t5 - t4)

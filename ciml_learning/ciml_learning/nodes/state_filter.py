@@ -108,15 +108,18 @@ class StateFilterNode(Node):
             if any(p is None or stamp - p[0] > max_age for p in (base, contacts, command)):
                 self.health.count("stale_or_missing_partner", "no fresh base state, contact state or command")
                 continue
-            self.process(stamp, joints, base[1], contacts[1], command[1])
+            self.process(stamp, joints, base[1], contacts[1], command[1], command[0])
 
-    def process(self, stamp: int, joints, base, contacts, command) -> None:
+    def process(self, stamp: int, joints, base, contacts, command, command_stamp: int | None = None) -> None:
+        """Filter one sample; u is the joint loop's torque at `stamp` under `command`, stamped
+        `command_stamp` [ns] (None: the same instant; TorqueCommand.msg)."""
         self.last_stamp = stamp
         qj, qdj, tau = joints
         pos, quat, twist = base
         q = np.concatenate([pos, quat, qj])
         v = np.concatenate([twist, qdj])
-        u = command.total(qj, qdj, self.robot.torque_limits)
+        elapsed = 0.0 if command_stamp is None else (stamp - command_stamp) * 1e-9
+        u = command.total(qj, qdj, self.robot.torque_limits, elapsed=elapsed)
         try:
             ready = self.filter.push(stamp * 1e-9, q, v, tau, u, contacts)
         except ValueError as err:

@@ -113,10 +113,12 @@ MAX_FILLED_SAMPLES = 2
 """Longest run of missing samples bridged by interpolation instead of a restart.
 
 A best-effort sensor topic loses single messages under load; restarting the filter
-would cost a whole window (31 samples) of output each time. Short gaps on the regular
-grid are filled by linear interpolation (quaternions: normalised lerp, contacts held)
-before filtering; the filled instants themselves are never output. Offline and online
-filters bridge exactly the same gaps, so they still agree sample for sample.
+would interrupt /filtered_state for a whole window (31 samples) each time. Short gaps
+on the regular grid are filled by linear interpolation (quaternions: normalised lerp,
+contacts held) before filtering; the filled instants themselves are never output, and
+outputs whose window holds a filled instant are marked invalid for training (their
+values are approximate). Offline and online filters bridge exactly the same gaps, so
+they still agree sample for sample.
 """
 
 
@@ -269,6 +271,10 @@ def filter_state_log(
     cmask = contact_change_mask(contacts)
     counts["contact_change"] = int((~cmask & valid & ~filled).sum())
     valid &= cmask
+    d = delay_samples(len(lp))
+    near_fill = np.convolve(filled.astype(float), np.ones(2 * d + 1), mode="same") > 0
+    counts["bridged_gap_window"] = int((near_fill & valid & ~filled).sum())
+    valid &= ~near_fill
     keep = ~filled  # filled instants are never output
     counts["filled_samples"] = int(filled.sum())
     return FilteredLog(t=t_in, q=out_q[keep], v=out_v[keep], a=out_a[keep], tau=out_tau[keep],
@@ -356,7 +362,8 @@ class OnlineStateFilter:
         if filled_out:
             return  # filled instants are never output
         flags = np.array([c for _, c, _ in self._history])
-        valid = bool(np.all(flags == flags[0]))  # no contact change within ±delay
+        # no contact change and no interpolated input within ±delay
+        valid = bool(np.all(flags == flags[0])) and not any(f for _, _, f in self._history)
         qf = low[:nq].copy()
         qf[3:7] /= np.linalg.norm(qf[3:7])
         out.append(FilteredSample(t=t_out, q=qf, v=low[nq:nq + nv], a=der[:nv], tau=low[nq + nv:nq + nv + nj],

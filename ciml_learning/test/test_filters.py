@@ -143,6 +143,10 @@ def test_dropped_samples_are_bridged_alike_online_and_offline():
     out_t = {round(s.t * 1e9) for s in outs}
     # the samples around the bridged gaps are output; the filled instants are not
     assert round(99 / FS * 1e9) in out_t and round(101 / FS * 1e9) in out_t and round(100 / FS * 1e9) not in out_t
+    # outputs whose window saw interpolated input are not for training
+    valid_t = {round(s.t * 1e9) for s in outs if s.valid}
+    assert round(101 / FS * 1e9) not in valid_t and round(116 / FS * 1e9) in valid_t
+    assert off.invalid_counts["bridged_gap_window"] > 0
     # interpolation is exact for a linear signal: a bridged gap leaves a ramp's filtered value intact
     ramp = np.arange(n) / FS
     q2 = np.zeros((n, 19)); q2[:, 6] = 1.0; q2[:, 7:] = ramp[:, None]

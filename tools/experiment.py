@@ -49,6 +49,7 @@ def main() -> int:
         args.repetitions, args.duration, args.eval_duration = 1, 8.0, 6.0
     os.makedirs(args.work, exist_ok=True)
     t_start = time.time()
+    args.commit = _commit()
 
     bags = []
     for motion in TRAIN_MOTIONS:
@@ -152,14 +153,20 @@ def plot_rmse(work: str, out: str) -> list[str]:
     return figures
 
 
-def write_document(args, results, train_s, figures, bags, wall_s) -> None:
+def _commit() -> str:
+    """HEAD at the start of the run, marked when the tracked sources differ from it."""
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
-    dirty = subprocess.run(["git", "status", "--porcelain"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True,
+                           cwd=ROOT).stdout.strip()
+    return f"`{commit}`" + (" (with uncommitted changes)" if dirty else "")
+
+
+def write_document(args, results, train_s, figures, bags, wall_s) -> None:
     cmd = "python tools/experiment.py " + " ".join(sys.argv[1:])
     lines = [
         "# The paper's experiment in simulation (Tables I and II)",
         "",
-        f"Produced by `{cmd}` at commit `{commit}`{' (with uncommitted changes)' if dirty else ''} "
+        f"Produced by `{cmd.strip()}`, started at commit {args.commit}, "
         f"on {time.strftime('%Y-%m-%d')}, {wall_s / 60:.0f} min on this 2-core machine.",
         f"Scenario: `ciml_sim/config/scenarios/default_gap.yaml`; {len(bags)} training recordings "
         f"({args.repetitions} per motion, {args.duration:g} s each). Training time: "

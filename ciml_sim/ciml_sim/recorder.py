@@ -39,6 +39,8 @@ import numpy as np
 from ciml_learning import conversions as cv
 from ciml_learning import topics
 from ciml_learning.errors import CimlError
+from ciml_control.controller import IdController
+from ciml_control.references import MOTIONS, default_duration, make_reference
 from ciml_learning.robot import RobotDescription
 
 from .plant import GroundTruth, Measurement, Plant
@@ -110,75 +112,15 @@ class RunResult:
 # --- controller and reference --------------------------------------------------------------
 
 
-@dataclass
-class _Command:
-    feedforward: np.ndarray
-    feedback_linearization: np.ndarray
-    q_target: np.ndarray
-    qd_target: np.ndarray
-    kp: np.ndarray
-    kd: np.ndarray
-    qp_failed: bool = False
-
-
-class _StandReference:
-    """Fallback reference (ciml_control.references missing): hold the standing pose."""
-
-    period = 1.0
-
-    def __init__(self, robot: RobotDescription, motion: str, q_stand: np.ndarray) -> None:
-        if motion != "stand":
-            raise RecordError(f"motion {motion!r} needs ciml_control.references, which is not installed; "
-                              "only 'stand' is available")
-        self.q, self.n_feet, self.nv = q_stand.copy(), robot.n_feet, robot.nv
-
-    def sample(self, t: float):
-        from types import SimpleNamespace
-
-        return SimpleNamespace(t=t, q=self.q, v=np.zeros(self.nv), a=np.zeros(self.nv),
-                               contacts=np.ones(self.n_feet, dtype=bool), phase=0.0, motion="stand")
-
-
-class _StandingFallback:
-    """Fallback controller (ciml_control.controller missing): ciml_control.standing."""
-
-    def __init__(self, robot: RobotDescription) -> None:
-        from ciml_control.standing import StandingController
-
-        self.ctl = StandingController(robot)
-
-    def compute(self, q, v, contacts, ref, epsilon=None) -> _Command:
-        c = self.ctl.compute(ref.q, ref.contacts)
-        return _Command(c.feedforward, c.feedback_linearization, c.q_target, c.qd_target, c.kp, c.kd)
-
-
 def make_controller(robot: RobotDescription, motion: str, q_stand: np.ndarray):
-    """(controller, reference, name): IdController and make_reference when ciml_control
-    provides them (always, once installed), else the standing fallback."""
-    try:
-        from ciml_control.controller import IdController
-        from ciml_control.references import make_reference
-    except ImportError:
-        return _StandingFallback(robot), _StandReference(robot, motion, q_stand), "standing_fallback"
+    """(controller, reference, name): the controller the `id_controller` node runs and the motion's reference."""
     return IdController(robot), make_reference(robot, motion, q_stand), "id_controller"
 
 
 def check_motion(motion: str) -> None:
     """Raise a one-line CimlError naming the valid motions if `motion` is unknown."""
-    try:
-        from ciml_control.references import MOTIONS
-    except ImportError:
-        MOTIONS = ("stand",)
     if motion not in MOTIONS:
         raise RecordError(f"unknown motion {motion!r}; valid motions: {', '.join(MOTIONS)}")
-
-
-def default_duration(motion: str) -> float:
-    try:
-        from ciml_control.references import default_duration as dd
-    except ImportError:
-        return 20.0
-    return float(dd(motion))
 
 
 # --- the run -------------------------------------------------------------------------------------

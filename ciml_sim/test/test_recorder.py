@@ -192,16 +192,6 @@ def test_epsilon_function_is_used_by_the_controller(monkeypatch):
     assert informed["rms_base_position_error_mm"] < nominal["rms_base_position_error_mm"]
 
 
-def test_standing_fallback_when_the_controller_package_is_missing(monkeypatch):
-    monkeypatch.setitem(sys.modules, "ciml_control.controller", None)  # import raises ImportError
-    scen = resolve_scenario("nominal", ROBOT)
-    result = run_headless(ROBOT, scen, "stand", 1.0, seed=0, progress=False)
-    assert result.controller == "standing_fallback" and not result.fell
-    assert result.metrics()["rms_base_position_error_mm"] < 5.0
-    with pytest.raises(recorder.RecordError, match="only 'stand'"):
-        run_headless(ROBOT, scen, "trot_35", 1.0, seed=0, progress=False)
-
-
 @pytest.mark.slow
 def test_robot_stands_30_s_on_the_nominal_scenario_without_drifting():
     result = run_headless(ROBOT, resolve_scenario("nominal", ROBOT), "stand", 30.0, seed=0, progress=False)

@@ -19,10 +19,15 @@ def _metrics(doc: dict) -> dict:
 def main(out: str) -> int:
     diag = _load(os.path.join(out, "diagnosis", "diagnosis.json"))
     where = ", ".join(f"{d['dimension']} ({100 * d['share']:.0f} %)" for d in diag["localization"][:4])
+    def where_of(e: dict) -> str:
+        joints = e.get("joints", [])
+        return e.get("joint") or e.get("link") or (joints if isinstance(joints, str) else ", ".join(joints)) or "base"
+
     which = "; ".join(
-        f"{e['type']} at {e.get('joint') or e.get('link') or ', '.join(e.get('joints', [])) or 'base'} "
+        f"{e['type']} at {where_of(e)} "
         + ", ".join(f"{k}={v:.3g}±{e.get('std', {}).get(k, float('nan')):.2g}" for k, v in e["params"].items()
                     if isinstance(v, (int, float)))
+        + "".join(f", {k}=[{', '.join(f'{x:.3g}' for x in v)}]" for k, v in e["params"].items() if isinstance(v, list))
         + f" ({100 * e['share']:.0f} % of the gap)"
         for e in diag["effects"][:6]) or "no catalogue effect explains the gap"
     s = diag["shrink"]
@@ -37,9 +42,10 @@ def main(out: str) -> int:
         path = os.path.join(out, f"closed_loop_{name}.json")
         if os.path.exists(path):
             m = _metrics(_load(path))
+            fallbacks = f"   ({m['qp_failures']} QP fallbacks)" if m.get("qp_failures") else ""
             rows.append(f"    {label:<20} feedback {m['rms_feedback_effort_nm']:6.1f} Nm   joint error "
                         f"{m['rms_joint_error_deg']:5.2f} deg   base {m['rms_base_position_error_mm']:5.1f} mm"
-                        f"{'   FELL' if m.get('fell') else ''}")
+                        f"{'   FELL' if m.get('fell') else ''}{fallbacks}")
     if rows:
         print("  Closed loop, trot 35 cm (new execution):")
         print("\n".join(rows))

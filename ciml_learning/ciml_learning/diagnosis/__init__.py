@@ -54,7 +54,8 @@ def load_epsilon_function(robot: RobotDescription, diagnosis_dir: str) -> Callab
     the least-norm joint torques that realise the reference with the given stance feet,
     τ_ref = (Q_uᵀSᵀ)⁺ Q_uᵀ (M q̈ + h + e) — the controller's QP without friction cones and
     weights — clipped to the torque limits, and τ̇ by the finite difference of τ_ref between
-    consecutive calls (zero on the first call, after a time jump > 50 ms or backwards).
+    consecutive calls (zero on the first call, after a time jump > 50 ms or backwards, and across
+    a change of the contact schedule, where τ_ref jumps and one difference would be an impulse).
     A non-finite result is replaced by zeros (the nominal model), never returned.
     """
     import pinocchio as pin
@@ -65,7 +66,7 @@ def load_epsilon_function(robot: RobotDescription, diagnosis_dir: str) -> Callab
     model = load_effect_model(robot, diagnosis_dir)
     S = selection_matrix(robot)
     data = robot.model.createData()
-    state = {"t": None, "tau": None}
+    state = {"t": None, "tau": None, "contacts": None}
 
     def tau_reference(q, v, a, contacts, e):
         b = pin.rnea(robot.model, data, q, v, a) + e
@@ -91,8 +92,10 @@ def load_epsilon_function(robot: RobotDescription, diagnosis_dir: str) -> Callab
             tau = tau_reference(q, v, a, contacts, e)
             t = float(getattr(ref, "t", 0.0))
             dt = None if state["t"] is None else t - state["t"]
-            tau_dot = (tau - state["tau"]) / dt if dt is not None and 0 < dt <= 0.05 else np.zeros_like(tau)
-            state["t"], state["tau"] = t, tau
+            same_contacts = state["contacts"] is not None and np.array_equal(contacts, state["contacts"])
+            smooth = dt is not None and 0 < dt <= 0.05 and same_contacts
+            tau_dot = (tau - state["tau"]) / dt if smooth else np.zeros_like(tau)
+            state["t"], state["tau"], state["contacts"] = t, tau, contacts
             eps = eps - S.T @ model.actuation_error(tau, tau_dot)
         if not np.all(np.isfinite(eps)):
             return np.zeros(robot.nv)

@@ -67,7 +67,8 @@ def combined_error(basis: np.ndarray, phi_prime: np.ndarray, gamma: np.ndarray, 
 
 
 def _operator_blocks(foot_jacobians: np.ndarray, basis: np.ndarray, contacts: np.ndarray):
-    """Per contact configuration: (sample indices, unconstrained entries, (Q_uᵀ J_uᵀ)⁻¹ Q_uᵀ)."""
+    """Per contact configuration: (sample indices, unconstrained entries, Q_uᵀ J_uᵀ, Q_uᵀ);
+    the operator of eq. (11) is (Q_uᵀ J_uᵀ)⁻¹ Q_uᵀ."""
     n, n_feet, _, nv = foot_jacobians.shape
     contacts = np.asarray(contacts, dtype=bool)
     configs, inverse = np.unique(contacts, axis=0, return_inverse=True)
@@ -75,7 +76,7 @@ def _operator_blocks(foot_jacobians: np.ndarray, basis: np.ndarray, contacts: np
     for ci, config in enumerate(configs):
         idx = np.flatnonzero(inverse == ci)
         constrained, unconstrained = basis_columns(config)
-        JuT = np.transpose(basis[idx][:, unconstrained, :], (0, 2, 1))  # N × nv × n_u
+        JuT = np.transpose(basis[idx[:, None], unconstrained[None, :], :], (0, 2, 1))  # N × nv × n_u, one gather
         if len(constrained) == 0:
             QuT = np.broadcast_to(np.eye(nv), (len(idx), nv, nv))
         else:
@@ -83,7 +84,7 @@ def _operator_blocks(foot_jacobians: np.ndarray, basis: np.ndarray, contacts: np
             Q, _ = np.linalg.qr(JcT, mode="complete")
             QuT = np.transpose(Q[:, :, JcT.shape[2]:], (0, 2, 1))  # orthonormal basis of null(J_c)
         # Q_uᵀ J_uᵀ is square and invertible (module docstring)
-        yield idx, unconstrained, np.linalg.solve(QuT @ JuT, QuT)
+        yield idx, unconstrained, QuT @ JuT, QuT
 
 
 def observation_operators(
@@ -98,8 +99,8 @@ def observation_operators(
     n, _, _, nv = foot_jacobians.shape
     ops = np.zeros((n, nv, nv))
     mask = np.zeros((n, nv), dtype=bool)
-    for idx, unconstrained, sol in _operator_blocks(foot_jacobians, basis, contacts):
-        ops[np.ix_(idx, unconstrained, np.arange(nv))] = sol
+    for idx, unconstrained, A, QuT in _operator_blocks(foot_jacobians, basis, contacts):
+        ops[np.ix_(idx, unconstrained, np.arange(nv))] = np.linalg.solve(A, QuT)
         mask[np.ix_(idx, unconstrained)] = True
     return ops, mask
 
@@ -110,8 +111,10 @@ def observe(foot_jacobians: np.ndarray, basis: np.ndarray, contacts: np.ndarray,
     n, _, _, nv = foot_jacobians.shape
     phi = np.zeros((n, nv))
     mask = np.zeros((n, nv), dtype=bool)
-    for idx, unconstrained, sol in _operator_blocks(foot_jacobians, basis, contacts):
-        phi[np.ix_(idx, unconstrained)] = np.einsum("nij,nj->ni", sol, generalized_force[idx])
+    for idx, unconstrained, A, QuT in _operator_blocks(foot_jacobians, basis, contacts):
+        # one vector solve per sample, cheaper than forming the operator
+        rhs = np.einsum("nij,nj->ni", QuT, generalized_force[idx])
+        phi[np.ix_(idx, unconstrained)] = np.linalg.solve(A, rhs[..., None])[..., 0]
         mask[np.ix_(idx, unconstrained)] = True
     return phi, mask
 

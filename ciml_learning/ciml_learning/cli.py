@@ -1,8 +1,7 @@
 """`ciml`: the command line of CIML (DESIGN.md §4).
 
 Each verb is a thin layer: parse arguments, call the library, write files atomically.
-Expected failures (CimlError) print one line and exit 1; a verb that does not exist
-yet exits 2 saying so.
+Expected failures (CimlError) print one line and exit 1.
 """
 from __future__ import annotations
 
@@ -14,15 +13,6 @@ from collections.abc import Callable
 from .errors import CimlError
 
 EXIT_ERROR = 1
-EXIT_NOT_IMPLEMENTED = 2
-
-
-class NotImplementedYet(CimlError):
-    pass
-
-
-def _not_implemented(args: argparse.Namespace) -> int:
-    raise NotImplementedYet(f"'{args.verb}' is not implemented yet")
 
 
 def _run(module: str, function: str) -> Callable[[argparse.Namespace], int]:
@@ -116,9 +106,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except NotImplementedYet as err:
-        print(f"ciml {args.verb}: {err}", file=sys.stderr)
-        return EXIT_NOT_IMPLEMENTED
     except CimlError as err:
         print(f"ciml {args.verb}: error: {str(err).splitlines()[0] if str(err) else type(err).__name__}", file=sys.stderr)
         return EXIT_ERROR

@@ -14,13 +14,14 @@ SCENARIO=ciml_sim/config/scenarios/default_gap.yaml
 rm -rf "$OUT"; mkdir -p "$OUT/bags"
 step() { printf '\n==> [demo %s] %s\n' "$(date +%H:%M:%S)" "$*"; }
 
-step "1/6 simulate and record training motions (base-only, walk 35 cm, trot 35 cm) and held-out motions"
+step "1/6 simulate and record training motions (base-only, walk 35 cm, trot 35 cm; 3 runs each) and held-out motions"
 TRAIN=(); HELD=()
-for spec in base_only:20:1 walk_35:24:2 trot_35:12:3; do
-  IFS=: read -r motion dur seed <<<"$spec"
-  $CIML record --scenario "$SCENARIO" --motion "$motion" --duration "$dur" --seed "$seed" \
-    --no-ground-truth --out "$OUT/bags/train_$motion"
-  TRAIN+=("$OUT/bags/train_$motion")
+for motion in base_only walk_35 trot_35; do
+  for seed in 1 2 3; do
+    $CIML record --scenario "$SCENARIO" --motion "$motion" --duration 20 --seed "$seed" \
+      --no-ground-truth --out "$OUT/bags/train_${motion}_$seed"
+    TRAIN+=("$OUT/bags/train_${motion}_$seed")
+  done
 done
 for spec in walk_20:24:11 trot_20:12:12; do
   IFS=: read -r motion dur seed <<<"$spec"

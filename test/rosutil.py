@@ -32,7 +32,9 @@ def stop(proc: subprocess.Popen) -> str:
 class Listener:
     """Subscribe to topics in a private rclpy context spun in a background thread."""
 
-    def __init__(self, subscriptions: dict[str, type], qos_depth: int = 1000) -> None:
+    def __init__(self, subscriptions: dict[str, type], qos_depth: int = 1000, qos: dict | None = None) -> None:
+        """subscriptions: topic -> message class; qos: topic -> QoS profile for topics that are
+        not reliable (e.g. sensor topics published best effort); default reliable, qos_depth."""
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -41,9 +43,10 @@ class Listener:
         rclpy.init(context=self.context)
         self.node = rclpy.create_node("test_listener", context=self.context)
         self.messages: dict[str, list] = {t: [] for t in subscriptions}
-        qos = QoSProfile(depth=qos_depth, reliability=ReliabilityPolicy.RELIABLE)
+        reliable = QoSProfile(depth=qos_depth, reliability=ReliabilityPolicy.RELIABLE)
         for topic, cls in subscriptions.items():
-            self.node.create_subscription(cls, topic, lambda m, t=topic: self.messages[t].append(m), qos)
+            self.node.create_subscription(cls, topic, lambda m, t=topic: self.messages[t].append(m),
+                                          (qos or {}).get(topic, reliable))
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._stop = False

@@ -3,81 +3,41 @@ damping when commands stop, rejected commands."""
 from __future__ import annotations
 
 import math
-import threading
 import time
 
 import numpy as np
 import pytest
 
 from ciml_learning.robot import load_robot
-from rosutil import start_node, stop
+from rosutil import Listener, start_node, stop
 
 ROBOT = load_robot()
 
 
-class _Graph:
-    """A private rclpy context: subscriptions with the bridge's QoS, a command publisher, a reset client."""
+class _Graph(Listener):
+    """Listener with the bridge's QoS, plus a command publisher and a reset client."""
 
     def __init__(self) -> None:
-        import rclpy
         from ciml_msgs.msg import ContactState, TorqueCommand
         from diagnostic_msgs.msg import DiagnosticArray
         from nav_msgs.msg import Odometry
-        from rclpy.executors import SingleThreadedExecutor
         from rosgraph_msgs.msg import Clock
         from sensor_msgs.msg import JointState
         from std_srvs.srv import Trigger
 
         from ciml_learning.ros_common import COMMAND_QOS, SENSOR_QOS
 
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node("bridge_test", context=self.context)
-        self.messages: dict[str, list] = {}
-        self._lock = threading.Lock()
-        for topic, cls, qos in (("/joint_states", JointState, SENSOR_QOS), ("/base_state", Odometry, SENSOR_QOS),
-                                ("/contact_state", ContactState, SENSOR_QOS), ("/clock", Clock, 10),
-                                ("/diagnostics", DiagnosticArray, 50)):
-            self.messages[topic] = []
-            self.node.create_subscription(cls, topic, lambda m, t=topic: self._add(t, m), qos)
+        sensors = {"/joint_states": JointState, "/base_state": Odometry, "/contact_state": ContactState}
+        super().__init__({**sensors, "/clock": Clock, "/diagnostics": DiagnosticArray},
+                         qos={topic: SENSOR_QOS for topic in sensors})
         self.commands = self.node.create_publisher(TorqueCommand, "/torque_command", COMMAND_QOS)
         self.reset = self.node.create_client(Trigger, "/mujoco_bridge/reset")
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._stop = False
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _add(self, topic, msg) -> None:
-        with self._lock:
-            self.messages[topic].append(msg)
-
-    def _spin(self) -> None:
-        while not self._stop:
-            self.executor.spin_once(timeout_sec=0.02)
 
     def get(self, topic: str) -> list:
-        with self._lock:
-            return list(self.messages[topic])
+        return list(self.messages[topic])  # a snapshot: the spinning thread appends
 
     def bridge_status(self) -> list:
         return [s for m in self.get("/diagnostics") for s in m.status if "mujoco_bridge" in s.name]
-
-    def wait_for(self, predicate, timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if predicate():
-                return True
-            time.sleep(0.05)
-        return predicate()
-
-    def close(self) -> None:
-        import rclpy
-
-        self._stop = True
-        self.thread.join(timeout=5)
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
 
 
 def _values(status) -> dict[str, str]:

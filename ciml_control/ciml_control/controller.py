@@ -34,7 +34,7 @@ from ciml_learning.robot import RobotDescription
 from .feedback import FeedbackGains, feedback_linearization, tracking_error
 from .qp import DEFAULT_F_MIN, DEFAULT_MU, FeedforwardQP, QPFailedError, build_feedforward_qp
 from .references import ReferencePoint
-from .standing import gravity_compensation
+from .standing import JointCommand, gravity_compensation
 
 
 class ControllerInputError(CimlError):
@@ -49,19 +49,13 @@ def _finite(x) -> bool:
 
 
 @dataclass
-class ControlOutput:
-    """One control step, joint order of the robot.
+class ControlOutput(JointCommand):
+    """One control step: the joint command (joint order of the robot) and how it was made.
 
     contact_forces: (n_feet × 3) planned contact forces of the QP [N] (world frame, zero for
     swing feet and after a QP failure).
     """
 
-    feedforward: np.ndarray
-    feedback_linearization: np.ndarray
-    q_target: np.ndarray
-    qd_target: np.ndarray
-    kp: np.ndarray
-    kd: np.ndarray
     contact_forces: np.ndarray
     qp_failed: bool
     epsilon_rejected: bool = False

@@ -9,7 +9,6 @@ import numpy as np
 
 from ciml_learning.conversions import (ConversionError, _finite, _vector, header_msg, robot_reference_arrays,
                                        stamp_to_ns)
-from ciml_learning.extraction import combined_error
 from ciml_learning.robot import RobotDescription
 
 from .references import ReferencePoint
@@ -66,8 +65,3 @@ def model_error_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, np.nda
     gamma = _vector(msg.actuation_error, len(msg.actuation_names), "model_error.actuation_error")[perm]
     _finite("model_error", phi, gamma)
     return phi, gamma
-
-
-def epsilon_from_model_error(basis: np.ndarray, phi_prime: np.ndarray, gamma: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """ε = J'ᵀ Φ̃' − Sᵀ Γ, eq. (17), with the contact-invariant basis J' at the reference."""
-    return combined_error(basis, phi_prime, gamma, S)

@@ -123,12 +123,12 @@ def test_id_controller_commands_limited_torque_and_damps_without_state():
     for m in torque[:150:10]:
         assert np.allclose(cv.torque_command_arrays(ROBOT, m).feedforward, expected.feedforward, atol=1e-3)
     # with the prediction: the feedforward of the QP with ε = J'ᵀ Φ̃' − Sᵀ Γ (eq. 17) at the reference
-    from ciml_control.conversions import epsilon_from_model_error
+    from ciml_learning.extraction import combined_error
     from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
     from ciml_learning.projection import contact_invariant_basis
 
     basis = contact_invariant_basis(RigidBodyDynamics(ROBOT).foot_jacobians(ref.q), ROBOT.leg_joints)
-    eps = epsilon_from_model_error(basis, phi, gamma, selection_matrix(ROBOT))
+    eps = combined_error(basis, phi, gamma, selection_matrix(ROBOT))
     with_eps = IdController(ROBOT).compute(ref.q, ref.v, ref.contacts, ref, eps)
     assert with_eps.contact_forces[:, 2].sum() == pytest.approx(mg + 60.0, rel=1e-3)
     late = [cv.torque_command_arrays(ROBOT, m).feedforward for m in torque[-30:]]

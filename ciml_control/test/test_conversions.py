@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from ciml_control.conversions import epsilon_from_model_error, model_error_arrays, reference_msg, reference_point
+from ciml_control.conversions import model_error_arrays, reference_msg, reference_point
+from ciml_learning.extraction import combined_error
 from ciml_control.references import make_reference, standing_configuration
 from ciml_learning import conversions as cv
 from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
@@ -44,7 +45,7 @@ def test_model_error_to_epsilon():
     q = standing_configuration(ROBOT)
     basis = contact_invariant_basis(RigidBodyDynamics(ROBOT).foot_jacobians(q), ROBOT.leg_joints)
     S = selection_matrix(ROBOT)
-    eps = epsilon_from_model_error(basis, phi_back, gamma_back, S)
+    eps = combined_error(basis, phi_back, gamma_back, S)
     assert np.allclose(eps, basis.T @ phi - S.T @ gamma)  # eq. (17)
     msg.rbd_names = msg.rbd_names[:-1] + ["foot_xx_z"]
     with pytest.raises(CimlError):

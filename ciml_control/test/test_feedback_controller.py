@@ -10,22 +10,6 @@ from ciml_control.standing import gravity_compensation
 from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
 from ciml_learning.errors import CimlError
 from ciml_learning.projection import contact_jacobian, projector
-from ciml_learning.robot import load_robot
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot()
-
-
-@pytest.fixture(scope="module")
-def q_stand(robot):
-    q = pin.neutral(robot.model)
-    q[7:] = robot.standing_joints
-    data = robot.model.createData()
-    pin.framesForwardKinematics(robot.model, data, q)
-    q[2] = -min(data.oMf[f].translation[2] for f in robot.foot_frame_ids) + 0.02
-    return q
 
 
 def _random_state(robot, q_stand, seed):

@@ -13,14 +13,8 @@ from ciml_control.qp import (
 )
 from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
 from ciml_learning.errors import CimlError
-from ciml_learning.robot import load_robot
 
 G = 9.81
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot()
 
 
 @pytest.fixture(scope="module")

@@ -6,22 +6,6 @@ import pytest
 from ciml_control import references as refs
 from ciml_control.references import MOTIONS, UnknownMotionError, default_duration, make_reference
 from ciml_learning.errors import CimlError
-from ciml_learning.robot import load_robot
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot()
-
-
-@pytest.fixture(scope="module")
-def q_stand(robot):
-    q = pin.neutral(robot.model)
-    q[7:] = robot.standing_joints
-    data = robot.model.createData()
-    pin.framesForwardKinematics(robot.model, data, q)
-    q[2] = -min(data.oMf[f].translation[2] for f in robot.foot_frame_ids) + 0.02
-    return q
 
 
 def _sample_motion(robot, q_stand, motion, dt=0.02):

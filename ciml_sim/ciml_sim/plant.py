@@ -51,6 +51,7 @@ import numpy as np
 import pinocchio as pin
 
 from ciml_learning.errors import CimlError
+from ciml_control.references import standing_configuration
 from ciml_learning.robot import RobotDescription
 
 from .mjcf import (
@@ -270,13 +271,7 @@ class Plant:
 
     def standing_configuration(self) -> np.ndarray:
         """Pinocchio q of the standing pose (robot.standing_joints), feet touching the floor."""
-        q = pin.neutral(self.robot.model)
-        q[7:] = self.robot.standing_joints
-        data = self.robot.model.createData()
-        pin.framesForwardKinematics(self.robot.model, data, q)
-        lowest = min(data.oMf[f].translation[2] for f in self.robot.foot_frame_ids)
-        q[2] = -lowest + FOOT_RADIUS
-        return q
+        return standing_configuration(self.robot, FOOT_RADIUS)
 
     def true_state(self) -> tuple[np.ndarray, np.ndarray]:
         """True (q, v) now, Pinocchio conventions (simulation only)."""

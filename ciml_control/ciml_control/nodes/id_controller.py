@@ -32,14 +32,15 @@ from sensor_msgs.msg import JointState
 
 from ciml_learning import conversions as cv
 from ciml_learning import topics
-from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
+from ciml_learning.dynamics import selection_matrix
 from ciml_learning.errors import CimlError
+from ciml_learning.extraction import combined_error
 from ciml_learning.projection import contact_invariant_basis
 from ciml_learning.robot import load_robot
 from ciml_learning.ros_common import COMMAND_QOS, SENSOR_QOS, Health, declare, run_node
 
 from ..controller import IdController
-from ..conversions import epsilon_from_model_error, model_error_arrays, reference_point
+from ..conversions import model_error_arrays, reference_point
 from ..feedback import FeedbackGains
 
 MODE_TORQUE = 0
@@ -74,7 +75,6 @@ class IdControllerNode(Node):
         self.robot = load_robot(urdf or None)
         gains = FeedbackGains.default(self.robot, kp, kd, base_kp, base_kd, joint_kp, joint_kd)
         self.controller = IdController(self.robot, gains, mu=mu, f_min=f_min, feedback_contacts=fb_contacts)
-        self.dyn = RigidBodyDynamics(self.robot)
         self.S = selection_matrix(self.robot)
         self.health = Health(self)
         self.joints = None       # (receipt time, stamp ns, (q, qd, tau))
@@ -136,9 +136,10 @@ class IdControllerNode(Node):
         if not self.use_model_error or not self._fresh(self.model_error, self.model_error_timeout, now):
             return np.zeros(self.robot.nv)
         phi, gamma = self.model_error[2]
-        basis = contact_invariant_basis(self.dyn.foot_jacobians(ref.q), self.robot.leg_joints)
+        # the foot Jacobians at qᵈ come from the controller's own Pinocchio pass at the reference
+        basis = contact_invariant_basis(self.controller.desired_terms(ref)[2], self.robot.leg_joints)
         self.health.counts["model_error_used"] += 1
-        return epsilon_from_model_error(basis, phi, gamma, self.S)
+        return combined_error(basis, phi, gamma, self.S)
 
     def control(self) -> None:
         now = self._now()

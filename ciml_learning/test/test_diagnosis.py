@@ -164,6 +164,13 @@ def test_out_of_catalogue_effect_is_unexplained_and_localised(tmp_path):
     assert d["unexplained_share"] > 0.5
     named = [e for e in d["effects"] if e["share"] > 0.3]
     assert not named, named
+    # the out-of-catalogue probe finds a joint torque at the spring's joint and measures it
+    probe = d["unexplained_localised"][0]
+    assert probe["joint"] == "lh_kfe_joint" and probe["share"] > 0.5
+    spring = OUT_OF_CATALOGUE["effects"][0]
+    assert probe["stiffness"] == pytest.approx(spring["stiffness"], rel=0.15)
+    assert probe["torque_at_center"] == pytest.approx(
+        -spring["stiffness"] * (probe["position_center"] - spring["rest"]), rel=0.15)
     legs = d["localization_by_leg"]
     assert max(legs, key=legs.get) in ("lh", "base")
     top_leg = [x["dimension"] for x in d["localization"] if not x["dimension"].startswith("base")][:2]

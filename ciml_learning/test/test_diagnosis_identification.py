@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ciml_learning.diagnosis.candidates import FeatureLayout, link_inertias, point_mass_rotational
+from ciml_learning.diagnosis.candidates import N_GENERIC, FeatureLayout, link_inertias, point_mass_rotational
 from ciml_learning.diagnosis.effects import DiagnosisError, EffectModel, feature_coefficients
 from ciml_learning.diagnosis.features import Grams, Rows, grams
 from ciml_learning.diagnosis.identification import (
@@ -108,6 +108,38 @@ def test_selection_names_nothing_on_pure_noise():
     tr, ho = _synthetic_rows(rng, {}), _synthetic_rows(rng, {})
     sel = select(LAYOUT, grams(tr), grams(ho))
     assert sel.effects == [] and sel.unexplained_share == pytest.approx(1.0)
+
+
+def _joint_torque_rows(rng, truth: str, n: int = 3000, noise: float = 0.05) -> Rows:
+    """Φ̃' rows at one joint (j = 4) whose error is a viscous friction ("viscous") or a torque
+    linear in the joint position ("spring", outside the catalogue); an encoder-offset column
+    correlated with the position is the catalogue's best stand-in for the spring."""
+    j, nr = 4, LAYOUT.n_rbd
+    z, qd = rng.normal(size=n), rng.normal(size=n)
+    X = np.zeros((n, nr))
+    X[:, LAYOUT.viscous0 + j] = qd
+    X[:, LAYOUT.coulomb0 + j] = np.tanh(3 * qd)
+    X[:, LAYOUT.encoder0 + j] = 0.7 * z + 0.7 * rng.normal(size=n)
+    g0 = LAYOUT.generic0 + N_GENERIC * j
+    X[:, g0:g0 + N_GENERIC] = np.stack([np.ones(n), z, z ** 2, z ** 3], axis=1)
+    y = 3.0 * (qd if truth == "viscous" else z) + noise * rng.normal(size=n)
+    nj = ROBOT.n_joints
+    return Rows(LAYOUT, np.arange(n), X.astype(np.float32), y, rng.integers(0, 6, n), np.arange(n),
+                np.zeros((n, nj, 3)), noise * rng.normal(size=(n, nj)), np.zeros(n))
+
+
+def test_out_of_catalogue_probe_takes_a_spring_but_not_a_catalogue_effect():
+    """A position-dependent joint torque goes to the probe (unexplained), not to the encoder offset
+    that explains half of it; a viscous friction is named as such, the probe stays out."""
+    rng = np.random.default_rng(4)
+    tr, ho = _joint_torque_rows(rng, "spring"), _joint_torque_rows(rng, "spring")
+    sel = select(LAYOUT, grams(tr), grams(ho))
+    assert [c.label for c in sel.effects] == [f"unmodelled_joint_torque:{ROBOT.joint_names[4]}"]
+    assert not sel.effects[0].in_catalogue
+    tr, ho = _joint_torque_rows(rng, "viscous"), _joint_torque_rows(rng, "viscous")
+    sel = select(LAYOUT, grams(tr), grams(ho))
+    assert [c.label for c in sel.effects] == [f"joint_viscous_friction:{ROBOT.joint_names[4]}"]
+    assert physical_parameters(sel.model)[1]["value"] == pytest.approx(3.0, rel=0.01)
 
 
 def test_fit_with_payload_refines_the_rotational_inertia():

@@ -20,6 +20,10 @@ Features (e-convention, per sample; q, q̇, q̈, τ, τ̇ are the filtered log):
     link mass scale l          e = Y_joint(l)(q, q̇, q̈) π_l            θ = s − 1
     joint torque j             e_{6+j} = 1   (no candidate: a unit torque error at joint j, for the
                                stiction of Coulomb friction)
+    unmodelled joint torque j  e_{6+j} = f_j(q_j), a free-form torque (generic_joint_basis):
+                               not an effect but the probe for effects outside the catalogue
+                               (identification.py: it competes with the catalogue, and what it
+                               explains is reported as unexplained, localised at joint j)
 
 Command-update sampling (the baseline, part of every model, not an effect of the robot): a log
 sampled at the controller tick reports the joint loop's torque under the command *before* the
@@ -58,6 +62,11 @@ ACTUATION_TYPES = ("actuator_lag", "torque_gain", "torque_offset")
 MEASUREMENT_TYPES = ("encoder_offset", "base_imu_tilt")
 """Effects that change only what is measured: they exert no force on the robot."""
 EFFECT_TYPES = RBD_TYPES + ACTUATION_TYPES
+UNMODELLED_TYPE = "unmodelled_joint_torque"
+"""The out-of-catalogue probe: a free position-dependent joint torque f_j(q_j) (generic_joint_basis)."""
+GENERIC_NAMES = ("1", "z", "z2", "z3")
+"""Columns of generic_joint_basis: a cubic in z = (q_j − q̄_j)/s_j."""
+N_GENERIC = len(GENERIC_NAMES)
 
 
 @dataclass(frozen=True)
@@ -144,6 +153,11 @@ class Candidate:
     def n_params(self) -> int:
         return len(self.param_names)
 
+    @property
+    def in_catalogue(self) -> bool:
+        """A physical effect of DESIGN §5 (False for the out-of-catalogue probe)."""
+        return self.type != UNMODELLED_TYPE
+
     def location(self) -> dict:
         if self.link is not None:
             return {"link": self.link}
@@ -160,6 +174,8 @@ class FeatureLayout:
 
     robot: RobotDescription
     links: list[LinkInertia]
+    q_center: np.ndarray | None = None  # per joint q̄_j, s_j of generic_joint_basis (the diagnosis sets
+    q_scale: np.ndarray | None = None   # them from its identification data; default 0 and 1 rad)
     names: list[str] = field(default_factory=list)
     n_rbd: int = 0
 
@@ -174,8 +190,11 @@ class FeatureLayout:
             + [f"root:{k}" for k in range(10)]
             + [f"link:{link.name}" for link in self.links]
             + [f"joint_torque:{j}" for j in jn]
+            + [f"generic:{j}:{g}" for j in jn for g in GENERIC_NAMES]
             + ["baseline:qd", "baseline:qdd", "baseline:udot"]
         )
+        self.q_center = np.zeros(nj) if self.q_center is None else np.asarray(self.q_center, float)
+        self.q_scale = np.ones(nj) if self.q_scale is None else np.maximum(np.asarray(self.q_scale, float), 1e-3)
         self.n_rbd = len(self.names)
         for j in jn:
             self.names += [f"lag:{j}", f"gain:{j}", f"offset:{j}"]
@@ -184,7 +203,8 @@ class FeatureLayout:
         self.root0 = self.imu0 + 2
         self.link0 = self.root0 + 10
         self.torque0 = self.link0 + len(self.links)
-        self.baseline0 = self.torque0 + nj
+        self.generic0 = self.torque0 + nj
+        self.baseline0 = self.generic0 + N_GENERIC * nj
         self.act0 = self.n_rbd
 
     @property
@@ -229,6 +249,10 @@ class FeatureLayout:
         out.append(Candidate("actuator_lag", "actuation", ("lag_over_gain",), (0.0,), (0.5,),
                              tuple(self.actuation_feature(j, "lag") for j in range(r.n_joints)),
                              joints=tuple(r.joint_names)))
+        for j, name in enumerate(r.joint_names):
+            g0 = self.generic0 + N_GENERIC * j
+            out.append(Candidate(UNMODELLED_TYPE, "rbd", GENERIC_NAMES, (-inf,) * N_GENERIC, (inf,) * N_GENERIC,
+                                 tuple(range(g0, g0 + N_GENERIC)), joint=name))
         return out
 
     def matrix(self, cand: Candidate, payload_com: np.ndarray | None = None,
@@ -248,7 +272,7 @@ class FeatureLayout:
                 A[r0 + 4:r0 + 10, 0] = point_mass_rotational(payload_com)
             for k in range(3):
                 A[r0 + 1 + k, 1 + k] = 1.0
-        elif cand.type in ("base_imu_tilt", "command_update_sampling"):
+        elif cand.type in ("base_imu_tilt", "command_update_sampling", UNMODELLED_TYPE):
             for k, f in enumerate(cand.features):
                 A[f, k] = 1.0
         else:  # one parameter; several features only for the all-joint lag (one joint per row)
@@ -275,6 +299,26 @@ def coulomb_regressor(v_joints: np.ndarray, segment: np.ndarray | None, fs: floa
     return out
 
 
+def generic_joint_basis(q_joints: np.ndarray, layout: "FeatureLayout", segment: np.ndarray | None,
+                        fs: float = 250.0) -> np.ndarray:
+    """(N × n_j × N_GENERIC) the out-of-catalogue probe's basis of a joint torque f_j(q_j): 1, z, z², z³
+    with z = (q_j − q̄_j)/s_j — a spring, a cable, any torque set by where the joint is. No
+    velocity terms on purpose: the catalogue's Coulomb and viscous friction cover those, and a
+    free function of q̇ would outbid them (it also fits the stick–slip transitions plain Coulomb
+    friction leaves, shrink.py). z², z³ pass through the log's low-pass like the Coulomb regressor;
+    1 and z are linear in the filtered log."""
+    q = np.asarray(q_joints, float)
+    z = (q - layout.q_center) / layout.q_scale
+    if segment is None:
+        segment = np.zeros(len(q), dtype=int)
+    taps = lowpass_taps(fs)
+    powers = np.stack([z ** 2, z ** 3], axis=-1).reshape(len(q), -1)
+    for seg in np.unique(segment):
+        idx = np.flatnonzero(segment == seg)
+        powers[idx], _ = filter_offline(powers[idx], taps)
+    return np.concatenate([np.ones_like(z)[..., None], z[..., None], powers.reshape(z.shape + (2,))], axis=-1)
+
+
 class RegressorEvaluator:
     """Per-sample rigid-body regressors (Pinocchio) for a chunk of samples."""
 
@@ -286,11 +330,13 @@ class RegressorEvaluator:
         self.link_cols = [(10 * (link.joint - 1), link.params) for link in layout.links]
 
     def chunk(self, q: np.ndarray, v: np.ndarray, a: np.ndarray, contacts: np.ndarray, residual: np.ndarray,
-              coulomb: np.ndarray, u_dot: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+              coulomb: np.ndarray, u_dot: np.ndarray | None = None,
+              generic: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Generalized-force features E (n × nv × n_rbd) and foot Jacobians (n × n_feet × 3 × nv).
 
         residual: measured r = Sᵀτ − M q̈ − h (for the contact-force estimate of the encoder term);
-        u_dot: derivative of the commanded torque (for the command-update sampling term).
+        u_dot: derivative of the commanded torque (for the command-update sampling term);
+        generic: generic_joint_basis of these samples (the out-of-catalogue probe; None: zeros).
         """
         r, lay, model, data = self.robot, self.layout, self.model, self.data
         n, nv, nj = len(q), r.nv, r.n_joints
@@ -304,6 +350,9 @@ class RegressorEvaluator:
         E[:, 6:, lay.baseline0 + 1] = a[:, 6:]
         if u_dot is not None:
             E[:, 6:, lay.baseline0 + 2] = u_dot
+        if generic is not None:
+            for j in range(nj):
+                E[:, 6 + j, lay.generic0 + N_GENERIC * j:lay.generic0 + N_GENERIC * (j + 1)] = generic[:, j]
         frames = r.foot_frame_ids
         unit = np.zeros(nv)
         for k in range(n):

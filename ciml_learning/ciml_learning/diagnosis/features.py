@@ -15,7 +15,7 @@ import numpy as np
 from ..extraction import observation_operators
 from ..projection import contact_invariant_bases
 from ..robot import RobotDescription
-from .candidates import FeatureLayout, RegressorEvaluator, actuation_features, coulomb_regressor
+from .candidates import FeatureLayout, RegressorEvaluator, actuation_features, coulomb_regressor, generic_joint_basis
 
 CHUNK = 1000
 
@@ -69,6 +69,7 @@ def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples:
     samples = np.asarray(samples, dtype=int)
     samples = samples[targets.valid[samples]]
     coulomb = coulomb_regressor(log.v[:, 6:], log.segment)
+    generic = generic_joint_basis(log.q[:, 7:], layout, log.segment)
     u_dot = command_rate(log)
     ev = RegressorEvaluator(robot, layout)
     Xr, yr, dr, sr, gr = [], [], [], [], []
@@ -83,11 +84,12 @@ def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples:
         bar = tqdm(total=len(samples), desc=desc, unit="sample", leave=False, mininterval=0.5)
     for c_i, idx in enumerate(chunks):
         E, jac = ev.chunk(log.q[idx], log.v[idx], log.a[idx], log.contacts[idx], targets.residual[idx], coulomb[idx],
-                          u_dot[idx])
+                          u_dot[idx], generic[idx])
         basis = contact_invariant_bases(jac, robot.leg_joints)
         O, _ = observation_operators(jac, basis, log.contacts[idx])
-        phi = np.einsum("nij,njf->nif", O, E)
-        raw_G += np.einsum("nif,nig->ifg", E, E)
+        phi = O @ E  # batched matmul (BLAS), = einsum("nij,njf->nif")
+        Et = E.transpose(1, 0, 2)
+        raw_G += Et.transpose(0, 2, 1) @ Et  # Σ_n E[n, i]ᵀ E[n, i] per coordinate i
         raw_signal[:6] += np.sum(targets.residual[idx, :6] ** 2, axis=0)  # Sᵀτ has no base rows: r = −(M q̈ + h)
         raw_signal[6:] += np.sum(log.tau[idx] ** 2, axis=0)
         sig = np.einsum("nij,nj->ni", O[:, :, 6:], log.tau[idx]) if nv > 6 else np.zeros((len(idx), nv))

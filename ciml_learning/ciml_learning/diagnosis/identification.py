@@ -28,6 +28,13 @@ Finally effects whose parameter is not consistent across contact configurations 
 (consistency() > MAX_SPREAD) are rejected: a physical effect has one value everywhere, a
 stand-in for an effect outside the catalogue does not.
 
+Outside the catalogue. A free position-dependent torque f_j(q_j) per joint (candidates.generic_joint_basis:
+a spring, a cable, a gravity-like torque no link mass explains) competes in the
+forward steps with its gain discounted by OUT_OF_CATALOGUE_MARGIN: it is chosen only when it
+explains clearly more than every catalogue effect, i.e. when the catalogue's best answer at that
+joint would be a stand-in. What it explains is reported as unexplained, localised at its joint
+(never as an effect); it never enters by a swap and has no consistency check.
+
 Shares. unexplained_share = held-out residual / nominal held-out residual (normalised sums of
 squares); the explained part 1 − unexplained_share is split among the effects in proportion
 to what removing each one costs on held-out data.
@@ -66,6 +73,8 @@ MIN_RELEVANCE = 0.005
 a systematic but negligible term (0.5 % of the torque a joint carries) is not named."""
 MAX_SPREAD = 0.5
 """Largest relative spread of an effect's parameter across data subsets (consistency())."""
+OUT_OF_CATALOGUE_MARGIN = 0.15
+"""The out-of-catalogue probe must explain this fraction more than the best catalogue effect."""
 MIN_SUBSET_INFORMATION = 0.05
 """Subsets holding less than this fraction of an effect's information are left out of its spread."""
 BLOCK_SECONDS = 1.0
@@ -210,7 +219,9 @@ def noise_levels(layout: FeatureLayout, g: Grams, fallback: Grams | None = None)
     rms_y = np.sqrt(g.s / n)
     w0 = np.where(g.n > 0, 1.0 / np.maximum(rms_y, 1e-9) ** 2, 0.0)
     Gw, cw, _ = g.weighted(w0)
-    used = np.unique(np.concatenate([np.asarray(c.features) for c in layout.candidates + [layout.baseline]]))
+    # the catalogue only: σ is what no catalogue effect explains
+    used = np.unique(np.concatenate([np.asarray(c.features) for c in layout.candidates + [layout.baseline]
+                                     if c.in_catalogue]))
     Gw, cw = Gw[np.ix_(used, used)], cw[used]
     # ridge relative to each feature's scale: the full catalogue is collinear (lag per joint and all)
     diag = np.maximum(np.diag(Gw), 1e-300)
@@ -351,12 +362,14 @@ def _select_kind(prob: _Problem, cands: list[Candidate], steps: list[Step], tota
             progress()
         if not trials:
             break
-        trials.sort(key=lambda x: -x[0])
-        best_gain = trials[0][0]
-        if best_gain < threshold:
+        # the out-of-catalogue probe competes with a discounted gain (module docstring)
+        score = {id(k): g * (1.0 if k.in_catalogue else 1.0 - OUT_OF_CATALOGUE_MARGIN) for g, k in trials}
+        trials.sort(key=lambda x: -score[id(x[1])])
+        best_score = score[id(trials[0][1])]
+        if trials[0][0] < threshold:
             break
-        near = [t for t in trials if t[0] >= (1 - PARSIMONY) * best_gain]
-        gain, k = min(near, key=lambda t: (t[1].n_params, -t[0]))
+        near = [t for t in trials if score[id(t[1])] >= (1 - PARSIMONY) * best_score]
+        gain, k = min(near, key=lambda t: (t[1].n_params, -score[id(t[1])]))
         runner = next((t for t in trials if t[1] is not k), None)
         steps.append(Step(k.label, gain / total_nominal, runner[1].label if runner else None,
                           runner[0] / total_nominal if runner else 0.0))
@@ -369,7 +382,7 @@ def _select_kind(prob: _Problem, cands: list[Candidate], steps: list[Step], tota
             best = (current_ss - SWAP_MARGIN * threshold, None, None)
             for i in range(len(current)):
                 for k2 in usable:
-                    if k2 in current:
+                    if k2 in current or not k2.in_catalogue:
                         continue
                     cset = current[:i] + [k2] + current[i + 1:]
                     t = trial(cset, k2)
@@ -422,6 +435,9 @@ def consistency(model: Model, subsets: list[Grams], weights: np.ndarray, extra=N
         Ak, tk = A[:, sl], model.theta[sl]
         ests, infos = [], []
         cand = model.candidates[i]
+        if not cand.in_catalogue:
+            out.append(0.0)
+            continue
         for g in list(subsets) + (list(extra(cand)) if extra is not None else []):
             G, c, _ = g.weighted(weights)
             H = Ak.T @ G @ Ak
@@ -528,6 +544,8 @@ def physical_parameters(model: Model) -> list[dict]:
             p = {"time_constant": float(th[0]) * (gain.get(cand.joint, 1.0) if cand.joint else 1.0)}
         elif cand.type == "command_update_sampling":
             p = {"qd": float(th[0]), "qdd": float(th[1]), "udot": float(th[2])}
+        elif not cand.in_catalogue:
+            p = {"coefficients": [float(x) for x in th]}
         else:  # pragma: no cover
             raise ValueError(cand.type)
         out.append(p)

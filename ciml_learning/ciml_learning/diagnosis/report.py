@@ -43,6 +43,10 @@ def _where(e: dict) -> str:
     return e.get("joint") or e.get("link") or ("all joints" if e.get("joints") == "all" else "base")
 
 
+OUTSIDE_REPORTED = 0.01
+"""Out-of-catalogue joint torques with a smaller share of the gap are left out of the answers."""
+
+
 def answers(result: dict) -> list[str]:
     """The three answers in a few lines of plain text (also printed by `ciml diagnose`)."""
     loc = result["localization"]
@@ -58,6 +62,11 @@ def answers(result: dict) -> list[str]:
     else:
         which = "Which: no catalogue effect explains the gap"
     which += f"; unexplained: {result['unexplained_share']:.0%}"
+    outside = [u for u in result.get("unexplained_localised", []) if u["share"] >= OUTSIDE_REPORTED]
+    if outside:
+        which += " — of it, a joint torque no catalogue effect explains at " + "; ".join(
+            f"{u['joint']} ({u['share']:.0%}: {u['torque_at_center']:.3g} Nm at q = {u['position_center']:.3g} rad, "
+            f"stiffness {u['stiffness']:.3g} Nm/rad)" for u in outside)
     s = result["shrink"]
     far = (f"How far: on held-out data the gap shrinks by {s['ratio']:.0%} "
            f"(noise-normalised RMS {s['heldout_rms_nominal']:.3g} → {s['heldout_rms_with_effects']:.3g})")
@@ -223,6 +232,11 @@ def render_report(robot, result: dict, series: dict, rows_ho, selection) -> str:
                     + "</li>" for s in result["selection"]["steps"])
     d = result["data"]
     s = result["shrink"]
+    outside_rows = "".join(
+        f"<tr><td>&nbsp;&nbsp;of it: joint torque outside the catalogue</td><td>{e(u['joint'])}</td>"
+        f"<td>{u['torque_at_center']:.3g} Nm at q = {u['position_center']:.3g} rad, stiffness {u['stiffness']:.3g} Nm/rad; "
+        f"position-dependent part {u['torque_position_dependent_rms']:.3g} Nm RMS</td><td>{u['share']:.1%}</td><td></td></tr>"
+        for u in result.get("unexplained_localised", []) if u["share"] >= OUTSIDE_REPORTED)
     return f"""<!DOCTYPE html>
 <html><head><meta charset="utf-8"><title>CIML gap diagnosis</title>
 <style>body{{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em}}
@@ -241,7 +255,7 @@ catalogue effect explains; share: of the error above the noise level.</p>
 <h2>2. Which unmodelled effect causes it?</h2>
 <table><tr><th>effect</th><th>where</th><th>parameters ± std</th><th>share</th>
 <th>confidence (parameter spread across contact configurations, bags, sliding speeds)</th></tr>{rows}
-<tr><td colspan=3>unexplained (no candidate explains it)</td><td>{result['unexplained_share']:.1%}</td><td></td></tr></table>
+<tr><td colspan=3>unexplained (no candidate explains it)</td><td>{result['unexplained_share']:.1%}</td><td></td></tr>{outside_rows}</table>
 <img src="{figs['which']}" style="max-width:100%">
 <p>Selection on held-out data ({len(eff)} of {result['selection']['candidates']} candidates kept):</p><ul>{steps}</ul>
 <h2>3. How far does it shrink?</h2>

@@ -127,6 +127,27 @@ def _effect_entry(cand, params: dict, std: dict, share: float, spread: float) ->
     return e
 
 
+def _unmodelled_entry(layout: FeatureLayout, dataset, samples: np.ndarray, cand, coefficients: np.ndarray,
+                      share: float) -> dict:
+    """A joint torque outside the catalogue (identification.py): where, its share of the gap (part of
+    unexplained_share), the torque it exerts on the joint at the joint's mean position q̄
+    (`position_center`), its stiffness there (k: the exerted torque falls by k per rad, a spring's
+    k; the model error e is minus the exerted torque) and the RMS of its position-dependent part
+    over the identification samples."""
+    from .candidates import generic_joint_basis
+
+    j = layout.robot.joint_names.index(cand.joint)
+    basis = generic_joint_basis(dataset.log.q[samples, 7:], layout, None)[:, j]
+    varying = basis[:, 1:] @ coefficients[1:]
+    return {"joint": cand.joint, "share": float(share),
+            "position_center": float(layout.q_center[j]),
+            "torque_at_center": float(-coefficients[0]),
+            "stiffness": float(coefficients[1] / layout.q_scale[j]),
+            "torque_position_dependent_rms": float(np.std(varying)),
+            "description": "a position-dependent joint torque at this joint that no catalogue effect explains "
+                           "(e.g. a spring, a cable); in unexplained_share, not an effect"}
+
+
 def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str] | None = None,
              out_dir: str | None = None, progress: bool = True, report: bool = True) -> dict:
     """Run the diagnosis; write DIR/diagnosis.json (atomically) and DIR/report.html if out_dir."""
@@ -150,7 +171,8 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     else:
         ds_ho = ds_id
         id_idx, ho_idx, how = split_heldout(ds_id)
-    layout = FeatureLayout(robot, link_inertias(robot))
+    q_id = ds_id.log.q[id_idx, 7:]  # the probe's position scale: the identification data's own range
+    layout = FeatureLayout(robot, link_inertias(robot), q_center=q_id.mean(axis=0), q_scale=q_id.std(axis=0))
     _say(progress, f"regressors of {len(layout.candidates)} candidate effects")
     rows_id = build_rows(robot, layout, ds_id, id_idx, progress=progress, desc="regressors (identification)")
     rows_ho = build_rows(robot, layout, ds_ho, ho_idx, progress=progress, desc="regressors (held-out)")
@@ -168,7 +190,7 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     params_all = physical_parameters(sel.model)
     nb = sel.n_baseline
     baseline = sel.model.part(sel.model.candidates[:nb])
-    effects_model = sel.model.part(sel.effects)
+    effects_model = sel.model.part([c for c in sel.effects if c.in_catalogue])
     _say(progress, "localisation and shrink")
     # the gap is what remains after the baseline (command-update sampling): correct the rows by it
     corr_id, corr_ho = corrected_rows(rows_id, baseline), corrected_rows(rows_ho, baseline)
@@ -183,10 +205,13 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
                        "heldout_rms_after_baseline": raw["heldout_rms_with_effects"]}
     # shares: drop-one costs of the selection plus what each friction's stiction estimate removes
     shares = [sh + res.stiction_gain.get(c.label, 0.0) / sel.nominal_ss for c, sh in zip(sel.effects, sel.shares)]
-    unexplained = 1.0 - sum(shares) if shares else 1.0
-    effects = [_effect_entry(c, p, s, sh, sp)
-               for c, p, s, sh, sp in zip(sel.effects, params_all[nb:], std_all[nb:], shares, sel.spread)]
+    found = list(zip(sel.effects, params_all[nb:], std_all[nb:], shares, sel.spread))
+    effects = [_effect_entry(c, p, s, sh, sp) for c, p, s, sh, sp in found if c.in_catalogue]
     effects.sort(key=lambda e: -e["share"])
+    # what the out-of-catalogue probe explains stays unexplained, localised at its joint
+    unexplained = 1.0 - sum(e["share"] for e in effects)
+    outside = [_unmodelled_entry(layout, ds_id, id_idx, c, sel.model.params_of(c), sh)
+               for c, _, _, sh, _ in found if not c.in_catalogue]
     names = dimension_names(robot)
     result = {
         "format_version": FORMAT_VERSION,
@@ -202,6 +227,7 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
                            "every model; the gap is what remains after it.",
         },
         "unexplained_share": float(max(0.0, unexplained)),
+        "unexplained_localised": outside,
         "shrink": shr,
         "data": {
             "bags": bags,

@@ -166,6 +166,9 @@ def score_case(truth_effects: Sequence[dict], diagnosis: dict, all_joints: Seque
             "localised_right": any(leg in d for d in top if not d.startswith("base")),
             "named_wrong_with_confidence": bool(confident_wrong),
             "top_dimensions": top,
+            # the out-of-catalogue probe's joint with the largest share (diagnosis.json unexplained_localised)
+            "unexplained_joint": max(diagnosis.get("unexplained_localised", []), key=lambda u: u["share"],
+                                     default={}).get("joint"),
         }
     return out
 
@@ -221,7 +224,7 @@ def summarise(cases: list[dict]) -> dict:
         "failed_cases": sum(1 for c in cases if "error" in c),
         "in_catalogue_effects": len(rows),
         "named_right_fraction": (sum(r["type_right"] and r["location_right"] for r in rows) / len(rows)) if rows else None,
-        "cases_with_spurious_effect": sum(1 for c in cases if c.get("spurious")),
+        "cases_with_spurious_effect": sum(1 for c in in_cat if c.get("spurious")),  # in-catalogue cases
         "median_param_rel_error": float(np.median(rel)) if rel else None,
         "median_heldout_shrink": float(np.median(shrink)) if shrink else None,
         "min_heldout_shrink": float(np.min(shrink)) if shrink else None,
@@ -248,6 +251,8 @@ def table(cases: list[dict]) -> str:
         if "out_of_catalogue" in c:
             o = c["out_of_catalogue"]
             named = f"unexplained: {'yes' if o['unexplained_large'] else 'no'}, leg: {'yes' if o['localised_right'] else 'no'}"
+            if o.get("unexplained_joint"):
+                named += f", at {o['unexplained_joint']}"
         else:
             named = f"{sum(r['type_right'] and r['location_right'] for r in c['effects'])}/{len(c['effects'])}"
         rel = [r["param_rel_error"] for r in c.get("effects", []) if r["param_rel_error"] is not None]

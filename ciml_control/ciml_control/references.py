@@ -21,7 +21,11 @@ Motions (step lengths are the displacement per gait cycle, as in the paper):
   first) swing back to back while the CoM rests in the intersection of their two
   support triangles (with a margin), the base shifts only while all four feet stand.
 - `trot_*`: diagonal pairs swing together, short four-foot support at each switch; the
-  base moves at constant velocity after a C² velocity ramp.
+  base moves at constant velocity after a C² velocity ramp, plus a small lateral sway that
+  keeps the zero-moment point on the line of the two stance feet (trot_sway: with two
+  feet on a line no joint torque produces a moment about it, so a straight-line base path
+  asks the contacts for a moment they cannot give, up to m·g times the CoM's distance from
+  the line — the sway lets gravity and inertia cancel it instead; a few millimetres).
 Every gait starts with a settle phase (all feet down) in which the base moves from the
 standing pose to the pose that puts the CoM over the centre of the feet.
 
@@ -278,6 +282,18 @@ class LegIK:
         return q, v, a
 
 
+def _hermite(s: float, d: float, y0: float, v0: float, y1: float, v1: float) -> tuple[float, float, float]:
+    """Cubic Hermite from (y0, v0) to (y1, v1) over [0, d], at s: value and two derivatives."""
+    x = s / d
+    h00, h10, h01, h11 = 2 * x ** 3 - 3 * x ** 2 + 1, x ** 3 - 2 * x ** 2 + x, -2 * x ** 3 + 3 * x ** 2, x ** 3 - x ** 2
+    d00, d10, d01, d11 = 6 * x ** 2 - 6 * x, 3 * x ** 2 - 4 * x + 1, -6 * x ** 2 + 6 * x, 3 * x ** 2 - 2 * x
+    e00, e10, e01, e11 = 12 * x - 6, 6 * x - 4, -12 * x + 6, 6 * x - 2
+    y = h00 * y0 + h10 * d * v0 + h01 * y1 + h11 * d * v1
+    dy = (d00 * y0 + d10 * d * v0 + d01 * y1 + d11 * d * v1) / d
+    ddy = (e00 * y0 + e10 * d * v0 + e01 * y1 + e11 * d * v1) / d ** 2
+    return y, dy, ddy
+
+
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
@@ -307,6 +323,7 @@ class Reference:
         self.base_rpy0 = pin.rpy.matrixToRpy(pin.Quaternion(self.q_stand[3:7]).matrix())
         com = pin.centerOfMass(robot.model, data, self.q_stand)
         self.com_offset = com[:2] - self.base_p0[:2]  # CoM relative to the base, world xy
+        self.com_height = float(com[2] - self.feet0[:, 2].mean())  # above the feet [m]
 
     # subclasses provide these
     def base(self, t: float) -> BaseState:
@@ -400,6 +417,8 @@ class GaitReference(Reference):
         self.stance_time = s.period - self.swing_time
         self._footholds: dict[tuple[int, int], tuple[float, float, float]] = {}
         self._targets: dict[tuple[int, int], tuple[float, float]] = {}
+        self._sway: dict[int, tuple[float, float, float, float, float]] = {}
+        self.lateral = np.array([-self.direction[1], self.direction[0]])
 
     # nominal progression of the CoM along the direction of travel
     def progression(self, t: float) -> tuple[float, float, float]:
@@ -459,7 +478,7 @@ class GaitReference(Reference):
             a[i, 2] += h * ddb / T ** 2
         return p, v, a, contacts
 
-    def base(self, t: float) -> BaseState:
+    def base(self, t: float, sway: bool = True) -> BaseState:
         rpy = self.base_rpy0.copy()
         zero = np.zeros(3)
         if self.spec.kind == "trot" or t < self.t0:
@@ -472,6 +491,11 @@ class GaitReference(Reference):
                 p[:2] += x * self.direction
                 dp[:2] += dx * self.direction
                 ddp[:2] += ddx * self.direction
+                if sway:
+                    y, dy, ddy = self.trot_sway(t)
+                    p[:2] += y * self.lateral
+                    dp[:2] += dy * self.lateral
+                    ddp[:2] += ddy * self.lateral
             return BaseState(p, dp, ddp, rpy, zero, zero)
         # static walk: two shifts per cycle, CoM held in the support region during swings
         tc = t - self.t0
@@ -487,6 +511,102 @@ class GaitReference(Reference):
         dp[:2] = dw / WALK_SHIFT * (target - prev)
         ddp[:2] = ddw / WALK_SHIFT ** 2 * (target - prev)
         return BaseState(p, dp, ddp, rpy, zero, zero)
+
+    def trot_sway(self, t: float) -> tuple[float, float, float]:
+        """Lateral base offset y (along `lateral`) and its derivatives for the trot.
+
+        While one diagonal pair stands alone (the other swings, T = TROT_SWING), the contact
+        forces of the two feet have no moment about the line through them, so the whole body's
+        moment about that line, M = u·[(c − p)×(m c̈ − m g) + L̇_G] (c the CoM, L_G the
+        centroidal angular momentum, Pinocchio), must vanish. A lateral shift y of the CoM
+        changes M by K (y − ÿ/ω²) (K = m g u·(lateral × e_z), ω² = g/h, h the CoM height: the
+        linear inverted pendulum), so y − ÿ/ω² = L(τ) = −M₀(τ)/K with M₀ the moment of the
+        straight path (sampled, cubic in τ over the interval). Of its solutions (a particular
+        cubic plus A cosh ωτ + B sinh ωτ) the sway takes the periodic orbit of the two pairs:
+        position and velocity continuous through the four-foot support between intervals,
+        which a cubic Hermite bridges. While the gait speeds up it is not periodic: the sway
+        fades in over the cycle after the velocity ramp (quintic factor)."""
+        fade, dfade, ddfade = quintic((t - self.t0 - self.t_ramp) / self.period)
+        if fade <= 0.0:
+            return 0.0, 0.0, 0.0
+        P = self.period
+        tc = t - self.t0
+        half = 0.5 * P
+        k = int(math.floor(tc / half))  # interval k: [k·P/2, k·P/2 + TROT_SWING] after t0
+        tin = tc - k * half
+        if tin <= TROT_SWING:
+            y, dy, ddy = self._sway_interval(k, tin - 0.5 * TROT_SWING)
+        else:  # four-foot support: cubic Hermite from the end of interval k to the start of k + 1
+            y0, v0, _ = self._sway_interval(k, 0.5 * TROT_SWING)
+            y1, v1, _ = self._sway_interval(k + 1, -0.5 * TROT_SWING)
+            y, dy, ddy = _hermite(tin - TROT_SWING, half - TROT_SWING, y0, v0, y1, v1)
+        dfade, ddfade = dfade / P, ddfade / P ** 2
+        return fade * y, fade * dy + dfade * y, fade * ddy + 2 * dfade * dy + ddfade * y
+
+    def _sway_interval(self, k: int, tau: float) -> tuple[float, float, float]:
+        """(y, ẏ, ÿ) at τ from the middle of two-foot interval k."""
+        if k not in self._sway:
+            self._sway[k] = self._sway_coefficients(k)
+        b, A, B, w = self._sway[k]
+        sh, ch = math.sinh(w * tau), math.cosh(w * tau)
+        y = b[0] + tau * (b[1] + tau * (b[2] + tau * b[3])) + A * ch + B * sh
+        dy = b[1] + tau * (2 * b[2] + 3 * tau * b[3]) + w * (A * sh + B * ch)
+        ddy = 2 * b[2] + 6 * tau * b[3] + w * w * (A * ch + B * sh)
+        return y, dy, ddy
+
+    def _sway_particular(self, k: int) -> np.ndarray:
+        """Cubic b (y_p − y_p''/ω² = L, L = −M₀/K sampled on two-foot interval k; trot_sway)."""
+        T = TROT_SWING
+        w2 = 9.81 / self.com_height
+        t_mid = self.t0 + 0.5 * k * self.period + 0.5 * T
+        swinging = 0.0 if k % 2 == 0 else 0.5 * self.period
+        stance = [i for i in range(self.robot.n_feet) if abs(self.swing_offset[i] - swinging) > 1e-9]
+        feet = np.array([self.foothold(i, self._swing_index(i, t_mid)[0]) for i in stance])
+        u = (feet[1] - feet[0]) / np.linalg.norm(feet[1] - feet[0])
+        model = self.robot.model
+        data = model.createData()
+        mg = pin.computeTotalMass(model) * 9.81
+        K = mg * float(u @ np.cross([self.lateral[0], self.lateral[1], 0.0], [0.0, 0.0, 1.0]))
+        if abs(K) < 0.2 * mg:  # the line runs along `lateral`: no lateral sway helps
+            return np.zeros(4)
+        taus = np.linspace(-0.5 * T, 0.5 * T, 7)
+        L = np.zeros(len(taus))
+        ik = LegIK(self.robot, self.q_stand)
+        for n, tau in enumerate(taus):
+            fp, fv, fa, _ = self.feet(t_mid + tau)
+            q, v, a = ik.solve(self.base(t_mid + tau, sway=False), fp, fv, fa)
+            pin.computeCentroidalMomentumTimeVariation(model, data, q, v, a)
+            c = pin.centerOfMass(model, data, q, v, a)
+            force = data.dhg.linear + np.array([0.0, 0.0, mg])
+            L[n] = -float(u @ (np.cross(c - feet[0], force) + data.dhg.angular)) / K
+        a3, a2, a1, a0 = np.polyfit(taus, L, 3)
+        return np.array([a0 + 2 * a2 / w2, a1 + 6 * a3 / w2, a2, a3])
+
+    def _sway_coefficients(self, k: int) -> tuple[np.ndarray, float, float, float]:
+        """(b, A, B, ω) of interval k on the periodic orbit it forms with its partner interval
+        (k ± 1, the other pair): y, ẏ continuous through the four-foot support (d) both ways,
+        y_j(−h) = y_k(h) + d ẏ_k(h), ẏ_j(−h) = ẏ_k(h), and the same from j to k."""
+        j = k + 1 if k % 2 == 0 else k - 1
+        w = math.sqrt(9.81 / self.com_height)
+        h = 0.5 * TROT_SWING
+        d = 0.5 * self.period - TROT_SWING
+        b = {k: self._sway_particular(k), j: self._sway_particular(j)}
+
+        def poly(c: np.ndarray, tau: float) -> tuple[float, float]:
+            return (c[0] + tau * (c[1] + tau * (c[2] + tau * c[3])), c[1] + tau * (2 * c[2] + 3 * tau * c[3]))
+
+        S, C = math.sinh(w * h), math.cosh(w * h)
+        hom = {h: np.array([[C, S], [w * S, w * C]]), -h: np.array([[C, -S], [-w * S, w * C]])}  # rows y, ẏ
+        Dt = np.array([[1.0, d], [0.0, 1.0]])  # (y, ẏ) carried through the four-foot support
+        # unknowns [A_k, B_k, A_j, B_j]: start(next) − Dt·end(this) = 0, both ways
+        M, r = np.zeros((4, 4)), np.zeros(4)
+        for row, (this, nxt) in enumerate(((k, j), (j, k))):
+            ci, cn = (0, 2) if this == k else (2, 0)
+            M[2 * row:2 * row + 2, cn:cn + 2] = hom[-h]
+            M[2 * row:2 * row + 2, ci:ci + 2] = -Dt @ hom[h]
+            r[2 * row:2 * row + 2] = Dt @ np.array(poly(b[this], h)) - np.array(poly(b[nxt], -h))
+        A_k, B_k, _, _ = np.linalg.solve(M, r)
+        return b[k], float(A_k), float(B_k), w
 
     def walk_target(self, n: int, half: int) -> tuple[float, float]:
         """Base xy held during the two swings of side `half` in walk cycle n (cached)."""

@@ -3,8 +3,15 @@
 A ModelSet holds one independent learner per output dimension (paper §III-D):
 
 - 18 rigid-body models of the contact-invariant error Φ̃' (base wrench, then x/y/z of
-  each foot; names robot.rbd_error_names), inputs x of eq. (12): roll, pitch, joint
-  positions, q̇, q̈ (50 for HyQ; names extraction.learning_input_names);
+  each foot; names robot.rbd_error_names). The base wrench models take the whole input x
+  of eq. (12): roll, pitch, joint positions, q̇, q̈ (50 for HyQ; names
+  extraction.learning_input_names). A foot's models take roll, pitch and its own leg's
+  q, q̇, q̈ (11; rbd_input_names): a foot's entries are observed only while it swings,
+  where they hold the swing leg's own error — with the other legs' joints as inputs a
+  model learns the gait those legs happened to walk, and mispredicts on any other gait
+  (measured with LWPR trained as in tools/experiment.py, 20 s closed loop of the rear
+  walk on the default gap: feedback effort 16 % above nominal with all 50 inputs, 25 %
+  below with the leg's own);
 - 12 actuation models of Γ = τ − u (eq. 14), one per joint i (robot.joint_names), inputs
   (q_i, q̇_i, q̈_i) — the columns "q_<joint>", "qd_<joint>", "qdd_<joint>" of x.
 
@@ -70,7 +77,8 @@ import numpy as np
 from .errors import CimlError
 from .learners import Learner, LearnerError, learner_class
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""2: per-dimension input selection (rbd_input_names); version 1 files are refused."""
 MODEL_JSON = "model.json"
 MODEL_NPZ = "model.npz"
 KIND = "ciml_model_set"
@@ -78,16 +86,16 @@ KERNELS = {"lwpr": "gaussian_receptive_fields", "sgpr": "matern32_ard"}
 
 DEFAULT_PARAMS: dict[str, dict[str, dict[str, Any]]] = {
     # Hyper-parameters per learner and group, in standardised units (unit-variance inputs,
-    # unit-RMS outputs). RBD inputs are 50-D: a diagonal metric, at most 3 PLS projections
-    # and wide initial fields (gait data lie near low-dimensional cycles; the squared
-    # distance between two phases a tenth of a cycle apart is ~20 in 50 standardised
-    # dimensions, so D = 0.1 puts a few tens of fields along a cycle). Actuation inputs
+    # unit-RMS outputs). RBD inputs are 50-D (base) or 11-D (feet): a diagonal metric, at
+    # most 3 PLS projections and wide initial fields (gait data lie near low-dimensional
+    # cycles; D = 0.8 puts a few tens of fields along a cycle and generalised best to new
+    # gaits among 0.05–2 in closed loop, rear/side walks and trot). Actuation inputs
     # are 3-D: a full metric. Offline fit() visits the samples in random order (shuffle;
     # LWPR assumes no ordering, and time-ordered gait data otherwise drift the fields);
     # online partial_fit() takes them as they come. The sparse GP fits its hyper-parameters
     # on 1,500 random samples per dimension (learners/sgpr.py explains why).
     "lwpr": {
-        "rbd": {"init_D": 0.2, "diag_only": True, "init_alpha": 10.0, "w_gen": 0.1, "w_prune": 0.95,
+        "rbd": {"init_D": 0.8, "diag_only": True, "init_alpha": 10.0, "w_gen": 0.1, "w_prune": 0.95,
                 "max_projections": 3, "penalty": 1e-6, "max_rfs": 1500, "n_epochs": 1, "shuffle": True},
         "actuation": {"init_D": 10.0, "diag_only": False, "init_alpha": 50.0, "w_gen": 0.2, "w_prune": 0.95,
                       "penalty": 1e-6, "max_rfs": 400, "n_epochs": 2, "shuffle": True},
@@ -125,6 +133,24 @@ class Prediction:
 def actuation_input_names(joint: str) -> tuple[str, str, str]:
     """Names of joint i's actuation-model inputs among the learning inputs (q_i, q̇_i, q̈_i)."""
     return (f"q_{joint}", f"qd_{joint}", f"qdd_{joint}")
+
+
+def rbd_input_names(robot) -> dict[str, tuple[str, ...]]:
+    """Inputs of each rigid-body model (module docstring): all learning inputs for the base
+    wrench, roll, pitch and the leg's own q, q̇, q̈ for a foot's entries."""
+    from .extraction import learning_input_names
+
+    names = tuple(learning_input_names(robot))
+    out = {}
+    for d in robot.rbd_error_names[:6]:
+        out[d] = names
+    for f, leg in enumerate(robot.leg_joints):
+        own = ("base_roll", "base_pitch") + tuple(
+            n for j in leg for n in actuation_input_names(robot.joint_names[j]))
+        own = tuple(sorted(own, key=names.index))
+        for d in robot.rbd_error_names[6 + 3 * f:9 + 3 * f]:
+            out[d] = own
+    return out
 
 
 def default_scaling(robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -168,14 +194,16 @@ class ModelSet:
     """18 rigid-body + n_j actuation models of the model error (module docstring).
 
     Attributes (after construction): learner, input_names, rbd_names, joint_names,
-    foot_frames, rbd_params, actuation_params, actuation_input_index (n_j × 3).
+    foot_frames, rbd_params, actuation_params, rbd_inputs (rbd name → its input names;
+    None: all), input_index (per output dimension, its columns of x).
     Learned/calibrated state: input_mean_, input_scale_, output_scale_ (18 + n_j),
     models_ (list of Learner or None, RBD dimensions first), n_samples_ (per dimension),
     training_ (dict of provenance written to model.json).
     """
 
     def __init__(self, learner: str, input_names, rbd_names, joint_names, foot_frames,
-                 rbd_params: dict | None = None, actuation_params: dict | None = None) -> None:
+                 rbd_params: dict | None = None, actuation_params: dict | None = None,
+                 rbd_inputs: dict | None = None) -> None:
         self.learner = learner
         cls = learner_class(learner)
         self.input_names = tuple(input_names)
@@ -188,11 +216,15 @@ class ModelSet:
         for p in (self.rbd_params, self.actuation_params):
             cls.from_params(p)  # validates names and values now, not after an hour of training
         index = {n: i for i, n in enumerate(self.input_names)}
+        everything = tuple(self.input_names)
+        self.rbd_inputs = {d: tuple((rbd_inputs or {}).get(d, everything)) for d in self.rbd_names}
         try:
-            self.actuation_input_index = np.array(
-                [[index[n] for n in actuation_input_names(j)] for j in self.joint_names], dtype=np.int64)
-        except KeyError as err:
-            raise ModelSetError(f"learning inputs lack actuation input {err}") from None
+            self.input_index = [np.array([index[n] for n in self.rbd_inputs[d]], dtype=np.int64)
+                                for d in self.rbd_names]
+            self.input_index += [np.array([index[n] for n in actuation_input_names(j)], dtype=np.int64)
+                                 for j in self.joint_names]
+        except (KeyError, TypeError) as err:
+            raise ModelSetError(f"a model's input {err} is not a learning input") from None
         n_in = len(self.input_names)
         self.input_mean_ = np.zeros(n_in)
         self.input_scale_ = np.ones(n_in)
@@ -208,7 +240,7 @@ class ModelSet:
         from .extraction import learning_input_names
 
         ms = cls(learner, learning_input_names(robot), robot.rbd_error_names, robot.joint_names,
-                 robot.foot_frames, rbd_params, actuation_params)
+                 robot.foot_frames, rbd_params, actuation_params, rbd_input_names(robot))
         ms.input_mean_, ms.input_scale_, ms.output_scale_ = default_scaling(robot)
         return ms
 
@@ -289,9 +321,7 @@ class ModelSet:
         return (np.asarray(X, dtype=float) - self.input_mean_) / self.input_scale_
 
     def _dim_inputs(self, i: int, Xs: np.ndarray) -> np.ndarray:
-        if i < self.n_rbd:
-            return Xs
-        return Xs[..., self.actuation_input_index[i - self.n_rbd]]
+        return Xs[..., self.input_index[i]]
 
     # ------------------------------------------------------------------ learning
     def fit(self, X, rbd_error, rbd_observed, actuation_error, valid=None, n_jobs: int = 1,
@@ -365,10 +395,9 @@ class ModelSet:
                 if not rbd_observed[i]:
                     continue
                 y = rbd_error[i]
-                xi = xs
             else:
                 y = actuation_error[i - n_rbd]
-                xi = xs[self.actuation_input_index[i - n_rbd]]
+            xi = xs[self.input_index[i]]
             if not np.isfinite(y):
                 continue
             model = self.models_[i]
@@ -415,8 +444,7 @@ class ModelSet:
             if model is None:
                 var[i] = s * s
                 continue
-            xi = xs if i < n_rbd else xs[self.actuation_input_index[i - n_rbd]]
-            m, sd = model.predict_one(xi)
+            m, sd = model.predict_one(xs[self.input_index[i]])
             mean[i] = m * s
             var[i] = (sd * s) ** 2
         return mean[:n_rbd], var[:n_rbd], mean[n_rbd:], var[n_rbd:]
@@ -449,6 +477,7 @@ class ModelSet:
             "kernel": KERNELS[self.learner],
             "params": {"rbd": self.rbd_params, "actuation": self.actuation_params},
             "inputs": {"names": list(self.input_names),
+                       "rbd": {d: list(self.rbd_inputs[d]) for d in self.rbd_names},
                        "actuation": {j: list(actuation_input_names(j)) for j in self.joint_names}},
             "outputs": {"rbd": list(self.rbd_names), "actuation": list(self.joint_names),
                         "units": {"rbd": "N (forces), Nm (base torques)", "actuation": "Nm"}},
@@ -493,7 +522,8 @@ class ModelSet:
             raise ModelFileError(f"{model_dir}/{MODEL_NPZ} is not a readable npz ({err})") from None
         try:
             ms = cls(meta["learner"], meta["inputs"]["names"], meta["outputs"]["rbd"], meta["outputs"]["actuation"],
-                     meta["robot"]["foot_frames"], meta["params"]["rbd"], meta["params"]["actuation"])
+                     meta["robot"]["foot_frames"], meta["params"]["rbd"], meta["params"]["actuation"],
+                     meta["inputs"]["rbd"])
         except KeyError as err:
             raise ModelFileError(f"{model_dir}/{MODEL_JSON} lacks {err}") from None
         except (TypeError, AttributeError, ValueError) as err:
@@ -528,7 +558,7 @@ class ModelSet:
                 if not state:
                     raise ModelFileError(f"{model_dir}/{MODEL_NPZ}: no arrays for dimension {entry.get('name')}")
                 model = cls_.from_state(ms._params(i), state)
-                expected = len(ms.input_names) if i < ms.n_rbd else 3
+                expected = len(ms.input_index[i])
                 if model.n_features_in_ != expected:
                     raise ModelFileError(f"{model_dir}: dimension {entry.get('name')} has {model.n_features_in_} "
                                          f"inputs, expected {expected}")

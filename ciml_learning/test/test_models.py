@@ -12,6 +12,7 @@ import pytest
 from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
 from ciml_learning.extraction import combined_error, learning_inputs
 from ciml_learning.models import (
+    FORMAT_VERSION,
     MODEL_JSON,
     MODEL_NPZ,
     EpsilonFunction,
@@ -131,7 +132,7 @@ def test_save_load_identical_predictions(which, lwpr_set, sgpr_set, data, tmp_pa
     assert sorted(os.listdir(out)) == [MODEL_JSON, MODEL_NPZ]
     with open(os.path.join(out, MODEL_JSON)) as f:
         on_disk = json.load(f)
-    assert on_disk["format_version"] == 1 and on_disk["learner"] == which
+    assert on_disk["format_version"] == FORMAT_VERSION and on_disk["learner"] == which
     assert on_disk["kernel"] in ("gaussian_receptive_fields", "matern32_ard")
     assert on_disk["robot"]["joint_names"] == list(ROBOT.joint_names)
     assert on_disk["outputs"]["rbd"] == list(ROBOT.rbd_error_names)
@@ -177,7 +178,7 @@ def test_tampered_truncated_and_wrong_version_files_are_refused(lwpr_set, tmp_pa
     one_line_error(variant("tampered", bytes(tampered)), "checksum")
     one_line_error(variant("truncated_npz", npz_bytes[: len(npz_bytes) // 3]), "checksum")
     one_line_error(variant("truncated_json", meta_text=json.dumps(meta)[:200]), "not valid JSON")
-    one_line_error(variant("v2", meta_obj={**meta, "format_version": 2}), "format_version 2")
+    one_line_error(variant("v1", meta_obj={**meta, "format_version": 1}), "format_version 1")
     one_line_error(variant("learner", meta_obj={**meta, "learner": "GPy.core.GP"}), "unknown learner")
     # a consistent checksum does not make a malformed file acceptable
     import hashlib

@@ -417,7 +417,10 @@ class GaitReference(Reference):
         self.stance_time = s.period - self.swing_time
         self._footholds: dict[tuple[int, int], tuple[float, float, float]] = {}
         self._targets: dict[tuple[int, int], tuple[float, float]] = {}
-        self._sway: dict[int, tuple[float, float, float, float, float]] = {}
+        self._sway: dict[int, tuple[np.ndarray, float, float, float]] = {}
+        self._sway_b: dict[int, np.ndarray] = {}  # particular cubic per interval
+        self._sway_ik: LegIK | None = None
+        self._sway_data = None
         self.lateral = np.array([-self.direction[1], self.direction[0]])
 
     # nominal progression of the CoM along the direction of travel
@@ -564,14 +567,16 @@ class GaitReference(Reference):
         feet = np.array([self.foothold(i, self._swing_index(i, t_mid)[0]) for i in stance])
         u = (feet[1] - feet[0]) / np.linalg.norm(feet[1] - feet[0])
         model = self.robot.model
-        data = model.createData()
+        if self._sway_ik is None:  # its own IK and data: the reference's warm starts stay untouched
+            self._sway_ik = LegIK(self.robot, self.q_stand)
+            self._sway_data = model.createData()
+        ik, data = self._sway_ik, self._sway_data
         mg = pin.computeTotalMass(model) * 9.81
         K = mg * float(u @ np.cross([self.lateral[0], self.lateral[1], 0.0], [0.0, 0.0, 1.0]))
         if abs(K) < 0.2 * mg:  # the line runs along `lateral`: no lateral sway helps
             return np.zeros(4)
         taus = np.linspace(-0.5 * T, 0.5 * T, 7)
         L = np.zeros(len(taus))
-        ik = LegIK(self.robot, self.q_stand)
         for n, tau in enumerate(taus):
             fp, fv, fa, _ = self.feet(t_mid + tau)
             q, v, a = ik.solve(self.base(t_mid + tau, sway=False), fp, fv, fa)
@@ -590,7 +595,10 @@ class GaitReference(Reference):
         w = math.sqrt(9.81 / self.com_height)
         h = 0.5 * TROT_SWING
         d = 0.5 * self.period - TROT_SWING
-        b = {k: self._sway_particular(k), j: self._sway_particular(j)}
+        for i in (k, j):
+            if i not in self._sway_b:
+                self._sway_b[i] = self._sway_particular(i)
+        b = {k: self._sway_b[k], j: self._sway_b[j]}
 
         def poly(c: np.ndarray, tau: float) -> tuple[float, float]:
             return (c[0] + tau * (c[1] + tau * (c[2] + tau * c[3])), c[1] + tau * (2 * c[2] + 3 * tau * c[3]))

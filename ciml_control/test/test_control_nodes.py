@@ -89,7 +89,8 @@ def test_id_controller_commands_limited_torque_and_damps_without_state():
             pubs["/reference"].publish(reference_msg(ROBOT, ns, ref))
             pubs["/base_state"].publish(cv.odometry_msg(ns, q_stand[:3], q_stand[3:7], np.zeros(3), np.zeros(3)))
             pubs["/contact_state"].publish(cv.contact_state_msg(ROBOT, ns, np.ones(4, bool)))
-            if k == 100:  # a non-finite sample is dropped, never used
+            if k in (100, 150, 200):  # a non-finite sample is dropped, never used (three: a loaded
+                # machine may drop one of them from the best-effort queue before the node reads it)
                 bad = cv.joint_state_msg(ROBOT, ns, qj, np.zeros(ROBOT.n_joints), np.zeros(ROBOT.n_joints))
                 bad.position[3] = float("nan")
                 pubs["/joint_states"].publish(bad)

@@ -86,27 +86,35 @@ KERNELS = {"lwpr": "gaussian_receptive_fields", "sgpr": "matern32_ard"}
 
 DEFAULT_PARAMS: dict[str, dict[str, dict[str, Any]]] = {
     # Hyper-parameters per learner and group, in standardised units (unit-variance inputs,
-    # unit-RMS outputs). RBD inputs are 50-D (base) or 11-D (feet): a diagonal metric, at
-    # most 3 PLS projections and wide initial fields (gait data lie near low-dimensional
-    # cycles; D = 0.8 puts a few tens of fields along a cycle and generalised best to new
-    # gaits among 0.05–2 in closed loop, rear/side walks and trot). Actuation inputs
+    # unit-RMS outputs). Groups: "rbd" the base wrench models (50-D inputs), "foot" a foot's
+    # models (11-D), "actuation". RBD: a diagonal metric, at most 3 PLS projections and wide
+    # initial fields (gait data lie near low-dimensional cycles; the squared distance between
+    # two phases a tenth of a cycle apart is ~20 in 50 standardised dimensions, so D = 0.2
+    # puts a few tens of fields along a cycle; in 11-D, D = 0.8 does, and generalised best to
+    # new gaits among 0.2–2 in closed loop: rear/side walks, trot). Actuation inputs
     # are 3-D: a full metric. Offline fit() visits the samples in random order (shuffle;
     # LWPR assumes no ordering, and time-ordered gait data otherwise drift the fields);
     # online partial_fit() takes them as they come. The sparse GP fits its hyper-parameters
     # on 1,500 random samples per dimension (learners/sgpr.py explains why).
     "lwpr": {
-        "rbd": {"init_D": 0.8, "diag_only": True, "init_alpha": 10.0, "w_gen": 0.1, "w_prune": 0.95,
+        "rbd": {"init_D": 0.2, "diag_only": True, "init_alpha": 10.0, "w_gen": 0.1, "w_prune": 0.95,
                 "max_projections": 3, "penalty": 1e-6, "max_rfs": 1500, "n_epochs": 1, "shuffle": True},
+        "foot": {"init_D": 0.8, "diag_only": True, "init_alpha": 10.0, "w_gen": 0.1, "w_prune": 0.95,
+                 "max_projections": 3, "penalty": 1e-6, "max_rfs": 1500, "n_epochs": 1, "shuffle": True},
         "actuation": {"init_D": 10.0, "diag_only": False, "init_alpha": 50.0, "w_gen": 0.2, "w_prune": 0.95,
                       "penalty": 1e-6, "max_rfs": 400, "n_epochs": 2, "shuffle": True},
     },
     "sgpr": {
         "rbd": {"n_inducing": 250, "n_hyper_samples": 1500, "max_iters": 80},
+        "foot": {"n_inducing": 250, "n_hyper_samples": 1500, "max_iters": 80},
         "actuation": {"n_inducing": 100, "n_hyper_samples": 1500, "max_iters": 100},
     },
 }
 """Default hyper-parameters (paper: 250 inducing inputs per RBD and 100 per actuation
-dimension). Override per group with ModelSet(..., rbd_params=..., actuation_params=...)."""
+dimension). Override per group with ModelSet(..., rbd_params=..., actuation_params=...,
+foot_params=...)."""
+N_BASE = 6
+"""The first rigid-body dimensions: the base wrench (group "rbd"); the others are the feet's."""
 
 MIN_SAMPLES = 10
 """A dimension with fewer usable samples than this keeps no model (zero error)."""
@@ -194,7 +202,7 @@ class ModelSet:
     """18 rigid-body + n_j actuation models of the model error (module docstring).
 
     Attributes (after construction): learner, input_names, rbd_names, joint_names,
-    foot_frames, rbd_params, actuation_params, rbd_inputs (rbd name → its input names;
+    foot_frames, rbd_params (base wrench), foot_params, actuation_params, rbd_inputs (rbd name → its input names;
     None: all), input_index (per output dimension, its columns of x).
     Learned/calibrated state: input_mean_, input_scale_, output_scale_ (18 + n_j),
     models_ (list of Learner or None, RBD dimensions first), n_samples_ (per dimension),
@@ -203,7 +211,7 @@ class ModelSet:
 
     def __init__(self, learner: str, input_names, rbd_names, joint_names, foot_frames,
                  rbd_params: dict | None = None, actuation_params: dict | None = None,
-                 rbd_inputs: dict | None = None) -> None:
+                 rbd_inputs: dict | None = None, foot_params: dict | None = None) -> None:
         self.learner = learner
         cls = learner_class(learner)
         self.input_names = tuple(input_names)
@@ -212,8 +220,9 @@ class ModelSet:
         self.foot_frames = tuple(foot_frames)
         defaults = DEFAULT_PARAMS[learner]
         self.rbd_params = {**defaults["rbd"], **(rbd_params or {})}
+        self.foot_params = {**defaults["foot"], **(foot_params or {})}
         self.actuation_params = {**defaults["actuation"], **(actuation_params or {})}
-        for p in (self.rbd_params, self.actuation_params):
+        for p in (self.rbd_params, self.foot_params, self.actuation_params):
             cls.from_params(p)  # validates names and values now, not after an hour of training
         index = {n: i for i, n in enumerate(self.input_names)}
         everything = tuple(self.input_names)
@@ -268,7 +277,9 @@ class ModelSet:
         return any(m is not None for m in self.models_)
 
     def _params(self, i: int) -> dict:
-        return self.rbd_params if i < self.n_rbd else self.actuation_params
+        if i < N_BASE:
+            return self.rbd_params
+        return self.foot_params if i < self.n_rbd else self.actuation_params
 
     def new_learner(self, i: int) -> Learner:
         """A fresh learner for output dimension i with its group's hyper-parameters."""
@@ -475,7 +486,7 @@ class ModelSet:
             "kind": KIND,
             "learner": self.learner,
             "kernel": KERNELS[self.learner],
-            "params": {"rbd": self.rbd_params, "actuation": self.actuation_params},
+            "params": {"rbd": self.rbd_params, "foot": self.foot_params, "actuation": self.actuation_params},
             "inputs": {"names": list(self.input_names),
                        "rbd": {d: list(self.rbd_inputs[d]) for d in self.rbd_names},
                        "actuation": {j: list(actuation_input_names(j)) for j in self.joint_names}},
@@ -523,7 +534,7 @@ class ModelSet:
         try:
             ms = cls(meta["learner"], meta["inputs"]["names"], meta["outputs"]["rbd"], meta["outputs"]["actuation"],
                      meta["robot"]["foot_frames"], meta["params"]["rbd"], meta["params"]["actuation"],
-                     meta["inputs"]["rbd"])
+                     meta["inputs"]["rbd"], meta["params"]["foot"])
         except KeyError as err:
             raise ModelFileError(f"{model_dir}/{MODEL_JSON} lacks {err}") from None
         except (TypeError, AttributeError, ValueError) as err:

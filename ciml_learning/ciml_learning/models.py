@@ -150,13 +150,13 @@ def rbd_input_names(robot) -> dict[str, tuple[str, ...]]:
 
     names = tuple(learning_input_names(robot))
     out = {}
-    for d in robot.rbd_error_names[:6]:
+    for d in robot.rbd_error_names[:N_BASE]:
         out[d] = names
     for f, leg in enumerate(robot.leg_joints):
         own = ("base_roll", "base_pitch") + tuple(
             n for j in leg for n in actuation_input_names(robot.joint_names[j]))
         own = tuple(sorted(own, key=names.index))
-        for d in robot.rbd_error_names[6 + 3 * f:9 + 3 * f]:
+        for d in robot.rbd_error_names[N_BASE + 3 * f:N_BASE + 3 * f + 3]:
             out[d] = own
     return out
 
@@ -202,8 +202,8 @@ class ModelSet:
     """18 rigid-body + n_j actuation models of the model error (module docstring).
 
     Attributes (after construction): learner, input_names, rbd_names, joint_names,
-    foot_frames, rbd_params (base wrench), foot_params, actuation_params, rbd_inputs (rbd name → its input names;
-    None: all), input_index (per output dimension, its columns of x).
+    foot_frames, rbd_params (base wrench), foot_params, actuation_params, rbd_inputs (rbd
+    name → its input names; default all), input_index (per output dimension, its columns of x).
     Learned/calibrated state: input_mean_, input_scale_, output_scale_ (18 + n_j),
     models_ (list of Learner or None, RBD dimensions first), n_samples_ (per dimension),
     training_ (dict of provenance written to model.json).
@@ -244,12 +244,12 @@ class ModelSet:
 
     @classmethod
     def for_robot(cls, robot, learner: str, rbd_params: dict | None = None,
-                  actuation_params: dict | None = None) -> "ModelSet":
+                  actuation_params: dict | None = None, foot_params: dict | None = None) -> "ModelSet":
         """An empty set for a robot, with default_scaling(robot) until calibrated."""
         from .extraction import learning_input_names
 
         ms = cls(learner, learning_input_names(robot), robot.rbd_error_names, robot.joint_names,
-                 robot.foot_frames, rbd_params, actuation_params, rbd_input_names(robot))
+                 robot.foot_frames, rbd_params, actuation_params, rbd_input_names(robot), foot_params)
         ms.input_mean_, ms.input_scale_, ms.output_scale_ = default_scaling(robot)
         return ms
 

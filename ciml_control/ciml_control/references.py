@@ -571,7 +571,7 @@ class GaitReference(Reference):
             self._sway_ik = LegIK(self.robot, self.q_stand)
             self._sway_data = model.createData()
         ik, data = self._sway_ik, self._sway_data
-        mg = pin.computeTotalMass(model) * 9.81
+        mg = self.robot.total_mass * 9.81
         K = mg * float(u @ np.cross([self.lateral[0], self.lateral[1], 0.0], [0.0, 0.0, 1.0]))
         if abs(K) < 0.2 * mg:  # the line runs along `lateral`: no lateral sway helps
             return np.zeros(4)
@@ -580,10 +580,9 @@ class GaitReference(Reference):
         for n, tau in enumerate(taus):
             fp, fv, fa, _ = self.feet(t_mid + tau)
             q, v, a = ik.solve(self.base(t_mid + tau, sway=False), fp, fv, fa)
-            pin.computeCentroidalMomentumTimeVariation(model, data, q, v, a)
-            c = pin.centerOfMass(model, data, q, v, a)
+            pin.computeCentroidalMomentumTimeVariation(model, data, q, v, a)  # also the CoM, data.com[0]
             force = data.dhg.linear + np.array([0.0, 0.0, mg])
-            L[n] = -float(u @ (np.cross(c - feet[0], force) + data.dhg.angular)) / K
+            L[n] = -float(u @ (np.cross(data.com[0] - feet[0], force) + data.dhg.angular)) / K
         a3, a2, a1, a0 = np.polyfit(taus, L, 3)
         return np.array([a0 + 2 * a2 / w2, a1 + 6 * a3 / w2, a2, a3])
 

@@ -88,3 +88,53 @@ class RigidBodyDynamics:
         M = self.data.M
         M = np.triu(M) + np.triu(M, 1).T
         return DynamicsTerms(M, self.data.nle.copy(), self._foot_jacobians())
+
+
+class ReferenceTorque:
+    """The joint torque τ_ref a reference asks for, and its rate τ̇_ref, for models of Γ(τ, τ̇).
+
+    τ_ref = (Q_uᵀSᵀ)⁺ Q_uᵀ (M q̈ + h + e): the least-norm joint torques that realise the reference
+    with its stance feet (Q_u spans null(J_cᵀ), so the contact forces drop out) — the controller's
+    QP without friction cones and weights — clipped to the torque limits. τ̇_ref is the finite
+    difference between consecutive calls: zero on the first call, after a time jump > 50 ms or
+    backwards, and across a change of the contact schedule (where τ_ref jumps and one difference
+    would be an impulse). Stateful: one instance per reference stream.
+    """
+
+    MAX_STEP = 0.05
+
+    def __init__(self, robot: RobotDescription) -> None:
+        self.robot = robot
+        self._dyn = RigidBodyDynamics(robot)
+        self._S = selection_matrix(robot)
+        self._last: tuple[float, np.ndarray, np.ndarray] | None = None
+
+    def torque(self, q: np.ndarray, v: np.ndarray, a: np.ndarray, contacts: np.ndarray,
+               e: np.ndarray | None = None) -> np.ndarray:
+        """τ_ref (n_j) at one state, given the stance feet and a model error e (nv) to realise too."""
+        from .projection import contact_jacobian
+
+        b = self._dyn.inverse_dynamics(q, v, a)
+        if e is not None:
+            b = b + e
+        Jc = contact_jacobian(self._dyn.foot_jacobians(q), contacts)
+        if Jc.shape[0]:
+            Q, _ = np.linalg.qr(Jc.T, mode="complete")
+            Qu = Q[:, Jc.shape[0]:]
+        else:
+            Qu = np.eye(self.robot.nv)
+        tau = np.linalg.lstsq(Qu.T @ self._S.T, Qu.T @ b, rcond=None)[0]
+        return np.clip(tau, -self.robot.torque_limits, self.robot.torque_limits)
+
+    def __call__(self, ref, e: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(τ_ref, τ̇_ref) at a ReferencePoint (ref.t, .q, .v, .a, .contacts; all feet down if absent)."""
+        contacts = np.asarray(getattr(ref, "contacts", np.ones(self.robot.n_feet, bool)), bool)
+        tau = self.torque(np.asarray(ref.q, float), np.asarray(ref.v, float), np.asarray(ref.a, float), contacts, e)
+        t = float(getattr(ref, "t", 0.0))
+        tau_dot = np.zeros_like(tau)
+        if self._last is not None:
+            t0, tau0, contacts0 = self._last
+            if 0 < t - t0 <= self.MAX_STEP and np.array_equal(contacts, contacts0):
+                tau_dot = (tau - tau0) / (t - t0)
+        self._last = (t, tau, contacts)
+        return tau, tau_dot

@@ -163,3 +163,30 @@ def test_learning_inputs_drop_base_position_and_yaw():
     yaw = pin.Quaternion(pin.rpy.rpyToMatrix(0, 0, 0.7) @ pin.Quaternion(q[3:7]).matrix()).coeffs()
     q2[3:7] = yaw
     np.testing.assert_allclose(learning_inputs(q2[None], v[None], a[None]), x, atol=1e-9)
+
+
+def test_reference_torque_realises_the_reference_and_differentiates_within_a_contact_phase():
+    from types import SimpleNamespace
+
+    from ciml_learning.dynamics import ReferenceTorque
+
+    rng = np.random.default_rng(5)
+    q, v = random_state(rng, spread=0.1)
+    v *= 0.1
+    a = 0.1 * rng.normal(size=ROBOT.nv)
+    contacts = np.array([True, False, True, True])
+    e = rng.normal(size=ROBOT.nv)
+    ref_torque = ReferenceTorque(ROBOT)
+    tau, tau_dot = ref_torque(SimpleNamespace(t=0.0, q=q, v=v, a=a, contacts=contacts), e)
+    assert np.all(np.abs(tau) < ROBOT.torque_limits), "the check below needs an unclipped τ"
+    assert np.all(tau_dot == 0.0)  # first call
+    # Sᵀτ realises M q̈ + h + e up to contact forces of the stance feet: the remainder lies in span(J_cᵀ)
+    dyn = RigidBodyDynamics(ROBOT)
+    Jc = contact_jacobian(dyn.foot_jacobians(q), contacts)
+    rest = selection_matrix(ROBOT).T @ tau - (dyn.inverse_dynamics(q, v, a) + e)
+    lam = np.linalg.lstsq(Jc.T, rest, rcond=None)[0]
+    assert np.allclose(Jc.T @ lam, rest, atol=1e-8 * np.abs(rest).max())
+    tau2, tau_dot2 = ref_torque(SimpleNamespace(t=0.004, q=q, v=v, a=1.1 * a, contacts=contacts), e)
+    assert np.allclose(tau_dot2, (tau2 - tau) / 0.004)
+    _, tau_dot3 = ref_torque(SimpleNamespace(t=0.008, q=q, v=v, a=a, contacts=~contacts | contacts), e)
+    assert np.all(tau_dot3 == 0.0)  # across a change of the contact schedule

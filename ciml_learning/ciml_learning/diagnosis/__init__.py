@@ -50,52 +50,21 @@ def load_epsilon_function(robot: RobotDescription, diagnosis_dir: str) -> Callab
     plus the identified effects predicts at a ReferencePoint (ref.t, ref.q, ref.v, ref.a, ref.contacts).
 
     Rigid-body effects are evaluated at (ref.q, ref.v, ref.a) (EffectModel.rbd_force). Actuation
-    effects (Γ = a τ + b − c τ̇) need the torque, unknown at the reference: τ is approximated by
-    the least-norm joint torques that realise the reference with the given stance feet,
-    τ_ref = (Q_uᵀSᵀ)⁺ Q_uᵀ (M q̈ + h + e) — the controller's QP without friction cones and
-    weights — clipped to the torque limits, and τ̇ by the finite difference of τ_ref between
-    consecutive calls (zero on the first call, after a time jump > 50 ms or backwards, and across
-    a change of the contact schedule, where τ_ref jumps and one difference would be an impulse).
+    effects (Γ = a τ + b − c τ̇) need the torque, unknown at the reference: τ and τ̇ are the
+    reference's (dynamics.ReferenceTorque, with the rigid-body effects to realise too).
     A non-finite result is replaced by zeros (the nominal model), never returned.
     """
-    import pinocchio as pin
-
-    from ..dynamics import selection_matrix
-    from ..projection import contact_jacobian
+    from ..dynamics import ReferenceTorque, selection_matrix
 
     model = load_effect_model(robot, diagnosis_dir)
     S = selection_matrix(robot)
-    data = robot.model.createData()
-    state = {"t": None, "tau": None, "contacts": None}
-
-    def tau_reference(q, v, a, contacts, e):
-        b = pin.rnea(robot.model, data, q, v, a) + e
-        pin.computeJointJacobians(robot.model, data, q)
-        pin.updateFramePlacements(robot.model, data)
-        jac = np.array([pin.getFrameJacobian(robot.model, data, f, pin.LOCAL_WORLD_ALIGNED)[:3]
-                        for f in robot.foot_frame_ids])
-        Jc = contact_jacobian(jac, contacts)
-        if Jc.shape[0]:
-            Q, _ = np.linalg.qr(Jc.T, mode="complete")
-            Qu = Q[:, Jc.shape[0]:]
-        else:
-            Qu = np.eye(robot.nv)
-        tau = np.linalg.lstsq(Qu.T @ S.T, Qu.T @ b, rcond=None)[0]
-        return np.clip(tau, -robot.torque_limits, robot.torque_limits)
+    reference_torque = ReferenceTorque(robot)
 
     def epsilon_fn(ref) -> np.ndarray:
         q, v, a = (np.asarray(x, float) for x in (ref.q, ref.v, ref.a))
-        e = model.rbd_force(q, v, a)
-        eps = e.copy()
+        eps = model.rbd_force(q, v, a)
         if model.has_actuation:
-            contacts = np.asarray(getattr(ref, "contacts", np.ones(robot.n_feet, bool)), bool)
-            tau = tau_reference(q, v, a, contacts, e)
-            t = float(getattr(ref, "t", 0.0))
-            dt = None if state["t"] is None else t - state["t"]
-            same_contacts = state["contacts"] is not None and np.array_equal(contacts, state["contacts"])
-            smooth = dt is not None and 0 < dt <= 0.05 and same_contacts
-            tau_dot = (tau - state["tau"]) / dt if smooth else np.zeros_like(tau)
-            state["t"], state["tau"], state["contacts"] = t, tau, contacts
+            tau, tau_dot = reference_torque(ref, eps)
             eps = eps - S.T @ model.actuation_error(tau, tau_dot)
         if not np.all(np.isfinite(eps)):
             return np.zeros(robot.nv)

@@ -30,7 +30,7 @@ import time
 import numpy as np
 
 from ciml_control.references import default_duration
-from ciml_learning.dynamics import ReferenceTorque, selection_matrix
+from ciml_learning.dynamics import ReferenceTorque, RigidBodyDynamics, selection_matrix
 from ciml_learning.extraction import actuation_inputs, dynamics_batch, learning_input_names, learning_inputs
 from ciml_learning.learners.lwpr import LWPR
 from ciml_learning.models import DEFAULT_PARAMS, ModelSet
@@ -102,8 +102,6 @@ class StudyEpsilon:
     """ε at a reference point for a representation of fit_models."""
 
     def __init__(self, robot, ms: ModelSet, torque_models, legs: str) -> None:
-        from ciml_learning.dynamics import RigidBodyDynamics
-
         self.robot, self.ms, self.torque_models, self.legs = robot, ms, torque_models, legs
         self.S = selection_matrix(robot)
         self.dyn = RigidBodyDynamics(robot)

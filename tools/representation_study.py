@@ -35,7 +35,7 @@ from ciml_learning.extraction import actuation_inputs, dynamics_batch, learning_
 from ciml_learning.learners.lwpr import LWPR
 from ciml_learning.models import DEFAULT_PARAMS, ModelSet
 from ciml_learning.pipeline import load_dataset
-from ciml_learning.projection import contact_invariant_bases
+from ciml_learning.projection import contact_invariant_basis, contact_invariant_bases
 from ciml_learning.robot import load_robot
 from ciml_sim.recorder import run_headless
 from ciml_sim.scenario import resolve_scenario
@@ -44,7 +44,9 @@ TRAINING = ("base_only", "walk_35", "trot_35")
 
 
 def leg_blocks(robot, ds) -> tuple[np.ndarray, np.ndarray]:
-    """B_i (N × n_feet × 3 × 3) and the base columns J_i,base (N × n_feet × 3 × 6) of J'."""
+    """B_i (N × n_feet × 3 × 3) and the base columns J_i,base (N × n_feet × 3 × 6) of J'.
+
+    A second Pinocchio pass over the log (the extraction keeps no Jacobians: 216 floats a sample)."""
     _, jac = dynamics_batch(robot, ds.log.q, ds.log.v, ds.log.a)
     basis = contact_invariant_bases(jac, robot.leg_joints)
     n = len(basis)
@@ -64,6 +66,7 @@ def fit_models(robot, ds, legs: str, base_inputs: str, actuation: str):
     base_cols = np.array([i for i, n in enumerate(names)
                           if n in ("base_roll", "base_pitch") or n.startswith(("qd_base", "qdd_base"))])
     rbd = tg.rbd_error.copy()
+    none = np.full_like(tg.actuation_error, np.nan)  # targets that give no models
     if legs == "joints":
         B, Jb = leg_blocks(robot, ds)
         for f in range(robot.n_feet):
@@ -79,13 +82,18 @@ def fit_models(robot, ds, legs: str, base_inputs: str, actuation: str):
                 ms.input_index[6 + j] = np.array([names.index(n) for n in (f"q_{joint}", f"qd_{joint}", f"qdd_{joint}")])
         return ms
 
-    ms = model_set().fit(tg.inputs, rbd, tg.rbd_observed, tg.actuation_error, tg.valid)
     if legs == "joints":
+        # the legs first (base rows unobserved, no actuation targets: only leg models in this pass),
+        # then the base target with the stance legs' learned joint errors
+        legs_only = tg.rbd_observed.copy()
+        legs_only[:, :6] = False
+        ms = model_set().fit(tg.inputs, rbd, legs_only, none, tg.valid)
         e_tilde = np.where(tg.rbd_observed[:, 6:], rbd[:, 6:], ms.predict(tg.inputs, return_var=False).rbd[:, 6:])
         for f in range(robot.n_feet):
             force = np.linalg.solve(np.transpose(B[:, f], (0, 2, 1)), e_tilde[:, 3 * f:3 * f + 3, None])[..., 0]
             rbd[:, :6] += np.einsum("nji,nj->ni", Jb[:, f], force)
-        ms = model_set().fit(tg.inputs, rbd, tg.rbd_observed, tg.actuation_error, tg.valid)
+    ms = model_set().fit(tg.inputs, rbd, tg.rbd_observed, none if actuation == "torque" else tg.actuation_error,
+                         tg.valid)
     torque_models = []
     if actuation == "torque":
         for j in range(robot.n_joints):
@@ -110,16 +118,15 @@ class StudyEpsilon:
     def __call__(self, ref) -> np.ndarray:
         phi, _, gamma, _ = self.ms.predict_one(learning_inputs(ref.q, ref.v, ref.a)[0])
         if self.legs == "joints":
-            eps = phi.copy()
+            rbd = phi  # already generalized forces: [w; e]
         else:
-            basis = contact_invariant_bases(self.dyn.foot_jacobians(ref.q)[None], self.robot.leg_joints)[0]
-            eps = basis.T @ phi
+            rbd = contact_invariant_basis(self.dyn.foot_jacobians(ref.q), self.robot.leg_joints).T @ phi
         if self.torque_models:
-            tau, tau_dot = self.reference_torque(ref, eps)
+            tau, tau_dot = self.reference_torque(ref, rbd)
             for j, (model, mean, std, scale) in enumerate(self.torque_models):
                 x = np.array([ref.q[7 + j], ref.v[6 + j], ref.a[6 + j], tau[j], tau_dot[j]])
                 gamma[j] = model.predict_one((x - mean) / std)[0] * scale
-        eps = eps - self.S.T @ gamma
+        eps = rbd - self.S.T @ gamma  # eq. (17), J'ᵀΦ̃' already applied
         return eps if np.all(np.isfinite(eps)) else np.zeros(self.robot.nv)
 
 

@@ -19,7 +19,7 @@ import pytest
 
 from ciml_learning.extraction import learning_inputs
 from ciml_learning.models import ModelSet, read_metadata
-from ciml_learning.online import STAMPS_FILE
+from ciml_learning.online import STAMPS_FILE, predict_at_reference, served_model
 from ciml_learning.pipeline import load_dataset
 from ciml_learning.robot import load_robot
 from rosutil import BIN, Listener, start_node, stop
@@ -50,13 +50,13 @@ def _diag_values(listener: Listener, node_name: str) -> dict[str, str]:
     return {}
 
 
-def _offline_model(X, phi, observed, gamma, calibration: int) -> ModelSet:
+def _offline_model(X, rbd, observed, gamma, coupling, calibration: int) -> ModelSet:
     """What the online learner should have built: calibrate on the first samples, then
     partial_fit on all of them in order (the documented batch API)."""
     ms = ModelSet.for_robot(ROBOT, "lwpr")
     if calibration:
-        ms.calibrate(X[:calibration], phi[:calibration], observed[:calibration], gamma[:calibration])
-    return ms.partial_fit(X, phi, observed, gamma)
+        ms.calibrate(X[:calibration], rbd[:calibration], observed[:calibration], gamma[:calibration])
+    return ms.partial_fit(X, rbd, observed, gamma, None, coupling)
 
 
 def _both(pred) -> np.ndarray:
@@ -135,8 +135,9 @@ def test_online_model_from_replay_matches_offline_partial_fit(tmp_path):
 
     tg = offline.targets
     X = learning_inputs(offline.log.q, offline.log.v, offline.log.a)[rows]
-    phi, obs, gamma = tg.rbd_error[rows], tg.rbd_observed[rows], tg.actuation_error[rows]
-    reference = _offline_model(X, phi, obs, gamma, CALIBRATION)
+    targets = (tg.generalized_error[rows], tg.generalized_observed[rows], tg.actuation_error[rows],
+               tg.leg_coupling[rows])
+    reference = _offline_model(X, *targets, CALIBRATION)
     pred_on, pred_off = _both(online.predict(X)), _both(reference.predict(X))
     assert np.array_equal(online.n_samples_, reference.n_samples_)
     # Tolerance. Online, the samples come from the causal filter (state_filter) and eq. (11)
@@ -158,7 +159,7 @@ def test_online_model_from_replay_matches_offline_partial_fit(tmp_path):
     # the tolerance discriminates: skipping every 20th sample gives a clearly different model
     keep = np.ones(len(rows), bool)
     keep[::20] = False
-    other = _offline_model(X[keep], phi[keep], obs[keep], gamma[keep], CALIBRATION)
+    other = _offline_model(X[keep], *(z[keep] for z in targets), CALIBRATION)
     assert np.all(np.abs(_both(other.predict(X)) - pred_off).max(axis=0) > 100 * tol)
 
 
@@ -189,12 +190,12 @@ def _reference_states(n: int):
 
 def _trained_model(model_dir) -> ModelSet:
     """A small LWPR model set learned from a known synthetic error (training module data)."""
-    from ciml_learning.training import synthetic_training_set
+    from ciml_learning.training import fit_arguments, synthetic_training_set
 
-    data = synthetic_training_set(ROBOT, 1500, seed=3)
+    data = fit_arguments(synthetic_training_set(ROBOT, 1500, seed=3))
     ms = ModelSet.for_robot(ROBOT, "lwpr")
-    ms.calibrate(data["inputs"], data["rbd_error"], data["rbd_observed"], data["actuation_error"], data["valid"])
-    ms.partial_fit(data["inputs"], data["rbd_error"], data["rbd_observed"], data["actuation_error"], data["valid"])
+    ms.calibrate(*data[:5])
+    ms.partial_fit(*data)
     ms.save(str(model_dir))
     return ms
 
@@ -293,15 +294,14 @@ def test_model_server_nominal_hot_swap_refusal_and_nan(tmp_path):
     assert set(sources[:swap]) == {"nominal"} and set(sources[swap:]) == {"lwpr:model_a"}, sources
     assert int(diag["refused_models"]) == 1 and int(diag["model_swaps"]) == 1, diag
     assert int(diag["rejected_references"]) == 1, diag
-    # served values are ModelSet.predict_one at the reference's x, exactly (float64 over CDR)
-    learned = np.array([m is not None for m in ms.models_])
+    # served values are online.predict_at_reference at the reference, exactly (float64 over CDR)
+    served = served_model(ROBOT, ms, "lwpr:model_a")
     for s in order[swap:]:
         row = sent[s]
-        phi, phi_var, gamma, gamma_var = ms.predict_one(learning_inputs(q[row], v[row], a[row])[0])
+        expected = predict_at_reference(ROBOT, served, q[row], v[row], a[row])
         m = preds[s]
-        np.testing.assert_allclose(m.rbd_error, phi, rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(m.rbd_variance, phi_var, rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(m.actuation_error, gamma, rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(m.actuation_variance, gamma_var, rtol=1e-12, atol=1e-12)
-        np.testing.assert_array_equal(np.r_[m.rbd_observed, m.actuation_observed], learned)
-    assert np.abs(np.r_[phi, gamma]).max() > 1.0   # a model that actually predicts something
+        for field in ("rbd_error", "rbd_variance", "actuation_error", "actuation_variance"):
+            np.testing.assert_allclose(getattr(m, field), getattr(expected, field), rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal(np.r_[m.rbd_observed, m.actuation_observed],
+                                      np.r_[expected.rbd_observed, expected.actuation_observed])
+    assert np.abs(np.r_[expected.rbd_error, expected.actuation_error]).max() > 1.0   # it predicts something

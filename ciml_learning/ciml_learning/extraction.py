@@ -4,6 +4,7 @@ Per sample, with r = Sᵀτ − M q̈ − h (all nominal model):
 
     Φ̃_u = (P_c J_uᵀ)⁺ P_c r                                            (11)
     Γ   = τ − u                                                          (14)
+    Φ̃   = J'ᵀ Φ̃'  of the observed entries (8): what the model set learns
     ε   = J'ᵀ Φ̃' − Sᵀ Γ                                                 (17)
     x   = [roll, pitch, q_j, q̇, q̈]  (q without base position and yaw)  (12)
 
@@ -20,7 +21,7 @@ import numpy as np
 import pinocchio as pin
 
 from .dynamics import RigidBodyDynamics, selection_matrix
-from .projection import DEFAULT_GAMMA, basis_columns, contact_invariant_bases
+from .projection import DEFAULT_GAMMA, basis_columns, contact_invariant_bases, generalized_rbd_error, leg_coupling
 from .robot import RobotDescription
 
 N_LEARNING_INPUTS_BASE = 2  # roll, pitch
@@ -131,6 +132,9 @@ class ExtractionResult:
     contacts: np.ndarray          # N × n_feet
     valid: np.ndarray             # N, usable for training
     residual: np.ndarray          # N × nv, r = Sᵀτ − M q̈ − h (nominal model)
+    generalized_error: np.ndarray     # N × nv, Φ̃ = J'ᵀΦ̃' of the observed entries (the models' targets)
+    generalized_observed: np.ndarray  # N × nv
+    leg_coupling: np.ndarray          # N × 6 × n_j, C of projection.leg_coupling
 
     def save(self, path: str, robot: RobotDescription, extra: dict | None = None) -> None:
         """Write an .npz (arrays only, loadable with allow_pickle=False), atomically."""
@@ -191,6 +195,7 @@ def extract(
     mask[~ok] = False
     valid = np.ones(n, dtype=bool) if valid is None else np.asarray(valid, dtype=bool).copy()
     valid &= ok
+    generalized, generalized_mask = generalized_rbd_error(basis, phi, mask, robot.leg_joints)
     return ExtractionResult(
         t=np.arange(n, dtype=float) if t is None else np.asarray(t, float),
         inputs=learning_inputs(q, v, a),
@@ -200,6 +205,9 @@ def extract(
         contacts=np.asarray(contacts, dtype=bool),
         valid=valid,
         residual=residual,
+        generalized_error=generalized,
+        generalized_observed=generalized_mask,
+        leg_coupling=leg_coupling(basis, robot.leg_joints),
     )
 
 

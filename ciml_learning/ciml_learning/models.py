@@ -2,28 +2,31 @@
 
 A ModelSet holds one independent learner per output dimension (paper §III-D):
 
-- 18 rigid-body models of the contact-invariant error Φ̃' (base wrench, then x/y/z of
-  each foot; names robot.rbd_error_names). The base wrench models take the whole input x
-  of eq. (12): roll, pitch, joint positions, q̇, q̈ (50 for HyQ; names
-  extraction.learning_input_names). A foot's models take roll, pitch and its own leg's
-  q, q̇, q̈ (11; rbd_input_names): a foot's entries are observed only while it swings,
-  where they hold the swing leg's own error — with the other legs' joints as inputs a
-  model learns the gait those legs happened to walk, and mispredicts on any other gait
-  (measured with LWPR trained as in tools/experiment.py, 20 s closed loop of the rear
-  walk on the default gap: feedback effort 16 % above nominal with all 50 inputs, 25 %
-  below with the leg's own);
-- 12 actuation models of Γ = τ − u (eq. 14), one per joint i (robot.joint_names), inputs
-  (q_i, q̇_i, q̈_i) — the columns "q_<joint>", "qd_<joint>", "qdd_<joint>" of x.
+- 18 rigid-body models of the generalized model error Φ̃ = J'ᵀΦ̃' (eq. 8; names
+  rbd_output_names): the base wrench w (6), then each leg joint's rigid-body error e_j (12);
+- 12 actuation models of Γ = τ − u (eq. 14), one per joint (robot.joint_names).
 
 Combined, they give the model error the controller adds (eq. 17):
 
-    ε(q, q̇, q̈) = J'(q)ᵀ Φ̃'(x) − Sᵀ Γ(x)
+    ε(q, q̇, q̈) = J'ᵀ Φ̃'(x) − Sᵀ Γ(x) = [w; e] − Sᵀ Γ
 
-Observed mask: a foot's three entries of Φ̃' are observed only while that foot swings
-(eq. 11; ExtractionResult.rbd_observed); each rigid-body model learns only from samples
-that are `valid` and where its entry is observed. The actuation models learn from every
-valid sample. A dimension with no usable sample keeps no model: it predicts zero (the
-nominal model) with its prior variance, as every learner does away from its data.
+Why the generalized coordinates, not the contact-invariant ones of eq. (11): J' puts a leg's
+joint-space error into the base entries of Φ̃' as −J_i,baseᵀ B_i⁻ᵀ e_i (projection.leg_coupling),
+and a stance leg's e_i is not observed, so the base entries of Φ̃' are a function of every
+leg's state and of the gait — a model of them learns the gaits it was trained on. Each leg
+joint's error e_j = (J'ᵀΦ̃')_j is observed while its leg swings and learned from that joint's
+own q, q̇, q̈ (a friction, a link-mass error of the leg). The base wrench is learned after the
+legs, from the base's own state (roll, pitch, q̇_base, q̈_base: a payload's weight and
+inertia): its target w = (J'ᵀΦ̃')_base + Σ_stance C_j ê_j adds back the stance legs' joint
+errors with the learned leg models ê (the swing legs' are in J'ᵀΦ̃' already). Measured in
+closed loop with LWPR on the default gap (tools/representation_study.py, results/EXPERIMENT.md):
+feedback effort on new motions 36 % → 47 % below nominal, side walk 10.1 → 7.6 Nm.
+
+Observed mask: the base rows are observed in every valid sample, a leg joint's row while its
+leg swings (extraction.ExtractionResult.generalized_observed); each model learns only from
+valid samples where its row is observed. The actuation models learn from every valid sample.
+A dimension with no usable sample keeps no model: it predicts zero (the nominal model) with
+its prior variance, as every learner does away from its data.
 
 Standardisation happens inside the set: inputs are centred and scaled per column
 (input_mean_, input_scale_), outputs only scaled (output_scale_, their RMS), never
@@ -31,13 +34,14 @@ shifted — zero stays "no error", so the learners' zero-mean fallback is the no
 model. Learners see standardised data; predictions are returned in SI units
 (N, Nm; variances in N², Nm²).
 
-API for online use (the online_learner and model_server nodes build on this):
+API (X: N × 50 learning inputs of eq. 12; rbd: Φ̃ (N × 18) and its mask; C: leg coupling
+(N × 6 × n_j); Γ (N × n_j)):
 
     ms = ModelSet.for_robot(robot, "lwpr")            # empty set, default scaling
-    ms.calibrate(X, rbd_error, rbd_observed, actuation_error, valid)   # optional, first
-    ms.partial_fit_one(x, phi, observed, gamma)      # one sample (x: 50, phi: 18,
-                                                     #   observed: 18 bool, gamma: 12)
-    ms.partial_fit(X, Phi, Observed, Gamma, valid)   # a batch, same result as one by one
+    ms.fit(X, rbd, rbd_observed, Gamma, valid, C)     # offline: legs and actuators, then the base
+    ms.calibrate(X, rbd, rbd_observed, Gamma, valid)  # online: optional, before learning
+    ms.partial_fit_one(x, rbd, observed, gamma, C)    # one sample, legs before the base
+    ms.partial_fit(X, rbd, rbd_observed, Gamma, valid, C)   # = partial_fit_one on each, in order
     rbd, rbd_var, act, act_var = ms.predict_one(x)   # fast single-sample prediction
     eps = EpsilonFunction(robot, ms); eps.epsilon(q, v, a)   # ε at a state, eq. (17)
     ms.save(model_dir)                               # atomic snapshot (npz + json)
@@ -77,8 +81,8 @@ import numpy as np
 from .errors import CimlError
 from .learners import Learner, LearnerError, learner_class
 
-FORMAT_VERSION = 2
-"""2: per-dimension input selection (rbd_input_names); version 1 files are refused."""
+FORMAT_VERSION = 3
+"""3: the rigid-body models learn Φ̃ = J'ᵀΦ̃' (base wrench, leg joints); versions 1–2 are refused."""
 MODEL_JSON = "model.json"
 MODEL_NPZ = "model.npz"
 KIND = "ciml_model_set"
@@ -86,35 +90,36 @@ KERNELS = {"lwpr": "gaussian_receptive_fields", "sgpr": "matern32_ard"}
 
 DEFAULT_PARAMS: dict[str, dict[str, dict[str, Any]]] = {
     # Hyper-parameters per learner and group, in standardised units (unit-variance inputs,
-    # unit-RMS outputs). Groups: "rbd" the base wrench models (50-D inputs), "foot" a foot's
-    # models (11-D), "actuation". RBD: a diagonal metric, at most 3 PLS projections and wide
-    # initial fields (gait data lie near low-dimensional cycles; the squared distance between
-    # two phases a tenth of a cycle apart is ~20 in 50 standardised dimensions, so D = 0.2
-    # puts a few tens of fields along a cycle; in 11-D, D = 0.8 does, and generalised best to
-    # new gaits among 0.2–2 in closed loop: rear/side walks, trot). Actuation inputs
-    # are 3-D: a full metric. Offline fit() visits the samples in random order (shuffle;
-    # LWPR assumes no ordering, and time-ordered gait data otherwise drift the fields);
-    # online partial_fit() takes them as they come. The sparse GP fits its hyper-parameters
-    # on 1,500 random samples per dimension (learners/sgpr.py explains why).
+    # unit-RMS outputs). Groups: "base" the base wrench (14 inputs), "leg" a leg joint's
+    # rigid-body error and "actuation" (3 inputs each). LWPR: the base's inputs lie near the
+    # low-dimensional cycles of the gaits — a diagonal metric, at most 3 PLS projections and
+    # narrow initial fields (D = 0.2) put a few tens of fields along a cycle; a joint's 3
+    # inputs: a diagonal metric with D = 0.8 for the rigid-body error (generalised best to
+    # new gaits among 0.2–2 in closed loop), a full one for the actuation error. Offline
+    # fit() visits the samples in random order (shuffle; LWPR assumes no ordering, and
+    # time-ordered gait data otherwise drift the fields); online partial_fit() takes them as
+    # they come. The sparse GP fits its hyper-parameters on 1,500 random samples per
+    # dimension (learners/sgpr.py explains why).
     "lwpr": {
-        "rbd": {"init_D": 0.2, "diag_only": True, "init_alpha": 10.0, "w_gen": 0.1, "w_prune": 0.95,
-                "max_projections": 3, "penalty": 1e-6, "max_rfs": 1500, "n_epochs": 1, "shuffle": True},
-        "foot": {"init_D": 0.8, "diag_only": True, "init_alpha": 10.0, "w_gen": 0.1, "w_prune": 0.95,
+        "base": {"init_D": 0.2, "diag_only": True, "init_alpha": 10.0, "w_gen": 0.1, "w_prune": 0.95,
                  "max_projections": 3, "penalty": 1e-6, "max_rfs": 1500, "n_epochs": 1, "shuffle": True},
+        "leg": {"init_D": 0.8, "diag_only": True, "init_alpha": 10.0, "w_gen": 0.1, "w_prune": 0.95,
+                "max_projections": 3, "penalty": 1e-6, "max_rfs": 1500, "n_epochs": 1, "shuffle": True},
         "actuation": {"init_D": 10.0, "diag_only": False, "init_alpha": 50.0, "w_gen": 0.2, "w_prune": 0.95,
                       "penalty": 1e-6, "max_rfs": 400, "n_epochs": 2, "shuffle": True},
     },
     "sgpr": {
-        "rbd": {"n_inducing": 250, "n_hyper_samples": 1500, "max_iters": 80},
-        "foot": {"n_inducing": 250, "n_hyper_samples": 1500, "max_iters": 80},
+        "base": {"n_inducing": 250, "n_hyper_samples": 1500, "max_iters": 80},
+        "leg": {"n_inducing": 250, "n_hyper_samples": 1500, "max_iters": 80},
         "actuation": {"n_inducing": 100, "n_hyper_samples": 1500, "max_iters": 100},
     },
 }
 """Default hyper-parameters (paper: 250 inducing inputs per RBD and 100 per actuation
-dimension). Override per group with ModelSet(..., rbd_params=..., actuation_params=...,
-foot_params=...)."""
+dimension). Override per group with ModelSet(..., params={"base": {...}, "leg": {...},
+"actuation": {...}})."""
+GROUPS = ("base", "leg", "actuation")
 N_BASE = 6
-"""The first rigid-body dimensions: the base wrench (group "rbd"); the others are the feet's."""
+"""The first rigid-body dimensions: the base wrench (group "base"); the others are the leg joints'."""
 
 MIN_SAMPLES = 10
 """A dimension with fewer usable samples than this keeps no model (zero error)."""
@@ -132,32 +137,36 @@ class ModelSetError(CimlError):
 class Prediction:
     """Predicted errors (SI units) and their variances, one row per input."""
 
-    rbd: np.ndarray            # N × 18, Φ̃' [N, Nm]
+    rbd: np.ndarray            # N × 18, Φ̃ = [w; e] [N, Nm]
     rbd_var: np.ndarray        # N × 18 [N², Nm²]
     actuation: np.ndarray      # N × n_j, Γ [Nm]
     actuation_var: np.ndarray  # N × n_j [Nm²]
 
 
 def actuation_input_names(joint: str) -> tuple[str, str, str]:
-    """Names of joint i's actuation-model inputs among the learning inputs (q_i, q̇_i, q̈_i)."""
+    """Names of joint i's inputs among the learning inputs (q_i, q̇_i, q̈_i)."""
     return (f"q_{joint}", f"qd_{joint}", f"qdd_{joint}")
 
 
+def rbd_output_names(robot) -> tuple[str, ...]:
+    """Names of the rigid-body outputs: the base wrench (as in robot.rbd_error_names), then
+    "rbd_<joint>" for each joint's rigid-body error (rows of Φ̃ = J'ᵀΦ̃')."""
+    return tuple(robot.rbd_error_names[:N_BASE]) + tuple(f"rbd_{j}" for j in robot.joint_names)
+
+
 def rbd_input_names(robot) -> dict[str, tuple[str, ...]]:
-    """Inputs of each rigid-body model (module docstring): all learning inputs for the base
-    wrench, roll, pitch and the leg's own q, q̇, q̈ for a foot's entries."""
+    """Inputs of each rigid-body model (module docstring): the base's state (roll, pitch,
+    q̇_base, q̈_base) for the base wrench, the joint's own q, q̇, q̈ for a leg joint's error."""
     from .extraction import learning_input_names
 
-    names = tuple(learning_input_names(robot))
-    out = {}
-    for d in robot.rbd_error_names[:N_BASE]:
-        out[d] = names
-    for f, leg in enumerate(robot.leg_joints):
-        own = ("base_roll", "base_pitch") + tuple(
-            n for j in leg for n in actuation_input_names(robot.joint_names[j]))
-        own = tuple(sorted(own, key=names.index))
-        for d in robot.rbd_error_names[N_BASE + 3 * f:N_BASE + 3 * f + 3]:
-            out[d] = own
+    names = learning_input_names(robot)
+    base_state = ("base_roll", "base_pitch") + tuple(
+        f"{kind}_{d}" for kind in ("qd", "qdd") for d in robot.dof_names[:N_BASE])
+    base_state = tuple(sorted(base_state, key=names.index))
+    rbd = rbd_output_names(robot)
+    out = {d: base_state for d in rbd[:N_BASE]}
+    for d, joint in zip(rbd[N_BASE:], robot.joint_names):
+        out[d] = actuation_input_names(joint)
     return out
 
 
@@ -167,8 +176,8 @@ def default_scaling(robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     Derived from the robot description only (no data): joints centred on the standing
     posture with a sixth of their range as scale, roll/pitch 0.1 rad, velocities 0.5 m/s,
     0.5 rad/s (base) and 2 rad/s (joints), accelerations 5 m/s², 5 rad/s², 30 rad/s²;
-    outputs 5 % of the robot's weight (base forces; per foot: a quarter), 5 % of
-    weight × 0.1 m (base torques) and 5 % of each joint's torque limit.
+    outputs 5 % of the robot's weight (base forces), 5 % of weight × 0.1 m (base torques)
+    and 5 % of each joint's torque limit (its rigid-body and its actuation error).
     calibrate() on real data replaces these.
     """
     from .extraction import learning_input_names
@@ -190,11 +199,8 @@ def default_scaling(robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         scale[index[f"qd_{dof}"]] = 0.5
         scale[index[f"qdd_{dof}"]] = 5.0
     weight = robot.total_mass * 9.81
-    out = np.concatenate([
-        np.full(3, 0.05 * weight), np.full(3, 0.05 * weight * 0.1),
-        np.full(3 * robot.n_feet, 0.05 * weight / robot.n_feet),
-        0.05 * np.where(robot.torque_limits > 0, robot.torque_limits, 100.0),
-    ])
+    joints = 0.05 * np.where(robot.torque_limits > 0, robot.torque_limits, 100.0)
+    out = np.concatenate([np.full(3, 0.05 * weight), np.full(3, 0.05 * weight * 0.1), joints, joints])
     return mean, scale, out
 
 
@@ -202,28 +208,30 @@ class ModelSet:
     """18 rigid-body + n_j actuation models of the model error (module docstring).
 
     Attributes (after construction): learner, input_names, rbd_names, joint_names,
-    foot_frames, rbd_params (base wrench), foot_params, actuation_params, rbd_inputs (rbd
-    name → its input names; default all), input_index (per output dimension, its columns of x).
+    foot_frames, params (group → hyper-parameters), rbd_inputs (rbd name → its input
+    names; default all), input_index (per output dimension, its columns of x).
     Learned/calibrated state: input_mean_, input_scale_, output_scale_ (18 + n_j),
     models_ (list of Learner or None, RBD dimensions first), n_samples_ (per dimension),
     training_ (dict of provenance written to model.json).
     """
 
     def __init__(self, learner: str, input_names, rbd_names, joint_names, foot_frames,
-                 rbd_params: dict | None = None, actuation_params: dict | None = None,
-                 rbd_inputs: dict | None = None, foot_params: dict | None = None) -> None:
+                 params: dict | None = None, rbd_inputs: dict | None = None) -> None:
         self.learner = learner
         cls = learner_class(learner)
         self.input_names = tuple(input_names)
         self.rbd_names = tuple(rbd_names)
         self.joint_names = tuple(joint_names)
         self.foot_frames = tuple(foot_frames)
-        defaults = DEFAULT_PARAMS[learner]
-        self.rbd_params = {**defaults["rbd"], **(rbd_params or {})}
-        self.foot_params = {**defaults["foot"], **(foot_params or {})}
-        self.actuation_params = {**defaults["actuation"], **(actuation_params or {})}
-        for p in (self.rbd_params, self.foot_params, self.actuation_params):
+        unknown = set(params or {}) - set(GROUPS)
+        if unknown:
+            raise ModelSetError(f"unknown parameter groups {sorted(unknown)}; valid: {list(GROUPS)}")
+        self.params = {g: {**DEFAULT_PARAMS[learner][g], **(params or {}).get(g, {})} for g in GROUPS}
+        for p in self.params.values():
             cls.from_params(p)  # validates names and values now, not after an hour of training
+        if len(self.rbd_names) != N_BASE + len(self.joint_names):
+            raise ModelSetError(f"{len(self.rbd_names)} rigid-body outputs, expected the base's {N_BASE} "
+                                f"and one per joint ({len(self.joint_names)})")
         index = {n: i for i, n in enumerate(self.input_names)}
         everything = tuple(self.input_names)
         self.rbd_inputs = {d: tuple((rbd_inputs or {}).get(d, everything)) for d in self.rbd_names}
@@ -243,13 +251,12 @@ class ModelSet:
         self.training_: dict[str, Any] = {}
 
     @classmethod
-    def for_robot(cls, robot, learner: str, rbd_params: dict | None = None,
-                  actuation_params: dict | None = None, foot_params: dict | None = None) -> "ModelSet":
+    def for_robot(cls, robot, learner: str, params: dict | None = None) -> "ModelSet":
         """An empty set for a robot, with default_scaling(robot) until calibrated."""
         from .extraction import learning_input_names
 
-        ms = cls(learner, learning_input_names(robot), robot.rbd_error_names, robot.joint_names,
-                 robot.foot_frames, rbd_params, actuation_params, rbd_input_names(robot), foot_params)
+        ms = cls(learner, learning_input_names(robot), rbd_output_names(robot), robot.joint_names,
+                 robot.foot_frames, params, rbd_input_names(robot))
         ms.input_mean_, ms.input_scale_, ms.output_scale_ = default_scaling(robot)
         return ms
 
@@ -273,35 +280,36 @@ class ModelSet:
     def dimension_kind(self, i: int) -> str:
         return "rbd" if i < self.n_rbd else "actuation"
 
+    def group(self, i: int) -> str:
+        """Hyper-parameter group of output dimension i: "base", "leg" or "actuation"."""
+        return "base" if i < N_BASE else "leg" if i < self.n_rbd else "actuation"
+
     def is_fitted(self) -> bool:
         return any(m is not None for m in self.models_)
 
-    def _params(self, i: int) -> dict:
-        if i < N_BASE:
-            return self.rbd_params
-        return self.foot_params if i < self.n_rbd else self.actuation_params
-
     def new_learner(self, i: int) -> Learner:
         """A fresh learner for output dimension i with its group's hyper-parameters."""
-        return learner_class(self.learner).from_params(self._params(i))
+        return learner_class(self.learner).from_params(self.params[self.group(i)])
 
     # ------------------------------------------------------------------ data handling
-    def _check_data(self, X, rbd_error, rbd_observed, actuation_error, valid):
+    def _check_data(self, X, rbd_error, rbd_observed, actuation_error, valid, leg_coupling=None):
         X = np.asarray(X, dtype=float)
         n = len(X)
         rbd_error = np.asarray(rbd_error, dtype=float)
         rbd_observed = np.asarray(rbd_observed, dtype=bool)
         actuation_error = np.asarray(actuation_error, dtype=float)
         valid = np.ones(n, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
+        C = np.zeros((n, N_BASE, self.n_actuation)) if leg_coupling is None else np.asarray(leg_coupling, float)
         shapes = {"X": (X.shape, (n, len(self.input_names))), "rbd_error": (rbd_error.shape, (n, self.n_rbd)),
                   "rbd_observed": (rbd_observed.shape, (n, self.n_rbd)),
-                  "actuation_error": (actuation_error.shape, (n, self.n_actuation)), "valid": (valid.shape, (n,))}
+                  "actuation_error": (actuation_error.shape, (n, self.n_actuation)), "valid": (valid.shape, (n,)),
+                  "leg_coupling": (C.shape, (n, N_BASE, self.n_actuation))}
         bad = {k: v[0] for k, v in shapes.items() if v[0] != v[1]}
         if bad:
             raise ModelSetError(f"data shapes {bad} do not match {len(self.input_names)} inputs, "
                                 f"{self.n_rbd} RBD and {self.n_actuation} actuation outputs")
-        valid = valid & np.all(np.isfinite(X), axis=1)
-        return X, rbd_error, rbd_observed, actuation_error, valid
+        valid = valid & np.all(np.isfinite(X), axis=1) & np.all(np.isfinite(C), axis=(1, 2))
+        return X, rbd_error, rbd_observed, actuation_error, valid, C
 
     def _usable_rows(self, i: int, rbd_error, rbd_observed, actuation_error, valid) -> np.ndarray:
         if i < self.n_rbd:
@@ -312,7 +320,7 @@ class ModelSet:
         """Set the input mean/scale and output scales from data (before any learning)."""
         if self.is_fitted():
             raise ModelSetError("calibrate() must come before learning: the models use the old scaling")
-        X, rbd_error, rbd_observed, actuation_error, valid = self._check_data(
+        X, rbd_error, rbd_observed, actuation_error, valid, _ = self._check_data(
             X, rbd_error, rbd_observed, actuation_error, valid)
         if valid.sum() >= 2:
             Xv = X[valid]
@@ -334,65 +342,74 @@ class ModelSet:
     def _dim_inputs(self, i: int, Xs: np.ndarray) -> np.ndarray:
         return Xs[..., self.input_index[i]]
 
-    # ------------------------------------------------------------------ learning
-    def fit(self, X, rbd_error, rbd_observed, actuation_error, valid=None, n_jobs: int = 1,
-            progress: bool = False, calibrate: bool = True) -> "ModelSet":
-        """Learn every dimension from scratch, in parallel (training.fit_dimensions).
+    def base_wrench_targets(self, Xs: np.ndarray, rbd_error: np.ndarray, rbd_observed: np.ndarray,
+                            leg_coupling: np.ndarray) -> np.ndarray:
+        """w = (J'ᵀΦ̃')_base + Σ_j C_j ê_j over the unobserved (stance) leg joints j, with ê the
+        leg models' predictions at the standardised inputs Xs (module docstring)."""
+        stance = ~rbd_observed[:, N_BASE:]
+        e_hat = np.zeros(stance.shape)
+        for j in range(self.n_actuation):
+            model, rows = self.models_[N_BASE + j], stance[:, j]
+            if model is not None and rows.any():
+                e_hat[rows, j] = model.predict(self._dim_inputs(N_BASE + j, Xs[rows])) * self.output_scale_[N_BASE + j]
+        return rbd_error[:, :N_BASE] + np.einsum("nbj,nj->nb", leg_coupling, e_hat)
 
-        X: learning inputs (N × 50, eq. 12); rbd_error: Φ̃' (N × 18, anything where
+    # ------------------------------------------------------------------ learning
+    def fit(self, X, rbd_error, rbd_observed, actuation_error, valid=None, leg_coupling=None, n_jobs: int = 1,
+            progress: bool = False, calibrate: bool = True) -> "ModelSet":
+        """Learn every dimension from scratch, in parallel (training.fit_dimensions): the leg
+        joints and the actuators first, then the base wrench with the stance legs' learned
+        errors added back (base_wrench_targets).
+
+        X: learning inputs (N × 50, eq. 12); rbd_error: Φ̃ = J'ᵀΦ̃' (N × 18, anything where
         unobserved); rbd_observed: (N × 18) bool; actuation_error: Γ (N × n_j);
-        valid: (N,) bool. Returns self.
+        valid: (N,) bool; leg_coupling: C (N × 6 × n_j, projection.leg_coupling; None: no
+        coupling). Returns self.
         """
         from .training import fit_dimensions
 
-        X, rbd_error, rbd_observed, actuation_error, valid = self._check_data(
-            X, rbd_error, rbd_observed, actuation_error, valid)
+        X, rbd_error, rbd_observed, actuation_error, valid, C = self._check_data(
+            X, rbd_error, rbd_observed, actuation_error, valid, leg_coupling)
         self.models_ = [None] * self.n_outputs
         if calibrate:
             self.calibrate(X, rbd_error, rbd_observed, actuation_error, valid)
         Xs = self.standardize(X)
         targets = np.hstack([rbd_error, actuation_error])
-        jobs = []
         self.n_samples_ = np.zeros(self.n_outputs, dtype=np.int64)
-        for i in range(self.n_outputs):
-            rows = self._usable_rows(i, rbd_error, rbd_observed, actuation_error, valid)
-            self.n_samples_[i] = int(rows.sum())
-            if self.n_samples_[i] >= MIN_SAMPLES:
-                jobs.append((i, self._dim_inputs(i, Xs[rows]), targets[rows, i] / self.output_scale_[i]))
-        fitted = fit_dimensions(self.learner, [self._params(i) for i, _, _ in jobs], jobs, n_jobs=n_jobs,
-                                progress=progress, names=[self.output_names[i] for i, _, _ in jobs])
-        for (i, _, _), model in zip(jobs, fitted):
-            self.models_[i] = model
+        for stage in (range(N_BASE, self.n_outputs), range(N_BASE)):
+            if stage.start == 0:
+                targets[valid, :N_BASE] = self.base_wrench_targets(Xs[valid], rbd_error[valid], rbd_observed[valid],
+                                                                   C[valid])
+            jobs = []
+            for i in stage:
+                rows = self._usable_rows(i, rbd_error, rbd_observed, actuation_error, valid)
+                self.n_samples_[i] = int(rows.sum())
+                if self.n_samples_[i] >= MIN_SAMPLES:
+                    jobs.append((i, self._dim_inputs(i, Xs[rows]), targets[rows, i] / self.output_scale_[i]))
+            fitted = fit_dimensions(self.learner, [self.params[self.group(i)] for i, _, _ in jobs], jobs,
+                                    n_jobs=n_jobs, progress=progress, names=[self.output_names[i] for i, _, _ in jobs])
+            for (i, _, _), model in zip(jobs, fitted):
+                self.models_[i] = model
         return self
 
     def _require_incremental(self) -> None:
         if not learner_class(self.learner).supports_partial_fit:
             raise ModelSetError(f"learner {self.learner!r} has no partial_fit (batch only); use 'lwpr' online")
 
-    def partial_fit(self, X, rbd_error, rbd_observed, actuation_error, valid=None) -> "ModelSet":
-        """Incremental learning on a batch of samples in time order; returns self.
-
-        Identical to calling partial_fit_one on each valid sample in order (each dimension
-        is an independent learner, so it is updated with its own rows as one batch).
-        """
+    def partial_fit(self, X, rbd_error, rbd_observed, actuation_error, valid=None, leg_coupling=None) -> "ModelSet":
+        """Incremental learning on a batch of samples in time order: partial_fit_one on each
+        valid sample, in order (the base targets depend on the leg models at that time)."""
         self._require_incremental()
-        X, rbd_error, rbd_observed, actuation_error, valid = self._check_data(
-            X, rbd_error, rbd_observed, actuation_error, valid)
-        Xs = self.standardize(X)
-        targets = np.hstack([rbd_error, actuation_error])
-        for i in range(self.n_outputs):
-            rows = self._usable_rows(i, rbd_error, rbd_observed, actuation_error, valid)
-            if not rows.any():
-                continue
-            if self.models_[i] is None:
-                self.models_[i] = self.new_learner(i)
-            self.models_[i].partial_fit(self._dim_inputs(i, Xs[rows]), targets[rows, i] / self.output_scale_[i])
-            self.n_samples_[i] += int(rows.sum())
+        X, rbd_error, rbd_observed, actuation_error, valid, C = self._check_data(
+            X, rbd_error, rbd_observed, actuation_error, valid, leg_coupling)
+        for k in np.flatnonzero(valid):
+            self.partial_fit_one(X[k], rbd_error[k], rbd_observed[k], actuation_error[k], C[k])
         return self
 
     def partial_fit_one(self, x: np.ndarray, rbd_error: np.ndarray, rbd_observed: np.ndarray,
-                        actuation_error: np.ndarray) -> None:
-        """Learn from one valid sample (online, 250 Hz): x (50,), Φ̃' (18,), mask (18,), Γ (n_j,).
+                        actuation_error: np.ndarray, leg_coupling: np.ndarray | None = None) -> None:
+        """Learn from one valid sample (online, 250 Hz): x (50,), Φ̃ (18,), mask (18,), Γ (n_j,),
+        C (6 × n_j; None: no coupling). The leg joints and actuators first, then the base.
 
         Non-finite values are skipped per dimension (never learned)."""
         self._require_incremental()
@@ -400,26 +417,29 @@ class ModelSet:
         if not np.all(np.isfinite(x)):
             return
         xs = (x - self.input_mean_) / self.input_scale_
-        n_rbd = self.n_rbd
-        for i in range(self.n_outputs):
-            if i < n_rbd:
-                if not rbd_observed[i]:
-                    continue
-                y = rbd_error[i]
-            else:
-                y = actuation_error[i - n_rbd]
-            xi = xs[self.input_index[i]]
-            if not np.isfinite(y):
+        targets = np.concatenate([rbd_error, actuation_error])
+        observed = np.concatenate([rbd_observed, np.ones(self.n_actuation, bool)])
+        for i in [*range(N_BASE, self.n_outputs), *range(N_BASE)]:
+            if i == 0 and leg_coupling is not None and observed[0]:
+                stance = np.flatnonzero(~observed[N_BASE:self.n_rbd])
+                e_hat = np.zeros(len(stance))
+                for k, j in enumerate(stance):
+                    model = self.models_[N_BASE + j]
+                    if model is not None:
+                        e_hat[k] = model.predict_one(xs[self.input_index[N_BASE + j]])[0] * self.output_scale_[N_BASE + j]
+                targets[:N_BASE] = targets[:N_BASE] + np.asarray(leg_coupling)[:, stance] @ e_hat
+            y = targets[i]
+            if not observed[i] or not np.isfinite(y):
                 continue
             model = self.models_[i]
             if model is None:
                 model = self.models_[i] = self.new_learner(i)
-            model.update(xi, y / self.output_scale_[i])
+            model.update(xs[self.input_index[i]], y / self.output_scale_[i])
             self.n_samples_[i] += 1
 
     # ------------------------------------------------------------------ prediction
     def predict(self, X: np.ndarray, return_var: bool = True) -> Prediction:
-        """Φ̃' and Γ (and variances) at learning inputs X (N × 50 or 50,)."""
+        """Φ̃ and Γ (and variances) at learning inputs X (N × 50 or 50,)."""
         X = np.atleast_2d(np.asarray(X, dtype=float))
         if X.shape[1] != len(self.input_names):
             raise ModelSetError(f"X has {X.shape[1]} columns, the model set expects {len(self.input_names)}")
@@ -443,7 +463,7 @@ class ModelSet:
         return Prediction(mean[:, :n], var[:, :n], mean[:, n:], var[:, n:])
 
     def predict_one(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Fast single-sample prediction: (Φ̃' (18), var (18), Γ (n_j), var (n_j)), SI units.
+        """Fast single-sample prediction: (Φ̃ (18), var (18), Γ (n_j), var (n_j)), SI units.
 
         No input checks beyond the caller's (x must be finite, 50 entries)."""
         xs = (np.asarray(x, dtype=float) - self.input_mean_) / self.input_scale_
@@ -467,7 +487,7 @@ class ModelSet:
 
         for what, mine, theirs in (("joints", self.joint_names, tuple(robot.joint_names)),
                                    ("feet", self.foot_frames, tuple(robot.foot_frames)),
-                                   ("RBD outputs", self.rbd_names, tuple(robot.rbd_error_names)),
+                                   ("RBD outputs", self.rbd_names, rbd_output_names(robot)),
                                    ("inputs", self.input_names, tuple(learning_input_names(robot)))):
             if mine != theirs:
                 raise ModelFileError(f"{where} was trained for a different robot: {what} {list(mine)} "
@@ -486,12 +506,13 @@ class ModelSet:
             "kind": KIND,
             "learner": self.learner,
             "kernel": KERNELS[self.learner],
-            "params": {"rbd": self.rbd_params, "foot": self.foot_params, "actuation": self.actuation_params},
+            "params": self.params,
             "inputs": {"names": list(self.input_names),
                        "rbd": {d: list(self.rbd_inputs[d]) for d in self.rbd_names},
                        "actuation": {j: list(actuation_input_names(j)) for j in self.joint_names}},
             "outputs": {"rbd": list(self.rbd_names), "actuation": list(self.joint_names),
-                        "units": {"rbd": "N (forces), Nm (base torques)", "actuation": "Nm"}},
+                        "units": {"rbd": "N (base forces), Nm (base torques, joints)", "actuation": "Nm"},
+                        "rbd_definition": "generalized rigid-body error J'^T Phi~' (eq. 8): base wrench, joints"},
             "robot": {"joint_names": list(self.joint_names), "foot_frames": list(self.foot_frames)},
             "training": self.training_,
             "dimensions": dims,
@@ -533,8 +554,7 @@ class ModelSet:
             raise ModelFileError(f"{model_dir}/{MODEL_NPZ} is not a readable npz ({err})") from None
         try:
             ms = cls(meta["learner"], meta["inputs"]["names"], meta["outputs"]["rbd"], meta["outputs"]["actuation"],
-                     meta["robot"]["foot_frames"], meta["params"]["rbd"], meta["params"]["actuation"],
-                     meta["inputs"]["rbd"], meta["params"]["foot"])
+                     meta["robot"]["foot_frames"], meta["params"], meta["inputs"]["rbd"])
         except KeyError as err:
             raise ModelFileError(f"{model_dir}/{MODEL_JSON} lacks {err}") from None
         except (TypeError, AttributeError, ValueError) as err:
@@ -568,7 +588,7 @@ class ModelSet:
                     continue
                 if not state:
                     raise ModelFileError(f"{model_dir}/{MODEL_NPZ}: no arrays for dimension {entry.get('name')}")
-                model = cls_.from_state(ms._params(i), state)
+                model = cls_.from_state(ms.params[ms.group(i)], state)
                 expected = len(ms.input_index[i])
                 if model.n_features_in_ != expected:
                     raise ModelFileError(f"{model_dir}: dimension {entry.get('name')} has {model.n_features_in_} "
@@ -626,22 +646,21 @@ def _read_npz_bytes(model_dir: str, meta: dict[str, Any]) -> bytes:
 
 # ---------------------------------------------------------------------- ε at a reference
 class EpsilonFunction:
-    """ε(q, q̇, q̈) = J'(q)ᵀ Φ̃'(x) − Sᵀ Γ(x), eq. (17), from a model set.
+    """ε(q, q̇, q̈) = Φ̃(x) − Sᵀ Γ(x), eq. (17) with Φ̃ = J'ᵀΦ̃' learned directly, from a model set.
 
     Callable with a reference point (anything with .q, .v, .a — e.g.
     ciml_control.references.ReferencePoint): returns ε (nv,) [N, Nm] at the reference,
     the generalized force the controller adds to M q̈ + h. Never returns NaN: a
     non-finite input or prediction gives zeros (the nominal model) and is counted in
-    n_nonfinite. Holds its own Pinocchio data (not thread-safe).
+    n_nonfinite.
     """
 
     def __init__(self, robot, model_set: ModelSet) -> None:
-        from .dynamics import RigidBodyDynamics, selection_matrix
+        from .dynamics import selection_matrix
 
         model_set.check_robot(robot)
         self.robot = robot
         self.model_set = model_set
-        self._dyn = RigidBodyDynamics(robot)
         self._S = selection_matrix(robot)
         self.n_nonfinite = 0
 
@@ -649,18 +668,15 @@ class EpsilonFunction:
         """ε (nv,) at state (q, q̇, q̈); with return_var, also its variance per entry (nv,),
         from the predicted variances assuming independent dimensions."""
         from .extraction import learning_inputs
-        from .projection import contact_invariant_basis
 
         nv = self.robot.nv
         q, v, a = (np.asarray(z, dtype=float) for z in (q, v, a))
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v)) and np.all(np.isfinite(a))):
             self.n_nonfinite += 1
             return (np.zeros(nv), np.zeros(nv)) if return_var else np.zeros(nv)
-        x = learning_inputs(q, v, a)[0]
-        phi, phi_var, gamma, gamma_var = self.model_set.predict_one(x)
-        basis = contact_invariant_basis(self._dyn.foot_jacobians(q), self.robot.leg_joints)
-        eps = basis.T @ phi - self._S.T @ gamma
-        var = (basis.T ** 2) @ phi_var + (self._S.T ** 2) @ gamma_var
+        rbd, rbd_var, gamma, gamma_var = self.model_set.predict_one(learning_inputs(q, v, a)[0])
+        eps = rbd - self._S.T @ gamma
+        var = rbd_var + self._S.T @ gamma_var
         if not (np.all(np.isfinite(eps)) and np.all(np.isfinite(var))):
             self.n_nonfinite += 1
             eps, var = np.zeros(nv), np.zeros(nv)

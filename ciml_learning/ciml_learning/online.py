@@ -8,7 +8,9 @@ Online learner (paper §III-D, LWPR learning at 250 Hz):
   Γ of eq. 14). Topics are not ordered relative to each other over DDS, so either may
   come first; an item without a partner after `max_age` is dropped and counted.
 - OnlineLearner feeds each valid pair, in increasing stamp order, to
-  ModelSet.partial_fit_one with x = learning_inputs(q, q̇, q̈) (eq. 12). Optionally the
+  ModelSet.partial_fit_one with x = learning_inputs(q, q̇, q̈) (eq. 12) and the measured Φ̃'
+  turned into the set's targets Φ̃ = J'ᵀΦ̃' and leg coupling C with the contact-invariant
+  basis at q (projection.generalized_rbd_error, leg_coupling — as the extraction does). Optionally the
   first `calibration_samples` valid pairs are buffered to calibrate the set's input and
   output scaling (ModelSet.calibrate), then learned in order. It can record the stamps
   it learned, in order: offline ModelSet.partial_fit on the same samples in the same
@@ -25,7 +27,9 @@ Model server:
   allow-listed learner, robot names, checksum; plus the checksum announced on
   /model_update and a finite probe prediction) — any failure is a ModelFileError.
 - predict_at_reference gives Φ̃' (18) and Γ (n_j) with variances at the reference's
-  x = learning_inputs(qᵈ, q̇ᵈ, q̈ᵈ), or the nominal model (see PredictedError).
+  x = learning_inputs(qᵈ, q̇ᵈ, q̈ᵈ), or the nominal model (see PredictedError): the set
+  predicts Φ̃ = J'ᵀΦ̃' and the server publishes Φ̃' = J'⁻ᵀΦ̃ with the basis at qᵈ, so the
+  message keeps the contact-invariant coordinates of /model_error/measured.
 - LatestOnlyWorker runs the loading off the callback thread; the node swaps the served
   model in its own thread, so the old model serves until the new one is ready (no gap).
 """
@@ -46,10 +50,12 @@ from typing import Any
 import numpy as np
 
 from .conversions import ConversionError, _finite, _vector
+from .dynamics import RigidBodyDynamics
 from .errors import CimlError
 from .extraction import learning_inputs
 from .learners import learner_class
-from .models import ModelFileError, ModelSet, ModelSetError, default_scaling, read_metadata
+from .models import N_BASE, ModelFileError, ModelSet, ModelSetError, default_scaling, read_metadata
+from .projection import contact_invariant_basis, generalized_rbd_error, leg_coupling
 from .robot import RobotDescription
 
 STATE, ERROR = 0, 1
@@ -193,18 +199,22 @@ class OnlineLearner:
     which partial_fit_one skips per dimension); Φ̃' entries follow rbd_observed.
     """
 
-    def __init__(self, model_set: ModelSet, calibration_samples: int = 0, record_stamps: bool = False) -> None:
+    def __init__(self, robot: RobotDescription, model_set: ModelSet, calibration_samples: int = 0,
+                 record_stamps: bool = False) -> None:
         if calibration_samples < 0:
             raise ValueError("calibration_samples must be >= 0")
         if not learner_class(model_set.learner).supports_partial_fit:
             raise ModelSetError(f"learner {model_set.learner!r} cannot learn online (no partial_fit); use 'lwpr'")
+        model_set.check_robot(robot)
+        self.robot = robot
         self.model_set = model_set
+        self._dyn = RigidBodyDynamics(robot)
         self.calibration_samples = 0 if model_set.is_fitted() else int(calibration_samples)
         self.record_stamps = bool(record_stamps)
         self.counts: Counter[str] = Counter()
         self.n_learned = 0
         self.last_stamp: int | None = None
-        self._buffer: list[tuple[int, np.ndarray, ErrorSample]] = []
+        self._buffer: list[tuple[int, tuple[np.ndarray, ...]]] = []
         self._stamps = np.empty(1024 if record_stamps else 0, dtype=np.int64)
 
     @property
@@ -229,20 +239,23 @@ class OnlineLearner:
         if not np.all(np.isfinite(x)):
             return self._reject("non_finite_inputs")
         self.last_stamp = stamp
+        sample = (x, *self._targets(state.q, error))
         if self.calibrating:
-            self._buffer.append((stamp, x, error))
+            self._buffer.append((stamp, sample))
             if len(self._buffer) >= self.calibration_samples:
                 self._calibrate_and_learn_buffer()
             return None
-        self._learn_one(stamp, x, error)
+        self.model_set.partial_fit_one(*sample)
+        self._record(stamp)
         return None
 
-    def _gamma(self, error: ErrorSample) -> np.ndarray:
-        return np.where(error.actuation_observed, error.actuation_error, np.nan)
-
-    def _learn_one(self, stamp: int, x: np.ndarray, error: ErrorSample) -> None:
-        self.model_set.partial_fit_one(x, error.rbd_error, error.rbd_observed, self._gamma(error))
-        self._record(stamp)
+    def _targets(self, q: np.ndarray, error: ErrorSample) -> tuple[np.ndarray, ...]:
+        """(Φ̃, mask, Γ, C) of one sample: Γ entries not observed are NaN (not learned)."""
+        basis = contact_invariant_basis(self._dyn.foot_jacobians(q), self.robot.leg_joints)[None]
+        rbd, observed = generalized_rbd_error(basis, error.rbd_error[None], error.rbd_observed[None],
+                                              self.robot.leg_joints)
+        gamma = np.where(error.actuation_observed, error.actuation_error, np.nan)
+        return rbd[0], observed[0], gamma, leg_coupling(basis, self.robot.leg_joints)[0]
 
     def _record(self, stamp: int) -> None:
         if self.record_stamps:
@@ -252,15 +265,12 @@ class OnlineLearner:
         self.n_learned += 1
 
     def _calibrate_and_learn_buffer(self) -> None:
-        stamps = [s for s, _, _ in self._buffer]
-        X = np.array([x for _, x, _ in self._buffer])
-        phi = np.array([e.rbd_error for _, _, e in self._buffer])
-        obs = np.array([e.rbd_observed for _, _, e in self._buffer])
-        gamma = np.array([self._gamma(e) for _, _, e in self._buffer])
+        stamps = [s for s, _ in self._buffer]
+        X, rbd, observed, gamma, C = (np.array(a) for a in zip(*(sample for _, sample in self._buffer)))
         self._buffer.clear()
         self.calibration_samples = 0
-        self.model_set.calibrate(X, phi, obs, gamma)
-        self.model_set.partial_fit(X, phi, obs, gamma)  # = partial_fit_one on each, in order
+        self.model_set.calibrate(X, rbd, observed, gamma)
+        self.model_set.partial_fit(X, rbd, observed, gamma, None, C)  # = partial_fit_one on each, in order
         for s in stamps:
             self._record(s)
 
@@ -283,7 +293,7 @@ def warm_up(robot: RobotDescription, learner: str = "lwpr") -> float:
         ms.partial_fit_one(x + 0.01 * k, np.zeros(ms.n_rbd), ones, np.zeros(ms.n_actuation))
     ms.predict_one(x)
     ms.partial_fit(np.array([x, x + 0.02]), np.zeros((2, ms.n_rbd)), np.ones((2, ms.n_rbd), bool),
-                   np.zeros((2, ms.n_actuation)))
+                   np.zeros((2, ms.n_actuation)), None, np.zeros((2, N_BASE, ms.n_actuation)))
     return time.perf_counter() - t0
 
 
@@ -436,8 +446,9 @@ class ServedModel:
     model_dir: str
     model_set: ModelSet
     checksum: str
-    rbd_learned: np.ndarray        # (18,) bool: dimension has a learned model
+    rbd_learned: np.ndarray        # (18,) bool: entry of Φ̃' backed by learned models
     actuation_learned: np.ndarray  # (n_j,) bool
+    dynamics: RigidBodyDynamics    # the server's own (the basis at the reference)
 
 
 def probe_inputs(robot: RobotDescription) -> np.ndarray:
@@ -468,9 +479,18 @@ def load_served_model(robot: RobotDescription, model_dir: str, checksum: str = "
     out = ms.predict_one(probe_inputs(robot))
     if not all(np.all(np.isfinite(a)) for a in out):
         raise ModelFileError(f"{model_dir}: the model predicts non-finite values at the standing posture")
+    return served_model(robot, ms, f"{ms.learner}:{os.path.basename(model_dir)}", model_dir, stored)
+
+
+def served_model(robot: RobotDescription, ms: ModelSet, name: str, model_dir: str = "",
+                 checksum: str = "") -> ServedModel:
+    """A ServedModel of a validated set: a Φ̃' entry counts as learned when the models it is
+    made of are (the base entry's wrench model; a foot's: its leg's joint models)."""
     learned = np.array([m is not None for m in ms.models_], dtype=bool)
-    return ServedModel(name=f"{ms.learner}:{os.path.basename(model_dir)}", model_dir=model_dir, model_set=ms,
-                       checksum=stored, rbd_learned=learned[: ms.n_rbd], actuation_learned=learned[ms.n_rbd:])
+    rbd = np.concatenate([learned[:N_BASE]] + [np.repeat(learned[N_BASE + np.asarray(leg)].all(), 3)
+                                               for leg in robot.leg_joints])
+    return ServedModel(name=name, model_dir=model_dir, model_set=ms, checksum=checksum, rbd_learned=rbd,
+                       actuation_learned=learned[ms.n_rbd:], dynamics=RigidBodyDynamics(robot))
 
 
 @dataclass
@@ -481,7 +501,7 @@ class PredictedError:
     dimension has a learned model (an unlearned dimension predicts 0 with its prior
     variance, output_scale², as ModelSet.predict_one does).
     Nominal model (no model loaded, or a non-finite prediction): zeros, all observed
-    flags false, and the prior variance of default_scaling(robot): (5 % of the weight
+    flags false, and a prior variance from default_scaling(robot): (5 % of the weight
     [N], ×0.1 m [Nm], per foot a quarter; 5 % of each torque limit [Nm])² — large
     compared with a learned model's variance, so "we do not know" is explicit.
     """
@@ -501,22 +521,28 @@ NOMINAL = "nominal"
 
 def nominal_prediction(robot: RobotDescription, fallback: str | None = None) -> PredictedError:
     _, _, out_scale = default_scaling(robot)
-    var = out_scale ** 2
-    nr = len(robot.rbd_error_names)
-    return PredictedError(NOMINAL, np.zeros(nr), var[:nr].copy(), np.zeros(nr, bool),
-                          np.zeros(robot.n_joints), var[nr:].copy(), np.zeros(robot.n_joints, bool), fallback)
+    foot = 0.05 * robot.total_mass * 9.81 / robot.n_feet
+    rbd_var = np.concatenate([out_scale[:N_BASE], np.full(3 * robot.n_feet, foot)]) ** 2
+    nr, nj = len(robot.rbd_error_names), robot.n_joints
+    return PredictedError(NOMINAL, np.zeros(nr), rbd_var, np.zeros(nr, bool),
+                          np.zeros(nj), out_scale[-nj:] ** 2, np.zeros(nj, bool), fallback)
 
 
 def predict_at_reference(robot: RobotDescription, served: ServedModel | None, q: np.ndarray, v: np.ndarray,
                          a: np.ndarray) -> PredictedError:
     """Φ̃' and Γ (with variances) at x = learning_inputs(qᵈ, q̇ᵈ, q̈ᵈ) (eq. 12); nominal
-    when no model is served or anything predicted is non-finite. Never returns NaN."""
+    when no model is served or anything predicted is non-finite. Never returns NaN.
+
+    The set predicts Φ̃ = J'ᵀΦ̃'; Φ̃' = J'⁻ᵀΦ̃ with the basis at qᵈ (eq. 8), its variance
+    propagated assuming independent dimensions."""
     if served is None:
         return nominal_prediction(robot, "no_model")
     x = learning_inputs(q, v, a)[0]
-    if not np.all(np.isfinite(x)):
+    if not np.all(np.isfinite(x)) or not np.all(np.isfinite(q)):
         return nominal_prediction(robot, "non_finite_reference")
-    phi, phi_var, gamma, gamma_var = served.model_set.predict_one(x)
+    rbd, rbd_var, gamma, gamma_var = served.model_set.predict_one(x)
+    inverse_basis_t = np.linalg.inv(contact_invariant_basis(served.dynamics.foot_jacobians(q), robot.leg_joints).T)
+    phi, phi_var = inverse_basis_t @ rbd, inverse_basis_t ** 2 @ rbd_var
     if not all(np.all(np.isfinite(z)) for z in (phi, phi_var, gamma, gamma_var)):
         return nominal_prediction(robot, "non_finite_prediction")
     return PredictedError(served.name, phi, phi_var, served.rbd_learned.copy(), gamma, gamma_var,
@@ -537,30 +563,19 @@ def online_nodes_benchmark(n_warmup: int = 20_000, n_samples: int = 2_000, seed:
     import tempfile
 
     from .robot import load_robot
-    from .training import synthetic_training_set
+    from .training import fit_arguments, synthetic_training_set
 
     robot = load_robot()
     data = synthetic_training_set(robot, n_warmup + n_samples, seed)
-    X, R, O, A, V = (data[k] for k in ("inputs", "rbd_error", "rbd_observed", "actuation_error", "valid"))
-    # states whose learning_inputs are X: base roll/pitch as a quaternion, the rest verbatim
-    import pinocchio as pin
-
-    nj, nv = robot.n_joints, robot.nv
-    n = n_warmup + n_samples
-    q = np.zeros((n, robot.nq))
-    for k in range(n):
-        q[k, 3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(X[k, 0], X[k, 1], 0.0)).coeffs()
-    q[:, 2] = 0.6
-    q[:, 7:] = X[:, 2:2 + nj]
-    v = X[:, 2 + nj:2 + nj + nv]
-    a = X[:, 2 + nj + nv:]
+    R, O, A, V, q, v, a = (data[k] for k in ("rbd_error", "rbd_observed", "actuation_error", "valid", "q", "v", "a"))
+    nj = robot.n_joints
     ms = ModelSet.for_robot(robot, "lwpr")
-    sl = slice(0, n_warmup)
-    ms.calibrate(X[sl], R[sl], O[sl], A[sl], V[sl])
-    ms.partial_fit(X[sl], R[sl], O[sl], A[sl], V[sl])
-    learner = OnlineLearner(ms)
+    warmup = fit_arguments(data, slice(0, n_warmup))
+    ms.calibrate(*warmup[:5])
+    ms.partial_fit(*warmup)
+    learner = OnlineLearner(robot, ms)
     pairer = StampPairer(max_age_ns=500_000_000)
-    served = ServedModel("lwpr:bench", "", ms, "", np.ones(ms.n_rbd, bool), np.ones(ms.n_actuation, bool))
+    served = served_model(robot, ms, "lwpr:bench")
     t_learn = np.empty(n_samples)
     t_pred = np.empty(n_samples)
     for s in range(n_samples):

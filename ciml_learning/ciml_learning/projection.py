@@ -80,3 +80,41 @@ def basis_columns(contacts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     constrained = np.concatenate([c for c, on in zip(foot_cols, contacts) if on] or [np.zeros(0, int)])
     unconstrained = np.concatenate([np.arange(6)] + [c for c, on in zip(foot_cols, contacts) if not on])
     return constrained.astype(int), unconstrained.astype(int)
+
+
+def leg_coupling(basis: np.ndarray, leg_joints: tuple[tuple[int, ...], ...]) -> np.ndarray:
+    """C (N × 6 × n_j): how each leg joint's rigid-body error reaches the base rows of Φ̃'.
+
+    With B_i = ∂p_i/∂q_leg,i (the leg block of J', regularised) and J_i,base the base columns
+    of foot i's rows, a joint-space error e_i of leg i has foot entries φ_i = B_i⁻ᵀ e_i and
+    contributes J_i,baseᵀ φ_i = C_i e_i to the base rows of J'ᵀΦ̃' (eq. 8): C_i = J_i,baseᵀ B_i⁻ᵀ.
+    C_i is invariant to the base's yaw (both blocks rotate with it).
+    """
+    n = len(basis)
+    n_j = basis.shape[-1] - 6
+    C = np.zeros((n, 6, n_j))
+    for i, leg in enumerate(leg_joints):
+        rows = slice(6 + 3 * i, 9 + 3 * i)
+        B = basis[:, rows][:, :, 6 + np.asarray(leg)]
+        J_base = basis[:, rows, :6]
+        # C_iᵀ = B_i⁻¹ J_i,base
+        C[:, :, np.asarray(leg)] = np.transpose(np.linalg.solve(B, J_base), (0, 2, 1))
+    return C
+
+
+def generalized_rbd_error(basis: np.ndarray, phi_prime: np.ndarray, observed: np.ndarray,
+                          leg_joints: tuple[tuple[int, ...], ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Φ̃ = J'ᵀ Φ̃' (eq. 8) from the observed entries of Φ̃' (N × nv), and its observed mask.
+
+    Stance feet's entries are unobserved (taken as 0), so the rows of a stance leg's joints are
+    unobserved and the base rows hold w' + Σ_swing C_i e_i: the base wrench without the stance
+    legs' joint errors, which ModelSet adds back from its leg models (leg_coupling).
+    """
+    phi = np.where(observed, phi_prime, 0.0)
+    generalized = np.einsum("nji,nj->ni", basis, phi)
+    mask = np.zeros_like(observed, dtype=bool)
+    mask[:, :6] = observed[:, :6]
+    for i, leg in enumerate(leg_joints):
+        mask[:, 6 + np.asarray(leg)] = observed[:, 6 + 3 * i:7 + 3 * i]
+    generalized[~mask] = 0.0
+    return generalized, mask

@@ -11,11 +11,12 @@ import pytest
 
 from ciml_learning import conversions as cv
 from ciml_learning.conversions import ConversionError
-from ciml_learning.extraction import learning_inputs
+from ciml_learning.extraction import dynamics_batch, learning_inputs
 from ciml_learning.models import ModelFileError, ModelSet, ModelSetError
 from ciml_learning.online import (ERROR, LATEST, NOMINAL, STATE, STAMPS_FILE, ErrorSample, LatestOnlyWorker,
                                   OnlineLearner, SnapshotWriter, StampPairer, StateSample, load_served_model,
                                   model_error_sample, nominal_prediction, predict_at_reference)
+from ciml_learning.projection import contact_invariant_bases, generalized_rbd_error, leg_coupling
 from ciml_learning.robot import load_robot
 
 ROBOT = load_robot()
@@ -43,8 +44,12 @@ def stream(n: int, seed: int = 0):
     gamma = -3.0 * v[:, 6:] + rng.normal(scale=0.2, size=(n, nj))
     valid = rng.uniform(size=n) > 0.1
     stamps = (np.arange(n) * 4_000_000 + 1_000_000_000).astype(np.int64)
+    # the model set's targets, as the extraction makes them from Φ̃' (eq. 8)
+    basis = contact_invariant_bases(dynamics_batch(ROBOT, q, v, a)[1], ROBOT.leg_joints)
+    rbd, rbd_observed = generalized_rbd_error(basis, phi, observed, ROBOT.leg_joints)
     return dict(q=q, v=v, a=a, phi=phi, observed=observed, gamma=gamma, valid=valid, stamps=stamps,
-                X=learning_inputs(q, v, a))
+                X=learning_inputs(q, v, a), rbd=rbd, rbd_observed=rbd_observed, basis=basis,
+                coupling=leg_coupling(basis, ROBOT.leg_joints))
 
 
 def error_sample(s, k, act_obs=None) -> ErrorSample:
@@ -145,7 +150,7 @@ def test_online_learner_equals_offline_partial_fit_on_the_same_samples(calibrati
     s = stream(n)
     act_obs = np.ones((n, 12), bool)
     act_obs[50, :4] = False              # a partially observed Γ: those entries are not learned
-    learner = OnlineLearner(ModelSet.for_robot(ROBOT, "lwpr"), calibration_samples=calibration, record_stamps=True)
+    learner = OnlineLearner(ROBOT, ModelSet.for_robot(ROBOT, "lwpr"), calibration_samples=calibration, record_stamps=True)
     reasons = [learner.learn(int(s["stamps"][k]), StateSample(s["q"][k], s["v"][k], s["a"][k], bool(s["valid"][k])),
                              error_sample(s, k, act_obs[k])) for k in range(n)]
     assert reasons.count("invalid_samples") == int((~s["valid"]).sum())
@@ -156,8 +161,8 @@ def test_online_learner_equals_offline_partial_fit_on_the_same_samples(calibrati
     offline = ModelSet.for_robot(ROBOT, "lwpr")
     if calibration:
         first = np.flatnonzero(s["valid"])[:calibration]
-        offline.calibrate(s["X"][first], s["phi"][first], s["observed"][first], gamma[first])
-    offline.partial_fit(s["X"], s["phi"], s["observed"], gamma, s["valid"])
+        offline.calibrate(s["X"][first], s["rbd"][first], s["rbd_observed"][first], gamma[first])
+    offline.partial_fit(s["X"], s["rbd"], s["rbd_observed"], gamma, s["valid"], s["coupling"])
     on, off = learner.model_set.predict(s["X"]), offline.predict(s["X"])
     np.testing.assert_array_equal(on.rbd, off.rbd)
     np.testing.assert_array_equal(on.actuation, off.actuation)
@@ -168,15 +173,15 @@ def test_online_learner_equals_offline_partial_fit_on_the_same_samples(calibrati
     valid2 = s["valid"].copy()
     valid2[np.flatnonzero(valid2)[len(np.flatnonzero(valid2)) // 2]] = False
     if calibration:
-        offline2.calibrate(s["X"][first], s["phi"][first], s["observed"][first], gamma[first])
-    offline2.partial_fit(s["X"], s["phi"], s["observed"], gamma, valid2)
+        offline2.calibrate(s["X"][first], s["rbd"][first], s["rbd_observed"][first], gamma[first])
+    offline2.partial_fit(s["X"], s["rbd"], s["rbd_observed"], gamma, valid2, s["coupling"])
     p2 = offline2.predict(s["X"])
     assert not np.array_equal(np.hstack([p2.rbd, p2.actuation]), np.hstack([off.rbd, off.actuation]))
 
 
 def test_online_learner_rejects_out_of_order_and_unobserved_pairs():
     s = stream(5)
-    learner = OnlineLearner(ModelSet.for_robot(ROBOT, "lwpr"))
+    learner = OnlineLearner(ROBOT, ModelSet.for_robot(ROBOT, "lwpr"))
     st = StateSample(s["q"][0], s["v"][0], s["a"][0], True)
     assert learner.learn(10, st, error_sample(s, 0)) is None
     assert learner.learn(10, st, error_sample(s, 0)) == "out_of_order_pairs"
@@ -185,13 +190,13 @@ def test_online_learner_rejects_out_of_order_and_unobserved_pairs():
     assert learner.learn(11, st, none) == "invalid_samples"
     assert learner.n_learned == 1 and learner.counts == {"out_of_order_pairs": 2, "invalid_samples": 1}
     with pytest.raises(ModelSetError, match="lwpr"):
-        OnlineLearner(ModelSet.for_robot(ROBOT, "sgpr"))
+        OnlineLearner(ROBOT, ModelSet.for_robot(ROBOT, "sgpr"))
 
 
 # ---------------------------------------------------------------------- snapshots
 def _trained(n=120, seed=0):
     s = stream(n, seed)
-    learner = OnlineLearner(ModelSet.for_robot(ROBOT, "lwpr"), record_stamps=True)
+    learner = OnlineLearner(ROBOT, ModelSet.for_robot(ROBOT, "lwpr"), record_stamps=True)
     for k in range(n):
         learner.learn(int(s["stamps"][k]), StateSample(s["q"][k], s["v"][k], s["a"][k], bool(s["valid"][k])),
                       error_sample(s, k))
@@ -233,8 +238,10 @@ def test_served_model_predicts_like_predict_one_and_refuses_bad_files(tmp_path):
     assert served.name == f"lwpr:{os.path.basename(saved.model_dir)}"
     k = 33
     pred = predict_at_reference(ROBOT, served, s["q"][k], s["v"][k], s["a"][k])
-    phi, phi_var, gamma, gamma_var = learner.model_set.predict_one(s["X"][k])
-    np.testing.assert_array_equal(pred.rbd_error, phi)
+    rbd, rbd_var, gamma, gamma_var = learner.model_set.predict_one(s["X"][k])
+    # published in the contact-invariant coordinates of /model_error/measured: Φ̃' = J'⁻ᵀΦ̃ (eq. 8)
+    np.testing.assert_allclose(s["basis"][k].T @ pred.rbd_error, rbd, rtol=1e-9, atol=1e-9)
+    assert np.abs(rbd).max() > 1.0
     np.testing.assert_array_equal(pred.actuation_variance, gamma_var)
     assert pred.source == served.name and pred.fallback is None and pred.actuation_observed.all()
     with pytest.raises(ModelFileError, match="announced"):
@@ -253,7 +260,9 @@ def test_nominal_when_no_model_or_non_finite_prediction(tmp_path):
     assert pred.source == NOMINAL and pred.fallback == "no_model"
     assert not pred.rbd_error.any() and not pred.rbd_observed.any() and not pred.actuation_observed.any()
     prior = ModelSet.for_robot(ROBOT, "lwpr").output_scale_ ** 2   # an unlearned set's prior variance
-    np.testing.assert_array_equal(np.r_[pred.rbd_variance, pred.actuation_variance], prior)
+    np.testing.assert_array_equal(pred.rbd_variance[:6], prior[:6])
+    np.testing.assert_array_equal(pred.actuation_variance, prior[-12:])
+    np.testing.assert_allclose(pred.rbd_variance[6:], (0.05 * ROBOT.total_mass * 9.81 / 4) ** 2)
     learner, _ = _trained()
     saved = SnapshotWriter(str(tmp_path)).write(learner.snapshot())
     served = load_served_model(ROBOT, saved.model_dir)

@@ -9,7 +9,7 @@ import pytest
 from synthetic import write_synthetic_bag
 
 from ciml_learning.cli import main
-from ciml_learning.models import ModelSet, load_epsilon_function
+from ciml_learning.models import ModelSet, load_epsilon_function, rbd_output_names
 from ciml_learning.robot import load_robot
 
 ROBOT = load_robot()
@@ -32,7 +32,7 @@ def run_train_and_evaluate(bag: str, out_dir, learner: str, jobs: int) -> dict:
     assert main(["evaluate", "--model", model_dir, "--bag", bag, "--out", metrics_path]) == 0
     with open(metrics_path) as f:
         metrics = json.load(f)
-    assert [d["name"] for d in metrics["dimensions"]] == list(ROBOT.rbd_error_names + ROBOT.joint_names)
+    assert [d["name"] for d in metrics["dimensions"]] == list(rbd_output_names(ROBOT) + ROBOT.joint_names)
     for group in ("rbd", "actuation", "all"):
         assert metrics["summary"][group]["dimensions"] > 0
     # on its own training data the learned model must beat the nominal (zero) model

@@ -60,7 +60,7 @@ class OnlineLearnerNode(Node):
             self.get_logger().info(f"continuing from {initial} ({int(ms.n_samples_.max())} samples)")
         else:
             ms = ModelSet.for_robot(self.robot, learner)
-        self.learner = OnlineLearner(ms, calibration_samples=calib, record_stamps=record)
+        self.learner = OnlineLearner(self.robot, ms, calibration_samples=calib, record_stamps=record)
         self.get_logger().info(f"learner code ready in {warm_up(self.robot, ms.learner):.2f} s")
         self.pairer = StampPairer(int(max_age * 1e9))
         self.writer = SnapshotWriter(model_dir or DEFAULT_MODEL_DIR, keep)

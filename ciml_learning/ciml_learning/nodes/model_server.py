@@ -3,8 +3,9 @@
 Thin adapter around ciml_learning.online (load_served_model, predict_at_reference,
 LatestOnlyWorker). For every /reference (qᵈ, q̇ᵈ, q̈ᵈ) it publishes a ciml_msgs/ModelError
 stamped like the reference: Φ̃' (18) and Γ (n_j) predicted at x = learning_inputs(qᵈ, q̇ᵈ,
-q̈ᵈ) (eq. 12) with their predictive variances, `source` = the model's name
-("<learner>:<folder name>"), observed = the dimension has a learned model.
+q̈ᵈ) (eq. 12) with their predictive variances (the set learns Φ̃ = J'ᵀΦ̃'; Φ̃' = J'⁻ᵀΦ̃ with
+the basis at qᵈ), `source` = the model's name ("<learner>:<folder name>"), observed = the
+entry is backed by learned models.
 
 Nominal model (source "nominal"): zeros, all observed flags false and the prior variance
 of online.nominal_prediction (large: (5 % of the weight-derived force scale)²) — served

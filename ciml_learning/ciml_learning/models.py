@@ -419,23 +419,21 @@ class ModelSet:
         xs = (x - self.input_mean_) / self.input_scale_
         targets = np.concatenate([rbd_error, actuation_error])
         observed = np.concatenate([rbd_observed, np.ones(self.n_actuation, bool)])
-        for i in [*range(N_BASE, self.n_outputs), *range(N_BASE)]:
-            if i == 0 and leg_coupling is not None and observed[0]:
-                stance = np.flatnonzero(~observed[N_BASE:self.n_rbd])
-                e_hat = np.zeros(len(stance))
-                for k, j in enumerate(stance):
-                    model = self.models_[N_BASE + j]
-                    if model is not None:
-                        e_hat[k] = model.predict_one(xs[self.input_index[N_BASE + j]])[0] * self.output_scale_[N_BASE + j]
-                targets[:N_BASE] = targets[:N_BASE] + np.asarray(leg_coupling)[:, stance] @ e_hat
-            y = targets[i]
-            if not observed[i] or not np.isfinite(y):
-                continue
-            model = self.models_[i]
-            if model is None:
-                model = self.models_[i] = self.new_learner(i)
-            model.update(xs[self.input_index[i]], y / self.output_scale_[i])
-            self.n_samples_[i] += 1
+        for i in range(N_BASE, self.n_outputs):
+            self._update_one(i, xs, targets[i], observed[i])
+        if leg_coupling is not None and observed[:N_BASE].any():
+            targets[:N_BASE] = self.base_wrench_targets(xs[None], targets[None, :self.n_rbd],
+                                                        observed[None, :self.n_rbd], np.asarray(leg_coupling)[None])[0]
+        for i in range(N_BASE):
+            self._update_one(i, xs, targets[i], observed[i])
+
+    def _update_one(self, i: int, xs: np.ndarray, y: float, observed: bool) -> None:
+        if not observed or not np.isfinite(y):
+            return
+        if self.models_[i] is None:
+            self.models_[i] = self.new_learner(i)
+        self.models_[i].update(xs[self.input_index[i]], y / self.output_scale_[i])
+        self.n_samples_[i] += 1
 
     # ------------------------------------------------------------------ prediction
     def predict(self, X: np.ndarray, return_var: bool = True) -> Prediction:

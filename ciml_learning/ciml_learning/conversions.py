@@ -262,20 +262,21 @@ def _six(msg) -> np.ndarray:
 
 
 def robot_state_msg(robot: RobotDescription, stamp_ns: int, q: np.ndarray, v: np.ndarray, a: np.ndarray,
-                    tau: np.ndarray, u: np.ndarray, contacts: np.ndarray, valid: bool):
-    """Filtered full state (Pinocchio q, v, q̈) as ciml_msgs/RobotState."""
+                    tau: np.ndarray, tau_dot: np.ndarray, u: np.ndarray, contacts: np.ndarray, valid: bool):
+    """Filtered full state (Pinocchio q, v, q̈; τ, τ̇, u) as ciml_msgs/RobotState."""
     from ciml_msgs.msg import RobotState
 
     return RobotState(
         header=header_msg(stamp_ns, "world"), joint_names=list(robot.joint_names),
         base_pose=_pose(q[:3], q[3:7]), base_twist=_twist(v[:6]), base_acceleration=_twist(a[:6], accel=True),
         position=q[7:].tolist(), velocity=v[6:].tolist(), acceleration=a[6:].tolist(),
-        effort_measured=np.asarray(tau, float).tolist(), effort_commanded=np.asarray(u, float).tolist(),
+        effort_measured=np.asarray(tau, float).tolist(), effort_rate=np.asarray(tau_dot, float).tolist(),
+        effort_commanded=np.asarray(u, float).tolist(),
         foot_names=list(robot.foot_frames), in_contact=[bool(c) for c in contacts], valid=bool(valid))
 
 
 def robot_state_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, ...]:
-    """(q, v, q̈, τ, u, contacts, valid) in the robot's orders from a RobotState."""
+    """(q, v, q̈, τ, τ̇, u, contacts, valid) in the robot's orders from a RobotState."""
     perm = robot.joint_permutation(list(msg.joint_names))
     n = len(msg.joint_names)
     p, o = msg.base_pose.position, msg.base_pose.orientation
@@ -283,12 +284,13 @@ def robot_state_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, ...]:
     v = np.concatenate([_six(msg.base_twist), _vector(msg.velocity, n, "velocity")[perm]])
     a = np.concatenate([_six(msg.base_acceleration), _vector(msg.acceleration, n, "acceleration")[perm]])
     tau = _vector(msg.effort_measured, n, "effort_measured")[perm]
+    tau_dot = _vector(msg.effort_rate, n, "effort_rate")[perm]
     u = _vector(msg.effort_commanded, n, "effort_commanded")[perm]
-    _finite("filtered_state", q, v, a, tau, u)
+    _finite("filtered_state", q, v, a, tau, tau_dot, u)
     flags = np.asarray(msg.in_contact, dtype=bool)
     if flags.shape != (len(msg.foot_names),):
         raise ConversionError("filtered_state: foot names and contact flags differ in length")
-    return q, v, a, tau, u, flags[robot.foot_permutation(list(msg.foot_names))], bool(msg.valid)
+    return q, v, a, tau, tau_dot, u, flags[robot.foot_permutation(list(msg.foot_names))], bool(msg.valid)
 
 
 # --- ciml_msgs/RobotReference (read side, for the model server) ----------------------

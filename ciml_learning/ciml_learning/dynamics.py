@@ -90,6 +90,17 @@ class RigidBodyDynamics:
         return DynamicsTerms(M, self.data.nle.copy(), self._foot_jacobians())
 
 
+@dataclass
+class ReferenceState:
+    """A reference point: time t [s], qᵈ (nq), q̇ᵈ, q̈ᵈ (nv), contact schedule (n_feet, bool)."""
+
+    t: float
+    q: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    contacts: np.ndarray
+
+
 class ReferenceTorque:
     """The joint torque τ_ref a reference asks for, and its rate τ̇_ref, for models of Γ(τ, τ̇).
 

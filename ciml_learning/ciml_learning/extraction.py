@@ -28,12 +28,16 @@ N_LEARNING_INPUTS_BASE = 2  # roll, pitch
 
 
 def learning_input_names(robot: RobotDescription) -> tuple[str, ...]:
-    """Names of the 50 inputs of eq. (12) (for HyQ): roll, pitch, joints, q̇, q̈."""
+    """Names of the learning inputs (74 for HyQ): the 50 of eq. (12) (roll, pitch, joints, q̇,
+    q̈), then the measured joint torques τ and their rates τ̇ (inputs of the actuation models:
+    an actuator's lag and gain are functions of the torque it delivers, Γ ≈ −T τ̇ + (g − 1) τ)."""
     return (
         ("base_roll", "base_pitch")
         + tuple(f"q_{j}" for j in robot.joint_names)
         + tuple(f"qd_{d}" for d in robot.dof_names)
         + tuple(f"qdd_{d}" for d in robot.dof_names)
+        + tuple(f"tau_{j}" for j in robot.joint_names)
+        + tuple(f"taud_{j}" for j in robot.joint_names)
     )
 
 
@@ -45,16 +49,11 @@ def roll_pitch(quat_xyzw: np.ndarray) -> np.ndarray:
     return np.stack([roll, pitch], axis=-1)
 
 
-def learning_inputs(q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """Inputs of the RBD error models, eq. (12) without base position and yaw: (N × 50)."""
-    q, v, a = np.atleast_2d(q), np.atleast_2d(v), np.atleast_2d(a)
-    return np.hstack([roll_pitch(q[:, 3:7]), q[:, 7:], v, a])
-
-
-def actuation_inputs(q: np.ndarray, v: np.ndarray, a: np.ndarray, joint: int) -> np.ndarray:
-    """Inputs (q_i, q̇_i, q̈_i) of joint i's actuation model: (N × 3)."""
-    q, v, a = np.atleast_2d(q), np.atleast_2d(v), np.atleast_2d(a)
-    return np.stack([q[:, 7 + joint], v[:, 6 + joint], a[:, 6 + joint]], axis=1)
+def learning_inputs(q: np.ndarray, v: np.ndarray, a: np.ndarray, tau: np.ndarray, tau_dot: np.ndarray) -> np.ndarray:
+    """Learning inputs (N × 74, learning_input_names): eq. (12) without base position and yaw,
+    then τ and τ̇ [Nm, Nm/s]."""
+    q, v, a, tau, tau_dot = (np.atleast_2d(z) for z in (q, v, a, tau, tau_dot))
+    return np.hstack([roll_pitch(q[:, 3:7]), q[:, 7:], v, a, tau, tau_dot])
 
 
 def actuation_error(tau_measured: np.ndarray, u_commanded: np.ndarray) -> np.ndarray:
@@ -125,7 +124,7 @@ class ExtractionResult:
     """Training targets of a log (paper §III), one row per sample."""
 
     t: np.ndarray
-    inputs: np.ndarray            # N × 50, eq. (12)
+    inputs: np.ndarray            # N × 74, learning_inputs (eq. 12, τ, τ̇)
     rbd_error: np.ndarray         # N × 18, Φ̃' (0 where unobserved)
     rbd_observed: np.ndarray      # N × 18
     actuation_error: np.ndarray   # N × 12, Γ
@@ -181,8 +180,10 @@ def extract(
     t: np.ndarray | None = None,
     valid: np.ndarray | None = None,
     gamma: float = DEFAULT_GAMMA,
+    tau_dot: np.ndarray | None = None,
 ) -> ExtractionResult:
-    """Batch extraction of Φ̃' (eq. 11), Γ (eq. 14) and the inputs (eq. 12) from a filtered log."""
+    """Batch extraction of Φ̃' (eq. 11), Γ (eq. 14) and the learning inputs from a filtered log
+    (τ̇: the filtered torque rate; None leaves its inputs NaN, unusable for learning)."""
     q, v, a = np.asarray(q, float), np.asarray(v, float), np.asarray(a, float)
     n = len(q)
     S = selection_matrix(robot)
@@ -198,7 +199,7 @@ def extract(
     generalized, generalized_mask = generalized_rbd_error(basis, phi, mask, robot.leg_joints)
     return ExtractionResult(
         t=np.arange(n, dtype=float) if t is None else np.asarray(t, float),
-        inputs=learning_inputs(q, v, a),
+        inputs=learning_inputs(q, v, a, tau, np.full(np.shape(tau), np.nan) if tau_dot is None else tau_dot),
         rbd_error=phi,
         rbd_observed=mask,
         actuation_error=actuation_error(tau, u),
@@ -234,7 +235,7 @@ def throughput_benchmark(n_samples: int = 50_000, seed: int = 0) -> dict:
     t0 = time.perf_counter()
     flog = filter_state_log(t, q, v, tau, u, contacts)
     t1 = time.perf_counter()
-    extract(robot, flog.q, flog.v, flog.a, flog.tau, flog.u, flog.contacts, flog.t, flog.valid)
+    extract(robot, flog.q, flog.v, flog.a, flog.tau, flog.u, flog.contacts, flog.t, flog.valid, tau_dot=flog.tau_dot)
     t2 = time.perf_counter()
     return {
         "samples": n_samples,

@@ -4,11 +4,17 @@ A ModelSet holds one independent learner per output dimension (paper §III-D):
 
 - 18 rigid-body models of the generalized model error Φ̃ = J'ᵀΦ̃' (eq. 8; names
   rbd_output_names): the base wrench w (6), then each leg joint's rigid-body error e_j (12);
-- 12 actuation models of Γ = τ − u (eq. 14), one per joint (robot.joint_names).
+- 12 actuation models of Γ = τ − u (eq. 14), one per joint (robot.joint_names), from the
+  joint's q, q̇, q̈ and its torque τ and rate τ̇.
 
 Combined, they give the model error the controller adds (eq. 17):
 
-    ε(q, q̇, q̈) = J'ᵀ Φ̃'(x) − Sᵀ Γ(x) = [w; e] − Sᵀ Γ
+    ε(q, q̇, q̈) = J'ᵀ Φ̃'(x) − Sᵀ Γ(x, τ, τ̇) = [w; e] − Sᵀ Γ
+
+Why Γ from the torque (DESIGN.md §1 names q_i, q̇_i, q̈_i only): an actuator's lag and gain
+are functions of the torque it delivers and its rate, Γ ≈ −T τ̇ + (g − 1) τ, not of the
+joint's state; at a reference the torque is the one it asks for, τ_ref and τ̇_ref of
+dynamics.ReferenceTorque (EpsilonFunction). Measured (results/EXPERIMENT.md): see there.
 
 Why the generalized coordinates, not the contact-invariant ones of eq. (11): J' puts a leg's
 joint-space error into the base entries of Φ̃' as −J_i,baseᵀ B_i⁻ᵀ e_i (projection.leg_coupling),
@@ -34,7 +40,7 @@ shifted — zero stays "no error", so the learners' zero-mean fallback is the no
 model. Learners see standardised data; predictions are returned in SI units
 (N, Nm; variances in N², Nm²).
 
-API (X: N × 50 learning inputs of eq. 12; rbd: Φ̃ (N × 18) and its mask; C: leg coupling
+API (X: N × 74 learning inputs, extraction.learning_inputs: eq. 12, τ, τ̇; rbd: Φ̃ (N × 18) and its mask; C: leg coupling
 (N × 6 × n_j); Γ (N × n_j)):
 
     ms = ModelSet.for_robot(robot, "lwpr")            # empty set, default scaling
@@ -43,7 +49,7 @@ API (X: N × 50 learning inputs of eq. 12; rbd: Φ̃ (N × 18) and its mask; C: 
     ms.partial_fit_one(x, rbd, observed, gamma, C)    # one sample, legs before the base
     ms.partial_fit(X, rbd, rbd_observed, Gamma, valid, C)   # = partial_fit_one on each, in order
     rbd, rbd_var, act, act_var = ms.predict_one(x)   # fast single-sample prediction
-    eps = EpsilonFunction(robot, ms); eps.epsilon(q, v, a)   # ε at a state, eq. (17)
+    eps = EpsilonFunction(robot, ms); eps(ref)       # ε at a reference point, eq. (17)
     ms.save(model_dir)                               # atomic snapshot (npz + json)
     ms = ModelSet.load(model_dir, robot)             # validated, refuses bad files
 
@@ -81,8 +87,9 @@ import numpy as np
 from .errors import CimlError
 from .learners import Learner, LearnerError, learner_class
 
-FORMAT_VERSION = 3
-"""3: the rigid-body models learn Φ̃ = J'ᵀΦ̃' (base wrench, leg joints); versions 1–2 are refused."""
+FORMAT_VERSION = 4
+"""4: the actuation models take τ and τ̇ too; 3: the rigid-body models learn Φ̃ = J'ᵀΦ̃' (base
+wrench, leg joints). Other versions are refused."""
 MODEL_JSON = "model.json"
 MODEL_NPZ = "model.npz"
 KIND = "ciml_model_set"
@@ -91,7 +98,7 @@ KERNELS = {"lwpr": "gaussian_receptive_fields", "sgpr": "matern32_ard"}
 DEFAULT_PARAMS: dict[str, dict[str, dict[str, Any]]] = {
     # Hyper-parameters per learner and group, in standardised units (unit-variance inputs,
     # unit-RMS outputs). Groups: "base" the base wrench (14 inputs), "leg" a leg joint's
-    # rigid-body error and "actuation" (3 inputs each). LWPR: the base's inputs lie near the
+    # rigid-body error (3 inputs) and "actuation" (5 inputs). LWPR: the base's inputs lie near the
     # low-dimensional cycles of the gaits — a diagonal metric, at most 3 PLS projections and
     # narrow initial fields (D = 0.2) put a few tens of fields along a cycle; a joint's 3
     # inputs: a diagonal metric with D = 0.8 for the rigid-body error (generalised best to
@@ -143,9 +150,14 @@ class Prediction:
     actuation_var: np.ndarray  # N × n_j [Nm²]
 
 
-def actuation_input_names(joint: str) -> tuple[str, str, str]:
-    """Names of joint i's inputs among the learning inputs (q_i, q̇_i, q̈_i)."""
+def joint_state_names(joint: str) -> tuple[str, str, str]:
+    """Names of a joint's state among the learning inputs (q_i, q̇_i, q̈_i)."""
     return (f"q_{joint}", f"qd_{joint}", f"qdd_{joint}")
+
+
+def actuation_input_names(joint: str) -> tuple[str, ...]:
+    """Names of joint i's actuation-model inputs: (q_i, q̇_i, q̈_i, τ_i, τ̇_i)."""
+    return joint_state_names(joint) + (f"tau_{joint}", f"taud_{joint}")
 
 
 def rbd_output_names(robot) -> tuple[str, ...]:
@@ -166,7 +178,7 @@ def rbd_input_names(robot) -> dict[str, tuple[str, ...]]:
     rbd = rbd_output_names(robot)
     out = {d: base_state for d in rbd[:N_BASE]}
     for d, joint in zip(rbd[N_BASE:], robot.joint_names):
-        out[d] = actuation_input_names(joint)
+        out[d] = joint_state_names(joint)
     return out
 
 
@@ -175,7 +187,8 @@ def default_scaling(robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
     Derived from the robot description only (no data): joints centred on the standing
     posture with a sixth of their range as scale, roll/pitch 0.1 rad, velocities 0.5 m/s,
-    0.5 rad/s (base) and 2 rad/s (joints), accelerations 5 m/s², 5 rad/s², 30 rad/s²;
+    0.5 rad/s (base) and 2 rad/s (joints), accelerations 5 m/s², 5 rad/s², 30 rad/s²,
+    torques a quarter of the limit, torque rates 10 × the limit per second;
     outputs 5 % of the robot's weight (base forces), 5 % of weight × 0.1 m (base torques)
     and 5 % of each joint's torque limit (its rigid-body and its actuation error).
     calibrate() on real data replaces these.
@@ -190,11 +203,14 @@ def default_scaling(robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     index = {n: i for i, n in enumerate(names)}
     scale[index["base_roll"]] = scale[index["base_pitch"]] = 0.1
     for j, joint in enumerate(robot.joint_names):
-        q, qd, qdd = (index[n] for n in actuation_input_names(joint))
+        q, qd, qdd, tau, taud = (index[n] for n in actuation_input_names(joint))
         mean[q] = robot.standing_joints[j]
         scale[q] = span[j] / 6.0
         scale[qd] = 2.0
         scale[qdd] = 30.0
+        limit = robot.torque_limits[j] if robot.torque_limits[j] > 0 else 100.0
+        scale[tau] = 0.25 * limit
+        scale[taud] = 10.0 * limit
     for k, dof in enumerate(robot.dof_names[:6]):
         scale[index[f"qd_{dof}"]] = 0.5
         scale[index[f"qdd_{dof}"]] = 5.0
@@ -361,7 +377,7 @@ class ModelSet:
         joints and the actuators first, then the base wrench with the stance legs' learned
         errors added back (base_wrench_targets).
 
-        X: learning inputs (N × 50, eq. 12); rbd_error: Φ̃ = J'ᵀΦ̃' (N × 18, anything where
+        X: learning inputs (N × 74, extraction.learning_inputs); rbd_error: Φ̃ = J'ᵀΦ̃' (N × 18, anything where
         unobserved); rbd_observed: (N × 18) bool; actuation_error: Γ (N × n_j);
         valid: (N,) bool; leg_coupling: C (N × 6 × n_j, projection.leg_coupling; None: no
         coupling). Returns self.
@@ -408,7 +424,7 @@ class ModelSet:
 
     def partial_fit_one(self, x: np.ndarray, rbd_error: np.ndarray, rbd_observed: np.ndarray,
                         actuation_error: np.ndarray, leg_coupling: np.ndarray | None = None) -> None:
-        """Learn from one valid sample (online, 250 Hz): x (50,), Φ̃ (18,), mask (18,), Γ (n_j,),
+        """Learn from one valid sample (online, 250 Hz): x (74,), Φ̃ (18,), mask (18,), Γ (n_j,),
         C (6 × n_j; None: no coupling). The leg joints and actuators first, then the base.
 
         Non-finite values are skipped per dimension (never learned)."""
@@ -437,7 +453,7 @@ class ModelSet:
 
     # ------------------------------------------------------------------ prediction
     def predict(self, X: np.ndarray, return_var: bool = True) -> Prediction:
-        """Φ̃ and Γ (and variances) at learning inputs X (N × 50 or 50,)."""
+        """Φ̃ and Γ (and variances) at learning inputs X (N × 74 or 74,)."""
         X = np.atleast_2d(np.asarray(X, dtype=float))
         if X.shape[1] != len(self.input_names):
             raise ModelSetError(f"X has {X.shape[1]} columns, the model set expects {len(self.input_names)}")
@@ -463,20 +479,26 @@ class ModelSet:
     def predict_one(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Fast single-sample prediction: (Φ̃ (18), var (18), Γ (n_j), var (n_j)), SI units.
 
-        No input checks beyond the caller's (x must be finite, 50 entries)."""
+        No input checks beyond the caller's (x must be finite, 74 entries)."""
+        return (*self.predict_part_one(x, "rbd"), *self.predict_part_one(x, "actuation"))
+
+    def predict_part_one(self, x: np.ndarray, part: str) -> tuple[np.ndarray, np.ndarray]:
+        """(mean, variance) of the "rbd" or the "actuation" dimensions at one input x: the
+        rigid-body models do not read the torque inputs, so they can be predicted before τ is known."""
+        dims = range(self.n_rbd) if part == "rbd" else range(self.n_rbd, self.n_outputs)
         xs = (np.asarray(x, dtype=float) - self.input_mean_) / self.input_scale_
-        mean = np.zeros(self.n_outputs)
-        var = np.empty(self.n_outputs)
-        n_rbd = self.n_rbd
-        for i, model in enumerate(self.models_):
+        mean = np.zeros(len(dims))
+        var = np.empty(len(dims))
+        for k, i in enumerate(dims):
             s = self.output_scale_[i]
+            model = self.models_[i]
             if model is None:
-                var[i] = s * s
+                var[k] = s * s
                 continue
             m, sd = model.predict_one(xs[self.input_index[i]])
-            mean[i] = m * s
-            var[i] = (sd * s) ** 2
-        return mean[:n_rbd], var[:n_rbd], mean[n_rbd:], var[n_rbd:]
+            mean[k] = m * s
+            var[k] = (sd * s) ** 2
+        return mean, var
 
     # ------------------------------------------------------------------ files
     def check_robot(self, robot, where: str = "model") -> None:
@@ -644,47 +666,67 @@ def _read_npz_bytes(model_dir: str, meta: dict[str, Any]) -> bytes:
 
 # ---------------------------------------------------------------------- ε at a reference
 class EpsilonFunction:
-    """ε(q, q̇, q̈) = Φ̃(x) − Sᵀ Γ(x), eq. (17) with Φ̃ = J'ᵀΦ̃' learned directly, from a model set.
+    """ε = Φ̃(x) − Sᵀ Γ(x, τ_ref, τ̇_ref), eq. (17) with Φ̃ = J'ᵀΦ̃' learned directly, from a model set.
 
-    Callable with a reference point (anything with .q, .v, .a — e.g.
-    ciml_control.references.ReferencePoint): returns ε (nv,) [N, Nm] at the reference,
-    the generalized force the controller adds to M q̈ + h. Never returns NaN: a
-    non-finite input or prediction gives zeros (the nominal model) and is counted in
-    n_nonfinite.
+    Callable with a reference point (anything with .t, .q, .v, .a, .contacts — e.g.
+    ciml_control.references.ReferencePoint, dynamics.ReferenceState): returns ε (nv,)
+    [N, Nm] at the reference, the generalized force the controller adds to M q̈ + h. The
+    actuation models are evaluated at the torque the reference asks for with the learned
+    rigid-body error, and its rate (dynamics.ReferenceTorque: stateful, one per reference
+    stream). Never returns NaN: a non-finite input or prediction gives zeros (the nominal
+    model) and is counted in n_nonfinite.
     """
 
     def __init__(self, robot, model_set: ModelSet) -> None:
-        from .dynamics import selection_matrix
+        from .dynamics import ReferenceTorque, selection_matrix
 
         model_set.check_robot(robot)
         self.robot = robot
         self.model_set = model_set
+        self.reference_torque = ReferenceTorque(robot)
         self._S = selection_matrix(robot)
+        index = {n: i for i, n in enumerate(model_set.input_names)}
+        self._torque_columns = np.array([index[f"tau_{j}"] for j in robot.joint_names])
+        self._rate_columns = np.array([index[f"taud_{j}"] for j in robot.joint_names])
         self.n_nonfinite = 0
 
-    def epsilon(self, q: np.ndarray, v: np.ndarray, a: np.ndarray, return_var: bool = False):
-        """ε (nv,) at state (q, q̇, q̈); with return_var, also its variance per entry (nv,),
-        from the predicted variances assuming independent dimensions."""
+    def predict(self, ref, reference_torque=None) -> tuple[np.ndarray, ...] | None:
+        """(Φ̃, var, Γ, var) at a reference point, or None if its inputs are not finite (Γ is NaN
+        when Φ̃ is). reference_torque: the stream's ReferenceTorque (default: this function's own)."""
         from .extraction import learning_inputs
 
+        q, v, a = (np.asarray(z, dtype=float) for z in (ref.q, ref.v, ref.a))
+        zeros = np.zeros(self.robot.n_joints)
+        x = learning_inputs(q, v, a, zeros, zeros)[0]
+        if not np.all(np.isfinite(x)) or not np.all(np.isfinite(q)):
+            return None
+        rbd, rbd_var = self.model_set.predict_part_one(x, "rbd")
+        if not np.all(np.isfinite(rbd)):
+            nan = np.full(self.robot.n_joints, np.nan)
+            return rbd, rbd_var, nan, nan
+        x[self._torque_columns], x[self._rate_columns] = (reference_torque or self.reference_torque)(ref, rbd)
+        return (rbd, rbd_var, *self.model_set.predict_part_one(x, "actuation"))
+
+    def epsilon(self, ref, return_var: bool = False):
+        """ε (nv,) at a reference point; with return_var, also its variance per entry (nv,),
+        from the predicted variances assuming independent dimensions."""
         nv = self.robot.nv
-        q, v, a = (np.asarray(z, dtype=float) for z in (q, v, a))
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v)) and np.all(np.isfinite(a))):
-            self.n_nonfinite += 1
-            return (np.zeros(nv), np.zeros(nv)) if return_var else np.zeros(nv)
-        rbd, rbd_var, gamma, gamma_var = self.model_set.predict_one(learning_inputs(q, v, a)[0])
-        eps = rbd - self._S.T @ gamma
-        var = rbd_var + self._S.T @ gamma_var
-        if not (np.all(np.isfinite(eps)) and np.all(np.isfinite(var))):
+        out = self.predict(ref)
+        eps = var = np.zeros(nv)
+        if out is not None:
+            rbd, rbd_var, gamma, gamma_var = out
+            eps = rbd - self._S.T @ gamma
+            var = rbd_var + self._S.T @ gamma_var
+        if out is None or not (np.all(np.isfinite(eps)) and np.all(np.isfinite(var))):
             self.n_nonfinite += 1
             eps, var = np.zeros(nv), np.zeros(nv)
         return (eps, var) if return_var else eps
 
     def __call__(self, ref) -> np.ndarray:
-        return self.epsilon(ref.q, ref.v, ref.a)
+        return self.epsilon(ref)
 
 
 def load_epsilon_function(robot, model_dir: str) -> Callable[[Any], np.ndarray]:
-    """epsilon_fn(ref) → ε (nv,) at ref.q, ref.v, ref.a from a trained model directory
+    """epsilon_fn(ref) → ε (nv,) at a reference point from a trained model directory
     (for `ciml closed-loop --model MODEL_DIR` and ciml_sim.recorder.run_headless)."""
     return EpsilonFunction(robot, ModelSet.load(model_dir, robot))

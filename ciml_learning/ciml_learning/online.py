@@ -3,12 +3,12 @@ and `model_server` nodes (DESIGN.md §3), testable without rclpy.
 
 Online learner (paper §III-D, LWPR learning at 250 Hz):
 
-- StampPairer pairs each filtered state (/filtered_state: q, q̇, q̈ of eq. 12) with the
+- StampPairer pairs each filtered state (/filtered_state: q, q̇, q̈ of eq. 12, τ, τ̇) with the
   measured error of the same header stamp (/model_error/measured: Φ̃' of eq. 11 and
   Γ of eq. 14). Topics are not ordered relative to each other over DDS, so either may
   come first; an item without a partner after `max_age` is dropped and counted.
 - OnlineLearner feeds each valid pair, in increasing stamp order, to
-  ModelSet.partial_fit_one with x = learning_inputs(q, q̇, q̈) (eq. 12) and the measured Φ̃'
+  ModelSet.partial_fit_one with x = learning_inputs(q, q̇, q̈, τ, τ̇) and the measured Φ̃'
   turned into the set's targets Φ̃ = J'ᵀΦ̃' and leg coupling C with the contact-invariant
   basis at q (projection.generalized_rbd_error, leg_coupling — as the extraction does). Optionally the
   first `calibration_samples` valid pairs are buffered to calibrate the set's input and
@@ -26,10 +26,11 @@ Model server:
 - load_served_model loads and validates a model directory (ModelSet.load: version,
   allow-listed learner, robot names, checksum; plus the checksum announced on
   /model_update and a finite probe prediction) — any failure is a ModelFileError.
-- predict_at_reference gives Φ̃' (18) and Γ (n_j) with variances at the reference's
-  x = learning_inputs(qᵈ, q̇ᵈ, q̈ᵈ), or the nominal model (see PredictedError): the set
-  predicts Φ̃ = J'ᵀΦ̃' and the server publishes Φ̃' = J'⁻ᵀΦ̃ with the basis at qᵈ, so the
-  message keeps the contact-invariant coordinates of /model_error/measured.
+- predict_at_reference gives Φ̃' (18) and Γ (n_j) with variances at the reference (qᵈ, q̇ᵈ,
+  q̈ᵈ and the torque it asks for, τ_ref, τ̇_ref: models.EpsilonFunction.predict), or the
+  nominal model (see PredictedError): the set predicts Φ̃ = J'ᵀΦ̃' and the server publishes
+  Φ̃' = J'⁻ᵀΦ̃ with the basis at qᵈ, so the message keeps the contact-invariant coordinates
+  of /model_error/measured.
 - LatestOnlyWorker runs the loading off the callback thread; the node swaps the served
   model in its own thread, so the old model serves until the new one is ready (no gap).
 """
@@ -50,11 +51,11 @@ from typing import Any
 import numpy as np
 
 from .conversions import ConversionError, _finite, _vector
-from .dynamics import RigidBodyDynamics
+from .dynamics import ReferenceState, ReferenceTorque, RigidBodyDynamics
 from .errors import CimlError
 from .extraction import learning_inputs
 from .learners import learner_class
-from .models import N_BASE, ModelFileError, ModelSet, ModelSetError, default_scaling, read_metadata
+from .models import N_BASE, EpsilonFunction, ModelFileError, ModelSet, ModelSetError, default_scaling, read_metadata
 from .projection import contact_invariant_basis, generalized_rbd_error, leg_coupling
 from .robot import RobotDescription
 
@@ -69,11 +70,13 @@ STAMPS_FILE = "learned_stamps.npy"
 # ---------------------------------------------------------------------- messages → arrays
 @dataclass
 class StateSample:
-    """The part of a filtered state the learner uses (Pinocchio q, v, q̈; `valid` flag)."""
+    """The part of a filtered state the learner uses (Pinocchio q, v, q̈; τ, τ̇; `valid` flag)."""
 
     q: np.ndarray
     v: np.ndarray
     a: np.ndarray
+    tau: np.ndarray
+    tau_dot: np.ndarray
     valid: bool
 
 
@@ -235,7 +238,7 @@ class OnlineLearner:
             return self._reject("out_of_order_pairs")
         if not state.valid or not (error.rbd_observed.any() or error.actuation_observed.any()):
             return self._reject("invalid_samples")
-        x = learning_inputs(state.q, state.v, state.a)[0]
+        x = learning_inputs(state.q, state.v, state.a, state.tau, state.tau_dot)[0]
         if not np.all(np.isfinite(x)):
             return self._reject("non_finite_inputs")
         self.last_stamp = stamp
@@ -449,13 +452,15 @@ class ServedModel:
     rbd_learned: np.ndarray        # (18,) bool: entry of Φ̃' backed by learned models
     actuation_learned: np.ndarray  # (n_j,) bool
     dynamics: RigidBodyDynamics    # the server's own (the basis at the reference)
+    epsilon: EpsilonFunction       # the set's predictions at a reference
 
 
 def probe_inputs(robot: RobotDescription) -> np.ndarray:
-    """Learning inputs x (eq. 12) of the robot standing still: a probe for validation."""
+    """Learning inputs x of the robot standing still without torque: a probe for validation."""
     q = robot.neutral_configuration().copy()
     q[7:] = robot.standing_joints
-    return learning_inputs(q, np.zeros(robot.nv), np.zeros(robot.nv))[0]
+    zeros = np.zeros(robot.n_joints)
+    return learning_inputs(q, np.zeros(robot.nv), np.zeros(robot.nv), zeros, zeros)[0]
 
 
 def load_served_model(robot: RobotDescription, model_dir: str, checksum: str = "") -> ServedModel:
@@ -490,7 +495,8 @@ def served_model(robot: RobotDescription, ms: ModelSet, name: str, model_dir: st
     rbd = np.concatenate([learned[:N_BASE]] + [np.repeat(learned[N_BASE + np.asarray(leg)].all(), 3)
                                                for leg in robot.leg_joints])
     return ServedModel(name=name, model_dir=model_dir, model_set=ms, checksum=checksum, rbd_learned=rbd,
-                       actuation_learned=learned[ms.n_rbd:], dynamics=RigidBodyDynamics(robot))
+                       actuation_learned=learned[ms.n_rbd:], dynamics=RigidBodyDynamics(robot),
+                       epsilon=EpsilonFunction(robot, ms))
 
 
 @dataclass
@@ -528,19 +534,23 @@ def nominal_prediction(robot: RobotDescription, fallback: str | None = None) -> 
                           np.zeros(nj), out_scale[-nj:] ** 2, np.zeros(nj, bool), fallback)
 
 
-def predict_at_reference(robot: RobotDescription, served: ServedModel | None, q: np.ndarray, v: np.ndarray,
-                         a: np.ndarray) -> PredictedError:
-    """Φ̃' and Γ (with variances) at x = learning_inputs(qᵈ, q̇ᵈ, q̈ᵈ) (eq. 12); nominal
-    when no model is served or anything predicted is non-finite. Never returns NaN.
+def predict_at_reference(robot: RobotDescription, served: ServedModel | None, ref: ReferenceState,
+                         reference_torque: ReferenceTorque | None = None) -> PredictedError:
+    """Φ̃' and Γ (with variances) at a reference point (EpsilonFunction.predict: the state's
+    learning inputs with the torque τ_ref, τ̇_ref the reference asks for); nominal when no
+    model is served or anything predicted is non-finite. Never returns NaN.
 
+    reference_torque: the reference stream's ReferenceTorque (the caller's, so τ̇_ref runs on
+    across a model swap; default: the served model's own).
     The set predicts Φ̃ = J'ᵀΦ̃'; Φ̃' = J'⁻ᵀΦ̃ with the basis at qᵈ (eq. 8), its variance
     propagated assuming independent dimensions."""
     if served is None:
         return nominal_prediction(robot, "no_model")
-    x = learning_inputs(q, v, a)[0]
-    if not np.all(np.isfinite(x)) or not np.all(np.isfinite(q)):
+    out = served.epsilon.predict(ref, reference_torque)
+    if out is None:
         return nominal_prediction(robot, "non_finite_reference")
-    rbd, rbd_var, gamma, gamma_var = served.model_set.predict_one(x)
+    rbd, rbd_var, gamma, gamma_var = out
+    q = ref.q
     inverse_basis_t = np.linalg.inv(contact_invariant_basis(served.dynamics.foot_jacobians(q), robot.leg_joints).T)
     phi, phi_var = inverse_basis_t @ rbd, inverse_basis_t ** 2 @ rbd_var
     if not all(np.all(np.isfinite(z)) for z in (phi, phi_var, gamma, gamma_var)):
@@ -554,8 +564,9 @@ def online_nodes_benchmark(n_warmup: int = 20_000, n_samples: int = 2_000, seed:
     """Per-sample cost of the two nodes' algorithms, after n_warmup learned samples:
 
     - learner path: StampPairer (both sides) + OnlineLearner.learn (learning_inputs +
-      partial_fit_one of all 30 dimensions), then predict_at_reference (learning_inputs +
-      predict_one of all 30) — the online cost per 250 Hz sample; target ≤ 4 ms;
+      partial_fit_one of all 30 dimensions), then predict_at_reference (the 18 rigid-body
+      models, τ_ref and τ̇_ref, the 12 actuation models, the basis) — the online cost per
+      250 Hz sample; target ≤ 4 ms;
     - snapshot: the deep copy on the learning thread (the only stall) and the write on
       the worker thread; server hot-swap: load_served_model of that snapshot.
     The LWPR update alone is training.online_benchmark (the learners' module).
@@ -567,7 +578,8 @@ def online_nodes_benchmark(n_warmup: int = 20_000, n_samples: int = 2_000, seed:
 
     robot = load_robot()
     data = synthetic_training_set(robot, n_warmup + n_samples, seed)
-    R, O, A, V, q, v, a = (data[k] for k in ("rbd_error", "rbd_observed", "actuation_error", "valid", "q", "v", "a"))
+    R, O, A, V, q, v, a, tau, tau_dot, contacts = (data[k] for k in (
+        "rbd_error", "rbd_observed", "actuation_error", "valid", "q", "v", "a", "tau", "tau_dot", "contacts"))
     nj = robot.n_joints
     ms = ModelSet.for_robot(robot, "lwpr")
     warmup = fit_arguments(data, slice(0, n_warmup))
@@ -582,11 +594,11 @@ def online_nodes_benchmark(n_warmup: int = 20_000, n_samples: int = 2_000, seed:
         k = n_warmup + s
         stamp = k * 4_000_000
         t0 = time.perf_counter()
-        pairer.add(STATE, stamp, StateSample(q[k], v[k], a[k], bool(V[k])))
+        pairer.add(STATE, stamp, StateSample(q[k], v[k], a[k], tau[k], tau_dot[k], bool(V[k])))
         pair = pairer.add(ERROR, stamp, ErrorSample(R[k], O[k], A[k], np.ones(nj, bool)))
         learner.learn(pair[0], pair[1], pair[2])
         t1 = time.perf_counter()
-        predict_at_reference(robot, served, q[k], v[k], a[k])
+        predict_at_reference(robot, served, ReferenceState(stamp * 1e-9, q[k], v[k], a[k], contacts[k]))
         t_pred[s] = time.perf_counter() - t1
         t_learn[s] = t1 - t0
     total = t_learn + t_pred

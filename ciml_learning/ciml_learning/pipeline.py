@@ -60,7 +60,7 @@ def load_dataset(robot: RobotDescription, bags: Sequence[str], progress: bool = 
         logs.append(log)
         index.append(np.full(len(log), i))
     log = _concat_logs(logs)
-    targets = extract(robot, log.q, log.v, log.a, log.tau, log.u, log.contacts, log.t, log.valid)
+    targets = extract(robot, log.q, log.v, log.a, log.tau, log.u, log.contacts, log.t, log.valid, tau_dot=log.tau_dot)
     for k, c in log.invalid_counts.items():
         rejected[k] = rejected.get(k, 0) + c
     ds = Dataset(log=log, targets=targets, bag_index=np.concatenate(index), bags=[str(b) for b in bags],

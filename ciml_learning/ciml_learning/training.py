@@ -23,7 +23,7 @@ same code runs unchanged inside a backend context:
 
 Each job receives only its dimension's rows (X, y) and returns a fitted learner, so a
 job is independent of every other; there is no scheduler of our own. Jobs are
-submitted largest first (rigid-body dimensions have 50-D inputs) for load balance.
+submitted largest first (the base wrench's dimensions have 14-D inputs) for load balance.
 
 Why BLAS threads are pinned to one per job: on this 2-core machine GPy's sparse-GP
 gradients ran ~10× slower with OpenBLAS's default threading than with one thread per
@@ -182,9 +182,9 @@ def synthetic_training_set(robot, n_samples: int = 54_000, seed: int = 0, noise:
     Inputs follow three fixed periodic gaits (0.6, 1.3 and 2.0 Hz), executed in 5 s
     segments that vary in frequency (±10 %), amplitudes (±15 %) and phases (a few
     degrees) — like repeated executions of the paper's training motions: joints around
-    the standing posture, analytic q̇ and q̈, small roll/pitch and base motion, 1 %
-    input noise. As in filtered HyQ logs, the data lie near low-dimensional cycles of
-    the 50-D input space. Contacts follow a
+    the standing posture, analytic q̇ and q̈, small roll/pitch and base motion, joint
+    torques periodic around a static load with analytic τ̇, 1 % input noise. As in
+    filtered HyQ logs, the data lie near low-dimensional cycles of the input space. Contacts follow a
     trot (diagonal pairs swing in turn) or a walk (one leg at a time); a foot's RBD
     entries are observed only during its swing, samples within 3 of a contact change
     are invalid; the contact timing relative to the joint motion varies between executions.
@@ -200,7 +200,8 @@ def synthetic_training_set(robot, n_samples: int = 54_000, seed: int = 0, noise:
     every seed):
     - base wrench of a 5 kg payload at (0.1, 0.05, 0.05) m: m (R_bᵀ g + a_base), c × F;
     - each leg joint: a smooth friction-like a_j tanh(q̇_j / 0.3) + b_j sin(3 q_j) (a few Nm);
-    - each actuator: viscous b_i q̇_i plus smooth Coulomb c_i tanh(q̇_i / 0.2) friction.
+    - each actuator: viscous b_i q̇_i plus smooth Coulomb c_i tanh(q̇_i / 0.2) friction, a
+      10 ms lag (−T τ̇_i) and, on the first joint, a 15 % torque loss (−0.15 τ_1).
     Measured Φ̃' adds Gaussian noise (2 N / 0.3 Nm base, 3 N feet), Γ 0.5 Nm, × noise.
     """
     from .extraction import dynamics_batch, learning_input_names
@@ -218,7 +219,9 @@ def synthetic_training_set(robot, n_samples: int = 54_000, seed: int = 0, noise:
         psi = np.tile(g_rng.uniform(0, 2 * np.pi, 3), nf)[:nj] + np.repeat(np.arange(nf) * np.pi / 2, 3)[:nj]
         gaits.append(dict(freq=freq, kind=kind, amp=g_rng.uniform(0.08, 0.25, nj), amp2=g_rng.uniform(0.0, 0.06, nj),
                           psi=psi, base_amp=np.r_[g_rng.uniform(0.002, 0.008, 3), g_rng.uniform(0.01, 0.04, 3)],
-                          base_psi=g_rng.uniform(0, 2 * np.pi, 6), speed=g_rng.uniform(0.1, 0.3)))
+                          base_psi=g_rng.uniform(0, 2 * np.pi, 6), speed=g_rng.uniform(0.1, 0.3),
+                          load=g_rng.uniform(-40.0, 40.0, nj), load_amp=g_rng.uniform(10.0, 40.0, nj),
+                          load_psi=g_rng.uniform(0, 2 * np.pi, nj)))
     k = 0
     while sum(len(p) for p in X_parts) < n_samples:
         g = gaits[k % len(gaits)]
@@ -240,7 +243,10 @@ def synthetic_training_set(robot, n_samples: int = 54_000, seed: int = 0, noise:
         base_vel = w * ba * np.cos(phi[:, None] + bpsi) + np.r_[g["speed"] * rng.uniform(0.8, 1.2), 0, 0, 0, 0, 0]
         base_acc = -w * w * base_pos
         roll_pitch = base_pos[:, 3:5]
-        x = np.hstack([roll_pitch, q, base_vel, qd, base_acc, qdd])
+        load_amp = g["load_amp"] * rng.uniform(0.85, 1.15, nj)
+        tau = g["load"] + load_amp * np.sin(phi[:, None] + g["load_psi"])
+        tau_dot = w * load_amp * np.cos(phi[:, None] + g["load_psi"])
+        x = np.hstack([roll_pitch, q, base_vel, qd, base_acc, qdd, tau, tau_dot])
         x += 0.01 * noise * rng.standard_normal(x.shape) * np.abs(x).mean(axis=0)
         # contact timing varies between executions, so every joint state is seen swinging in some
         # execution (a leg joint's error is learned from swing samples and needed in stance too)
@@ -265,11 +271,14 @@ def synthetic_training_set(robot, n_samples: int = 54_000, seed: int = 0, noise:
     tau_base = np.cross(np.array([0.1, 0.05, 0.05]), F)
     q_j = X[:, [idx[f"q_{j}"] for j in robot.joint_names]]
     qd_j = X[:, [idx[f"qd_{j}"] for j in robot.joint_names]]
+    tau_j = X[:, [idx[f"tau_{j}"] for j in robot.joint_names]]
+    tau_dot_j = X[:, [idx[f"taud_{j}"] for j in robot.joint_names]]
     a_j, b_j = g_rng.uniform(2.0, 6.0, nj), g_rng.uniform(1.0, 3.0, nj)  # the same for every seed
     rbd_true = np.hstack([F, tau_base, a_j * np.tanh(qd_j / 0.3) + b_j * np.sin(3 * q_j)])
     b = g_rng.uniform(1.0, 4.0, nj)
     c = g_rng.uniform(1.0, 5.0, nj)
-    act_true = -(b * qd_j + c * np.tanh(qd_j / 0.2))
+    act_true = -(b * qd_j + c * np.tanh(qd_j / 0.2)) - 0.01 * tau_dot_j
+    act_true[:, 0] -= 0.15 * tau_j[:, 0]
     q, v, a = states_from_inputs(robot, X)
     basis = contact_invariant_bases(dynamics_batch(robot, q, v, a)[1], robot.leg_joints)
     phi_true = np.linalg.solve(np.transpose(basis, (0, 2, 1)), rbd_true[..., None])[..., 0]  # eq. (8)
@@ -287,11 +296,11 @@ def synthetic_training_set(robot, n_samples: int = 54_000, seed: int = 0, noise:
     return {"inputs": X, "rbd_error": rbd_measured, "rbd_observed": observed, "generalized_error": generalized,
             "generalized_observed": generalized_observed, "leg_coupling": leg_coupling(basis, robot.leg_joints),
             "actuation_error": act, "valid": valid, "contacts": contacts, "rbd_true": rbd_true,
-            "actuation_true": act_true, "q": q, "v": v, "a": a}
+            "actuation_true": act_true, "q": q, "v": v, "a": a, "tau": tau_j, "tau_dot": tau_dot_j}
 
 
 def states_from_inputs(robot, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pinocchio states (q, v, q̈) whose learning inputs (eq. 12) are X: base at (0, 0, 0.6) m
+    """Pinocchio states (q, v, q̈) whose learning inputs (eq. 12 part) are X: base at (0, 0, 0.6) m
     with zero yaw, roll and pitch as its quaternion, the rest verbatim."""
     nj, nv = robot.n_joints, robot.nv
     half_roll, half_pitch = X[:, 0] / 2, X[:, 1] / 2
@@ -300,7 +309,7 @@ def states_from_inputs(robot, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
     q[:, 2] = 0.6
     q[:, 3:7] = np.stack([cp * sr, sp * cr, -sp * sr, cp * cr], axis=1)  # xyzw of R_y(pitch) R_x(roll)
     q[:, 7:] = X[:, 2:2 + nj]
-    return q, X[:, 2 + nj:2 + nj + nv], X[:, 2 + nj + nv:]
+    return q, X[:, 2 + nj:2 + nj + nv], X[:, 2 + nj + nv:2 + nj + 2 * nv]
 
 
 def fit_arguments(data: dict[str, np.ndarray], rows=slice(None)) -> tuple[np.ndarray, ...]:
@@ -328,7 +337,7 @@ def relative_rmse(model_set: ModelSet, data: dict[str, np.ndarray]) -> dict[str,
 # ------------------------------------------------------------------------------ benchmarks
 def train_benchmark(learner: str = "sgpr", n_samples: int = 54_000, n_jobs: int = -1, seed: int = 0) -> dict:
     """Training time of a full model set (6 base dims with 14-D inputs, 12 leg-joint and 12
-    actuation dims with 3-D inputs) on a paper-sized synthetic set; accuracy on held-out samples.
+    actuation dims with 5-D inputs) on a paper-sized synthetic set; accuracy on held-out samples.
     Target: ≤ 300 s on the 2-core machine (issue 6)."""
     from .robot import load_robot
 

@@ -156,13 +156,16 @@ def test_learning_inputs_drop_base_position_and_yaw():
     rng = np.random.default_rng(4)
     q, v = random_state(rng)
     a = rng.normal(size=18)
-    x = learning_inputs(q[None], v[None], a[None])
-    assert x.shape == (1, 50) and len(learning_input_names(ROBOT)) == 50
+    tau, tau_dot = rng.normal(size=12), rng.normal(size=12)
+    x = learning_inputs(q[None], v[None], a[None], tau[None], tau_dot[None])
+    names = learning_input_names(ROBOT)
+    assert x.shape == (1, 74) and len(names) == 74  # eq. (12)'s 50, then τ and τ̇
+    assert x[0, names.index("tau_rh_kfe_joint")] == tau[-1] and x[0, -1] == tau_dot[-1]
     q2 = q.copy()
     q2[:3] += 1.0  # base position
     yaw = pin.Quaternion(pin.rpy.rpyToMatrix(0, 0, 0.7) @ pin.Quaternion(q[3:7]).matrix()).coeffs()
     q2[3:7] = yaw
-    np.testing.assert_allclose(learning_inputs(q2[None], v[None], a[None]), x, atol=1e-9)
+    np.testing.assert_allclose(learning_inputs(q2[None], v[None], a[None], tau[None], tau_dot[None]), x, atol=1e-9)
 
 
 def test_reference_torque_realises_the_reference_and_differentiates_within_a_contact_phase():

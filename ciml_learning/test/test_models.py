@@ -4,12 +4,11 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
+from ciml_learning.dynamics import ReferenceState, ReferenceTorque, RigidBodyDynamics, selection_matrix
 from ciml_learning.extraction import combined_error, learning_inputs
 from ciml_learning.models import (
     FORMAT_VERSION,
@@ -48,12 +47,13 @@ def sgpr_set(data):
         *fit_args(small))
 
 
-def state_at(robot=ROBOT, seed=0):
+def reference_at(robot=ROBOT, seed=0, t=0.0) -> ReferenceState:
     rng = np.random.default_rng(seed)
     q = robot.neutral_configuration()
     q[2] = 0.6
     q[7:] = robot.standing_joints + rng.uniform(-0.1, 0.1, robot.n_joints)
-    return q, 0.2 * rng.standard_normal(robot.nv), rng.standard_normal(robot.nv)
+    return ReferenceState(t, q, 0.2 * rng.standard_normal(robot.nv), rng.standard_normal(robot.nv),
+                          np.ones(robot.n_feet, bool))
 
 
 def test_observed_mask_and_valid_flag_are_respected(data):
@@ -241,26 +241,33 @@ def test_model_set_works_for_another_robot():
                       ["FL_FOOT", "FR_FOOT", "HL_FOOT", "HR_FOOT"])
     d = synthetic_training_set(solo, 2_000, seed=3)
     ms = ModelSet.for_robot(solo, "lwpr").fit(*fit_args(d))
-    eps = EpsilonFunction(solo, ms).epsilon(*state_at(solo))
+    eps = EpsilonFunction(solo, ms)(reference_at(solo))
     assert eps.shape == (solo.nv,) and np.all(np.isfinite(eps))
 
 
 def test_epsilon_is_eq17_at_the_reference(lwpr_set, tmp_path):
     out = _saved(lwpr_set, tmp_path)
     epsilon_fn = load_epsilon_function(ROBOT, out)
-    q, v, a = state_at()
-    ref = SimpleNamespace(t=0.0, q=q, v=v, a=a, contacts=np.ones(4, bool), phase=0.0, motion="trot_35")
-    eps = epsilon_fn(ref)
-    rbd, rbd_var, gamma, gamma_var = lwpr_set.predict_one(learning_inputs(q, v, a)[0])
-    basis = contact_invariant_basis(RigidBodyDynamics(ROBOT).foot_jacobians(q), ROBOT.leg_joints)
-    S = selection_matrix(ROBOT)
-    # the set learns Φ̃ = J'ᵀΦ̃' (eq. 8): with Φ̃' = J'⁻ᵀΦ̃, ε is eq. (17)
-    phi = np.linalg.solve(basis.T, rbd)
-    np.testing.assert_allclose(eps, combined_error(basis, phi, gamma, S), rtol=1e-9, atol=1e-9)
-    np.testing.assert_allclose(eps, rbd - S.T @ gamma, rtol=1e-12, atol=1e-12)
-    assert np.abs(eps).max() > 1.0  # the learned error is not zero
-    e2, var = epsilon_fn.epsilon(q, v, a, return_var=True)
-    np.testing.assert_array_equal(e2, eps)
+    ref = reference_at()
+    q, v, a = ref.q, ref.v, ref.a
+    reference_torque = ReferenceTorque(ROBOT)
+    for k, t in enumerate((0.0, 0.004)):  # the second call has a torque rate
+        ref.t, ref.a = t, a + k
+        eps = epsilon_fn(ref)
+        zeros = np.zeros(ROBOT.n_joints)
+        rbd, _, _, _ = lwpr_set.predict_one(learning_inputs(q, v, ref.a, zeros, zeros)[0])
+        # the actuation models see the torque the reference asks for (with the learned Φ̃) and its rate
+        tau, tau_dot = reference_torque(ref, rbd)
+        _, _, gamma, _ = lwpr_set.predict_one(learning_inputs(q, v, ref.a, tau, tau_dot)[0])
+        basis = contact_invariant_basis(RigidBodyDynamics(ROBOT).foot_jacobians(q), ROBOT.leg_joints)
+        S = selection_matrix(ROBOT)
+        # the set learns Φ̃ = J'ᵀΦ̃' (eq. 8): with Φ̃' = J'⁻ᵀΦ̃, ε is eq. (17)
+        phi = np.linalg.solve(basis.T, rbd)
+        np.testing.assert_allclose(eps, combined_error(basis, phi, gamma, S), rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(eps, rbd - S.T @ gamma, rtol=1e-12, atol=1e-12)
+    assert np.abs(tau_dot).max() > 1.0 and np.abs(eps).max() > 1.0  # the learned error is not zero
+    ref.t = 0.008
+    _, var = load_epsilon_function(ROBOT, out).epsilon(ref, return_var=True)
     assert np.all(var > 0)
     # NaN never reaches the controller
     ref.q = q.copy()
@@ -273,7 +280,7 @@ def test_bad_inputs_raise_one_line_errors(lwpr_set, data):
     with pytest.raises(ModelSetError, match="shapes"):
         ModelSet.for_robot(ROBOT, "lwpr").fit(data["inputs"][:, :10], *fit_args(data)[1:])
     with pytest.raises(ModelSetError, match="non-finite"):
-        lwpr_set.predict(np.full((1, 50), np.nan))
+        lwpr_set.predict(np.full((1, 74), np.nan))
     with pytest.raises(ModelSetError, match="calibrate"):
         lwpr_set.calibrate(*fit_args(data)[:5])
     from ciml_learning.learners import LearnerError

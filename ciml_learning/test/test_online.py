@@ -11,6 +11,7 @@ import pytest
 
 from ciml_learning import conversions as cv
 from ciml_learning.conversions import ConversionError
+from ciml_learning.dynamics import ReferenceState, ReferenceTorque
 from ciml_learning.extraction import dynamics_batch, learning_inputs
 from ciml_learning.models import ModelFileError, ModelSet, ModelSetError
 from ciml_learning.online import (ERROR, LATEST, NOMINAL, STATE, STAMPS_FILE, ErrorSample, LatestOnlyWorker,
@@ -41,15 +42,26 @@ def stream(n: int, seed: int = 0):
     swing = (phase >= np.arange(4) / 4) & (phase < (np.arange(4) + 1) / 4)   # a walk: one foot at a time
     observed = np.hstack([np.ones((n, 6), bool), np.repeat(swing, 3, axis=1)])
     phi = np.where(observed, 20 * np.tanh(v[:, :18] + 0.3 * q[:, 7:].sum(axis=1, keepdims=True)), 0.0)
-    gamma = -3.0 * v[:, 6:] + rng.normal(scale=0.2, size=(n, nj))
+    tau = 30 * np.sin(2 * np.pi * 1.2 * t[:, None] + ph + 1.0)
+    tau_dot = 30 * 2 * np.pi * 1.2 * np.cos(2 * np.pi * 1.2 * t[:, None] + ph + 1.0)
+    gamma = -3.0 * v[:, 6:] - 0.01 * tau_dot + rng.normal(scale=0.2, size=(n, nj))
     valid = rng.uniform(size=n) > 0.1
     stamps = (np.arange(n) * 4_000_000 + 1_000_000_000).astype(np.int64)
     # the model set's targets, as the extraction makes them from Φ̃' (eq. 8)
     basis = contact_invariant_bases(dynamics_batch(ROBOT, q, v, a)[1], ROBOT.leg_joints)
     rbd, rbd_observed = generalized_rbd_error(basis, phi, observed, ROBOT.leg_joints)
-    return dict(q=q, v=v, a=a, phi=phi, observed=observed, gamma=gamma, valid=valid, stamps=stamps,
-                X=learning_inputs(q, v, a), rbd=rbd, rbd_observed=rbd_observed, basis=basis,
+    return dict(q=q, v=v, a=a, tau=tau, tau_dot=tau_dot, phi=phi, observed=observed, gamma=gamma, valid=valid,
+                stamps=stamps, contacts=~swing, X=learning_inputs(q, v, a, tau, tau_dot), rbd=rbd, rbd_observed=rbd_observed, basis=basis,
                 coupling=leg_coupling(basis, ROBOT.leg_joints))
+
+
+def state_sample(s, k, valid=None) -> StateSample:
+    return StateSample(s["q"][k], s["v"][k], s["a"][k], s["tau"][k], s["tau_dot"][k],
+                       bool(s["valid"][k]) if valid is None else valid)
+
+
+def reference(s, k) -> ReferenceState:
+    return ReferenceState(s["stamps"][k] * 1e-9, s["q"][k], s["v"][k], s["a"][k], s["contacts"][k])
 
 
 def error_sample(s, k, act_obs=None) -> ErrorSample:
@@ -125,7 +137,8 @@ def test_robot_reference_arrays_by_name_and_rejects_nan():
     q, v, a = s["q"][1], s["v"][1], s["a"][1]
     v[:6] = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
     a[:6] = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
-    state = cv.robot_state_msg(ROBOT, 7, q, v, a, np.zeros(12), np.zeros(12), np.array([1, 0, 0, 1], bool), True)
+    state = cv.robot_state_msg(ROBOT, 7, q, v, a, np.zeros(12), np.zeros(12), np.zeros(12), np.array([1, 0, 0, 1], bool),
+                               True)
     perm = np.random.default_rng(2).permutation(12)
     msg = RobotReference(header=state.header, motion="trot_35", phase=0.3,
                          joint_names=[ROBOT.joint_names[i] for i in perm], base_pose=state.base_pose,
@@ -151,8 +164,7 @@ def test_online_learner_equals_offline_partial_fit_on_the_same_samples(calibrati
     act_obs = np.ones((n, 12), bool)
     act_obs[50, :4] = False              # a partially observed Γ: those entries are not learned
     learner = OnlineLearner(ROBOT, ModelSet.for_robot(ROBOT, "lwpr"), calibration_samples=calibration, record_stamps=True)
-    reasons = [learner.learn(int(s["stamps"][k]), StateSample(s["q"][k], s["v"][k], s["a"][k], bool(s["valid"][k])),
-                             error_sample(s, k, act_obs[k])) for k in range(n)]
+    reasons = [learner.learn(int(s["stamps"][k]), state_sample(s, k), error_sample(s, k, act_obs[k])) for k in range(n)]
     assert reasons.count("invalid_samples") == int((~s["valid"]).sum())
     assert learner.n_learned == int(s["valid"].sum())
     np.testing.assert_array_equal(learner.learned_stamps, s["stamps"][s["valid"]])
@@ -182,7 +194,7 @@ def test_online_learner_equals_offline_partial_fit_on_the_same_samples(calibrati
 def test_online_learner_rejects_out_of_order_and_unobserved_pairs():
     s = stream(5)
     learner = OnlineLearner(ROBOT, ModelSet.for_robot(ROBOT, "lwpr"))
-    st = StateSample(s["q"][0], s["v"][0], s["a"][0], True)
+    st = state_sample(s, 0, True)
     assert learner.learn(10, st, error_sample(s, 0)) is None
     assert learner.learn(10, st, error_sample(s, 0)) == "out_of_order_pairs"
     assert learner.learn(9, st, error_sample(s, 0)) == "out_of_order_pairs"
@@ -198,8 +210,7 @@ def _trained(n=120, seed=0):
     s = stream(n, seed)
     learner = OnlineLearner(ROBOT, ModelSet.for_robot(ROBOT, "lwpr"), record_stamps=True)
     for k in range(n):
-        learner.learn(int(s["stamps"][k]), StateSample(s["q"][k], s["v"][k], s["a"][k], bool(s["valid"][k])),
-                      error_sample(s, k))
+        learner.learn(int(s["stamps"][k]), state_sample(s, k), error_sample(s, k))
     return learner, s
 
 
@@ -224,7 +235,7 @@ def test_snapshot_is_a_copy_unaffected_by_later_learning(tmp_path):
     before = snap.model_set.predict(s["X"]).rbd.copy()
     s2 = stream(60, seed=5)
     for k in range(60):
-        learner.learn(int(s["stamps"][-1] + 4_000_000 * (k + 1)), StateSample(s2["q"][k], s2["v"][k], s2["a"][k], True),
+        learner.learn(int(s["stamps"][-1] + 4_000_000 * (k + 1)), state_sample(s2, k, True),
                       error_sample(s2, k))
     assert not np.array_equal(learner.model_set.predict(s["X"]).rbd, before)
     np.testing.assert_array_equal(snap.model_set.predict(s["X"]).rbd, before)
@@ -237,11 +248,21 @@ def test_served_model_predicts_like_predict_one_and_refuses_bad_files(tmp_path):
     served = load_served_model(ROBOT, saved.model_dir, saved.checksum)
     assert served.name == f"lwpr:{os.path.basename(saved.model_dir)}"
     k = 33
-    pred = predict_at_reference(ROBOT, served, s["q"][k], s["v"][k], s["a"][k])
-    rbd, rbd_var, gamma, gamma_var = learner.model_set.predict_one(s["X"][k])
+    reference_torque = ReferenceTorque(ROBOT)
+    for ref in (reference(s, k - 1), reference(s, k)):
+        pred = predict_at_reference(ROBOT, served, ref, reference_torque)
+    # the model set at the reference's state and the torque it asks for, and its rate
+    expected_torque = ReferenceTorque(ROBOT)
+    for j in (k - 1, k):
+        x = s["X"][j].copy()
+        rbd = learner.model_set.predict_one(x)[0]   # Φ̃ does not read the torque inputs
+        x[-24:-12], x[-12:] = expected_torque(reference(s, j), rbd)
+    _, _, gamma, gamma_var = learner.model_set.predict_one(x)
+    assert np.abs(x[-12:]).max() > 1.0                       # τ̇_ref
     # published in the contact-invariant coordinates of /model_error/measured: Φ̃' = J'⁻ᵀΦ̃ (eq. 8)
     np.testing.assert_allclose(s["basis"][k].T @ pred.rbd_error, rbd, rtol=1e-9, atol=1e-9)
     assert np.abs(rbd).max() > 1.0
+    np.testing.assert_allclose(pred.actuation_error, gamma, rtol=1e-12, atol=1e-12)
     np.testing.assert_array_equal(pred.actuation_variance, gamma_var)
     assert pred.source == served.name and pred.fallback is None and pred.actuation_observed.all()
     with pytest.raises(ModelFileError, match="announced"):
@@ -256,7 +277,7 @@ def test_served_model_predicts_like_predict_one_and_refuses_bad_files(tmp_path):
 
 def test_nominal_when_no_model_or_non_finite_prediction(tmp_path):
     s = stream(3)
-    pred = predict_at_reference(ROBOT, None, s["q"][0], s["v"][0], s["a"][0])
+    pred = predict_at_reference(ROBOT, None, reference(s, 0))
     assert pred.source == NOMINAL and pred.fallback == "no_model"
     assert not pred.rbd_error.any() and not pred.rbd_observed.any() and not pred.actuation_observed.any()
     prior = ModelSet.for_robot(ROBOT, "lwpr").output_scale_ ** 2   # an unlearned set's prior variance
@@ -266,8 +287,8 @@ def test_nominal_when_no_model_or_non_finite_prediction(tmp_path):
     learner, _ = _trained()
     saved = SnapshotWriter(str(tmp_path)).write(learner.snapshot())
     served = load_served_model(ROBOT, saved.model_dir)
-    served.model_set.predict_one = lambda x: (np.full(18, np.nan), np.ones(18), np.zeros(12), np.ones(12))
-    pred = predict_at_reference(ROBOT, served, s["q"][0], s["v"][0], s["a"][0])
+    served.model_set.predict_part_one = lambda x, part: (np.full(18 if part == "rbd" else 12, np.nan), np.ones(18))
+    pred = predict_at_reference(ROBOT, served, reference(s, 0))
     assert pred.fallback == "non_finite_prediction" and pred.source == NOMINAL
     assert np.all(np.isfinite(pred.rbd_error)) and not pred.rbd_error.any()
     np.testing.assert_array_equal(pred.rbd_variance, nominal_prediction(ROBOT).rbd_variance)

@@ -9,6 +9,7 @@ import pytest
 from synthetic import write_synthetic_bag
 
 from ciml_learning.cli import main
+from ciml_learning.dynamics import ReferenceState
 from ciml_learning.models import ModelSet, load_epsilon_function, rbd_output_names
 from ciml_learning.robot import load_robot
 
@@ -41,7 +42,8 @@ def run_train_and_evaluate(bag: str, out_dir, learner: str, jobs: int) -> dict:
     eps = load_epsilon_function(ROBOT, model_dir)
     q = ROBOT.neutral_configuration()
     q[7:] = ROBOT.standing_joints
-    assert np.all(np.isfinite(eps.epsilon(q, np.zeros(ROBOT.nv), np.zeros(ROBOT.nv))))
+    ref = ReferenceState(0.0, q, np.zeros(ROBOT.nv), np.zeros(ROBOT.nv), np.ones(ROBOT.n_feet, bool))
+    assert np.all(np.isfinite(eps(ref)))
     return metrics
 
 

@@ -29,11 +29,12 @@ class ErrorExtractorNode(Node):
 
     def on_state(self, msg) -> None:
         try:
-            q, v, a, tau, u, contacts, valid = cv.robot_state_arrays(self.robot, msg)
+            q, v, a, tau, tau_dot, u, contacts, valid = cv.robot_state_arrays(self.robot, msg)
         except CimlError as err:
             self.health.count("rejected_states", f"filtered_state rejected: {err}")
             return
-        res = extract(self.robot, q[None], v[None], a[None], tau[None], u[None], contacts[None], gamma=self.gamma)
+        res = extract(self.robot, q[None], v[None], a[None], tau[None], u[None], contacts[None], gamma=self.gamma,
+                      tau_dot=tau_dot[None])
         if not res.valid[0]:
             self.health.count("non_finite_extraction", "extraction produced a non-finite value")
             return

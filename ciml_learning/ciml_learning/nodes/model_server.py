@@ -1,9 +1,10 @@
 """`model_server`: /reference + /model_update → /model_error/predicted (mean and variance).
 
 Thin adapter around ciml_learning.online (load_served_model, predict_at_reference,
-LatestOnlyWorker). For every /reference (qᵈ, q̇ᵈ, q̈ᵈ) it publishes a ciml_msgs/ModelError
-stamped like the reference: Φ̃' (18) and Γ (n_j) predicted at x = learning_inputs(qᵈ, q̇ᵈ,
-q̈ᵈ) (eq. 12) with their predictive variances (the set learns Φ̃ = J'ᵀΦ̃'; Φ̃' = J'⁻ᵀΦ̃ with
+LatestOnlyWorker). For every /reference (qᵈ, q̇ᵈ, q̈ᵈ, contacts) it publishes a ciml_msgs/ModelError
+stamped like the reference: Φ̃' (18) and Γ (n_j) predicted at the reference's state and the
+torque it asks for (τ_ref and its rate over the reference stream, dynamics.ReferenceTorque)
+with their predictive variances (the set learns Φ̃ = J'ᵀΦ̃'; Φ̃' = J'⁻ᵀΦ̃ with
 the basis at qᵈ), `source` = the model's name ("<learner>:<folder name>"), observed = the
 entry is backed by learned models.
 
@@ -27,6 +28,7 @@ from rclpy.node import Node
 from .. import conversions as cv
 from .. import topics
 from ..errors import CimlError
+from ..dynamics import ReferenceState, ReferenceTorque
 from ..online import LatestOnlyWorker, ServedModel, load_served_model, predict_at_reference
 from ..robot import load_robot
 from ..ros_common import COMMAND_QOS, Health, declare, run_node
@@ -41,6 +43,7 @@ class ModelServerNode(Node):
         urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
         self.robot = load_robot(urdf or None)
         self.served: ServedModel | None = None
+        self.reference_torque = ReferenceTorque(self.robot)  # τ̇_ref of the stream, across model swaps
         self.health = Health(self)
         self.health.set(0, "serving the nominal model")
         self.loader = LatestOnlyWorker(lambda item: load_served_model(self.robot, *item), name="model-loader")
@@ -73,16 +76,18 @@ class ModelServerNode(Node):
 
     def on_reference(self, msg) -> None:
         try:
-            q, v, a, _contacts = cv.robot_reference_arrays(self.robot, msg)
+            q, v, a, contacts = cv.robot_reference_arrays(self.robot, msg)
         except CimlError as err:
             self.health.count("rejected_references", f"reference rejected: {err}")
             return
-        pred = predict_at_reference(self.robot, self.served, q, v, a)
+        stamp = cv.stamp_to_ns(msg.header.stamp)
+        ref = ReferenceState(stamp * 1e-9, q, v, a, contacts)
+        pred = predict_at_reference(self.robot, self.served, ref, self.reference_torque)
         if pred.fallback == "no_model":
             self.health.counts["nominal_no_model"] += 1
         elif pred.fallback is not None:
             self.health.count(pred.fallback, f"{pred.fallback}: serving the nominal model")
-        self.pub.publish(cv.model_error_msg(self.robot, cv.stamp_to_ns(msg.header.stamp), pred.source, pred.rbd_error,
+        self.pub.publish(cv.model_error_msg(self.robot, stamp, pred.source, pred.rbd_error,
                                             pred.rbd_observed, pred.actuation_error, pred.actuation_observed,
                                             pred.rbd_variance, pred.actuation_variance))
         self.health.counts["predictions"] += 1

@@ -80,11 +80,11 @@ class OnlineLearnerNode(Node):
     # --- inputs ------------------------------------------------------------------------
     def on_state(self, msg) -> None:
         try:
-            q, v, a, _tau, _u, _contacts, valid = cv.robot_state_arrays(self.robot, msg)
+            q, v, a, tau, tau_dot, _u, _contacts, valid = cv.robot_state_arrays(self.robot, msg)
         except CimlError as err:
             self.health.count("rejected_states", f"filtered_state rejected: {err}")
             return
-        self._pair(STATE, cv.stamp_to_ns(msg.header.stamp), StateSample(q, v, a, valid))
+        self._pair(STATE, cv.stamp_to_ns(msg.header.stamp), StateSample(q, v, a, tau, tau_dot, valid))
 
     def on_error(self, msg) -> None:
         try:

@@ -127,8 +127,8 @@ class StateFilterNode(Node):
             return
         for out in ready:
             ns = int(round(out.t * 1e9))
-            self.pub.publish(cv.robot_state_msg(self.robot, ns, out.q, out.v, out.a, out.tau, out.u, out.contacts,
-                                                out.valid))
+            self.pub.publish(cv.robot_state_msg(self.robot, ns, out.q, out.v, out.a, out.tau, out.tau_dot, out.u,
+                                                out.contacts, out.valid))
 
 
 def main(args=None) -> None:

@@ -17,6 +17,7 @@ import time
 import numpy as np
 import pytest
 
+from ciml_learning.dynamics import ReferenceState, ReferenceTorque
 from ciml_learning.extraction import learning_inputs
 from ciml_learning.models import ModelSet, read_metadata
 from ciml_learning.online import STAMPS_FILE, predict_at_reference, served_model
@@ -104,7 +105,8 @@ def test_online_model_from_replay_matches_offline_partial_fit(tmp_path):
                           timeout=10)
         time.sleep(0.5)
         bad_state = cv.robot_state_msg(ROBOT, 99 * 10**9, offline.log.q[500], offline.log.v[500], offline.log.a[500],
-                                       offline.log.tau[500], offline.log.u[500], offline.log.contacts[500], True)
+                                       offline.log.tau[500], offline.log.tau_dot[500], offline.log.u[500],
+                                       offline.log.contacts[500], True)
         bad_state.joint_names = ["not_a_joint"] + list(bad_state.joint_names[1:])
         bad_error = cv.model_error_msg(ROBOT, 99 * 10**9, "measured", np.full(18, np.nan), np.ones(18, bool),
                                        np.zeros(12), np.ones(12, bool))
@@ -134,7 +136,7 @@ def test_online_model_from_replay_matches_offline_partial_fit(tmp_path):
     assert os.path.realpath(model_root / "latest") == update.model_dir
 
     tg = offline.targets
-    X = learning_inputs(offline.log.q, offline.log.v, offline.log.a)[rows]
+    X = learning_inputs(offline.log.q, offline.log.v, offline.log.a, offline.log.tau, offline.log.tau_dot)[rows]
     targets = (tg.generalized_error[rows], tg.generalized_observed[rows], tg.actuation_error[rows],
                tg.leg_coupling[rows])
     reference = _offline_model(X, *targets, CALIBRATION)
@@ -167,8 +169,8 @@ def _reference_msg(stamp_ns: int, q, v, a):
     from ciml_learning import conversions as cv
     from ciml_msgs.msg import RobotReference
 
-    state = cv.robot_state_msg(ROBOT, stamp_ns, q, v, a, np.zeros(ROBOT.n_joints), np.zeros(ROBOT.n_joints),
-                               np.ones(ROBOT.n_feet, bool), True)
+    zeros = np.zeros(ROBOT.n_joints)
+    state = cv.robot_state_msg(ROBOT, stamp_ns, q, v, a, zeros, zeros, zeros, np.ones(ROBOT.n_feet, bool), True)
     return RobotReference(header=state.header, motion="test", phase=0.0, joint_names=list(ROBOT.joint_names),
                           base_pose=state.base_pose, base_twist=state.base_twist,
                           base_acceleration=state.base_acceleration, position=list(state.position),
@@ -294,11 +296,14 @@ def test_model_server_nominal_hot_swap_refusal_and_nan(tmp_path):
     assert set(sources[:swap]) == {"nominal"} and set(sources[swap:]) == {"lwpr:model_a"}, sources
     assert int(diag["refused_models"]) == 1 and int(diag["model_swaps"]) == 1, diag
     assert int(diag["rejected_references"]) == 1, diag
-    # served values are online.predict_at_reference at the reference, exactly (float64 over CDR)
+    # served values are online.predict_at_reference at the reference, exactly (float64 over CDR),
+    # with τ̇_ref over the stream of references the model served
     served = served_model(ROBOT, ms, "lwpr:model_a")
+    reference_torque = ReferenceTorque(ROBOT)
     for s in order[swap:]:
         row = sent[s]
-        expected = predict_at_reference(ROBOT, served, q[row], v[row], a[row])
+        ref = ReferenceState(s * 1e-9, q[row], v[row], a[row], np.ones(ROBOT.n_feet, bool))
+        expected = predict_at_reference(ROBOT, served, ref, reference_torque)
         m = preds[s]
         for field in ("rbd_error", "rbd_variance", "actuation_error", "actuation_variance"):
             np.testing.assert_allclose(getattr(m, field), getattr(expected, field), rtol=1e-12, atol=1e-12)

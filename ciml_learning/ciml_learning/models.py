@@ -14,7 +14,8 @@ Combined, they give the model error the controller adds (eq. 17):
 Why Γ from the torque (DESIGN.md §1 names q_i, q̇_i, q̈_i only): an actuator's lag and gain
 are functions of the torque it delivers and its rate, Γ ≈ −T τ̇ + (g − 1) τ, not of the
 joint's state; at a reference the torque is the one it asks for, τ_ref and τ̇_ref of
-dynamics.ReferenceTorque (EpsilonFunction). Measured (results/EXPERIMENT.md): see there.
+dynamics.ReferenceTorque (EpsilonFunction). Measured (results/EXPERIMENT.md, default gap):
+feedback effort on new motions 47 % → 54 % below nominal (LWPR), 41 % → 54 % (SGPR).
 
 Why the generalized coordinates, not the contact-invariant ones of eq. (11): J' puts a leg's
 joint-space error into the base entries of Φ̃' as −J_i,baseᵀ B_i⁻ᵀ e_i (projection.leg_coupling),

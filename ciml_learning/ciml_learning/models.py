@@ -41,8 +41,8 @@ shifted — zero stays "no error", so the learners' zero-mean fallback is the no
 model. Learners see standardised data; predictions are returned in SI units
 (N, Nm; variances in N², Nm²).
 
-API (X: N × 74 learning inputs, extraction.learning_inputs: eq. 12, τ, τ̇; rbd: Φ̃ (N × 18) and its mask; C: leg coupling
-(N × 6 × n_j); Γ (N × n_j)):
+API (X: N × 74 learning inputs, extraction.learning_inputs: eq. 12, τ, τ̇; rbd: Φ̃ (N × 18)
+and its mask; C: leg coupling (N × 6 × n_j); Γ (N × n_j)):
 
     ms = ModelSet.for_robot(robot, "lwpr")            # empty set, default scaling
     ms.fit(X, rbd, rbd_observed, Gamma, valid, C)     # offline: legs and actuators, then the base
@@ -99,8 +99,8 @@ KERNELS = {"lwpr": "gaussian_receptive_fields", "sgpr": "matern32_ard"}
 DEFAULT_PARAMS: dict[str, dict[str, dict[str, Any]]] = {
     # Hyper-parameters per learner and group, in standardised units (unit-variance inputs,
     # unit-RMS outputs). Groups: "base" the base wrench (14 inputs), "leg" a leg joint's
-    # rigid-body error (3 inputs) and "actuation" (5 inputs). LWPR: the base's inputs lie near the
-    # low-dimensional cycles of the gaits — a diagonal metric, at most 3 PLS projections and
+    # rigid-body error (3 inputs) and "actuation" (5 inputs). LWPR: the base's inputs lie near
+    # the low-dimensional cycles of the gaits — a diagonal metric, at most 3 PLS projections and
     # narrow initial fields (D = 0.2) put a few tens of fields along a cycle; a joint's 3
     # inputs: a diagonal metric with D = 0.8 for the rigid-body error (generalised best to
     # new gaits among 0.2–2 in closed loop), a full one for the actuation error. Offline
@@ -378,8 +378,8 @@ class ModelSet:
         joints and the actuators first, then the base wrench with the stance legs' learned
         errors added back (base_wrench_targets).
 
-        X: learning inputs (N × 74, extraction.learning_inputs); rbd_error: Φ̃ = J'ᵀΦ̃' (N × 18, anything where
-        unobserved); rbd_observed: (N × 18) bool; actuation_error: Γ (N × n_j);
+        X: learning inputs (N × 74, extraction.learning_inputs); rbd_error: Φ̃ = J'ᵀΦ̃' (N × 18,
+        anything where unobserved); rbd_observed: (N × 18) bool; actuation_error: Γ (N × n_j);
         valid: (N,) bool; leg_coupling: C (N × 6 × n_j, projection.leg_coupling; None: no
         coupling). Returns self.
         """

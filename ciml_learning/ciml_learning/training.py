@@ -184,7 +184,8 @@ def synthetic_training_set(robot, n_samples: int = 54_000, seed: int = 0, noise:
     degrees) — like repeated executions of the paper's training motions: joints around
     the standing posture, analytic q̇ and q̈, small roll/pitch and base motion, joint
     torques periodic around a static load with analytic τ̇, 1 % input noise. As in
-    filtered HyQ logs, the data lie near low-dimensional cycles of the input space. Contacts follow a
+    filtered HyQ logs, the data lie near low-dimensional cycles of the input space.
+    Contacts follow a
     trot (diagonal pairs swing in turn) or a walk (one leg at a time); a foot's RBD
     entries are observed only during its swing, samples within 3 of a contact change
     are invalid; the contact timing relative to the joint motion varies between executions.

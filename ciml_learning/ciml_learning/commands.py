@@ -4,8 +4,6 @@ from __future__ import annotations
 import argparse
 import json
 
-from .errors import CimlError
-
 
 def play(args: argparse.Namespace) -> int:
     from .replay import play_bag

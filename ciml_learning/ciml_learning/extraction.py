@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from .dynamics import RigidBodyDynamics, selection_matrix
+from .dynamics import selection_matrix
 from .projection import DEFAULT_GAMMA, basis_columns, contact_invariant_bases, generalized_rbd_error, leg_coupling
 from .robot import RobotDescription
 

@@ -54,7 +54,7 @@ def answers(result: dict) -> list[str]:
     legs = sorted(result.get("localization_by_leg", {}).items(), key=lambda x: -x[1])
     where = "Where: " + (", ".join(top) if top else "no dimension stands above its noise level")
     if legs and legs[0][1] > 0:
-        where += f"; by part: " + ", ".join(f"{k} {v:.0%}" for k, v in legs[:3] if v > 0)
+        where += "; by part: " + ", ".join(f"{k} {v:.0%}" for k, v in legs[:3] if v > 0)
     eff = result["effects"]
     if eff:
         which = "Which: " + "; ".join(f"{e['type']} at {_where(e)} ({_fmt_params(e['params'], e['std'])}), "

@@ -151,18 +151,23 @@ def test_online_model_from_replay_matches_offline_partial_fit(tmp_path):
     # scale (sensitivity ~100), and replays measured ≤ 4e-14 · output scale. 1e-6 · output
     # scale (4e-5 N on a base force, 8e-6 Nm on an actuator) leaves orders of magnitude of
     # margin for rounding, and is >100× below what a different sample set gives (below).
+    # The base wrench's narrow fields (D = 0.2) learn from targets that include the legs'
+    # predictions: once in four fresh-clone runs a rounding-level difference flipped one of
+    # their field decisions (20× the tolerance on base_fz, 6e-4 N); the base dimensions get
+    # 100× the tolerance, still below what a different sample set gives.
     scale = online.output_scale_
     np.testing.assert_allclose(scale, reference.output_scale_, rtol=1e-12)  # same scaling
     tol = 1e-6 * scale
     err = np.abs(pred_on - pred_off)
-    assert np.all(err <= tol), ("prediction differs (× tolerance)", (err / tol).max(axis=0))
+    bound = tol * np.r_[np.full(6, 100.0), np.ones(len(tol) - 6)]
+    assert np.all(err <= bound), ("prediction differs (× tolerance)", (err / tol).max(axis=0))
     assert np.all(np.mean(np.abs(pred_off) > 100 * tol, axis=0) > 0.5), "a dimension predicts ~nothing: comparison void"
 
     # the tolerance discriminates: skipping every 20th sample gives a clearly different model
     keep = np.ones(len(rows), bool)
     keep[::20] = False
     other = _offline_model(X[keep], *(z[keep] for z in targets), CALIBRATION)
-    assert np.all(np.abs(_both(other.predict(X)) - pred_off).max(axis=0) > 100 * tol)
+    assert np.all(np.abs(_both(other.predict(X)) - pred_off).max(axis=0) > 100 * tol)  # ≥ bound
 
 
 def _reference_msg(stamp_ns: int, q, v, a):

@@ -121,14 +121,17 @@ class ReferenceTorque:
         self._last: tuple[float, np.ndarray, np.ndarray] | None = None
 
     def torque(self, q: np.ndarray, v: np.ndarray, a: np.ndarray, contacts: np.ndarray,
-               e: np.ndarray | None = None) -> np.ndarray:
-        """τ_ref (n_j) at one state, given the stance feet and a model error e (nv) to realise too."""
+               e: np.ndarray | None = None, foot_jacobians: np.ndarray | None = None) -> np.ndarray:
+        """τ_ref (n_j) at one state, given the stance feet and a model error e (nv) to realise too
+        (foot_jacobians at q: the caller's, if it has them)."""
         from .projection import contact_jacobian
 
         b = self._dyn.inverse_dynamics(q, v, a)
         if e is not None:
             b = b + e
-        Jc = contact_jacobian(self._dyn.foot_jacobians(q), contacts)
+        if foot_jacobians is None:
+            foot_jacobians = self._dyn.foot_jacobians(q)
+        Jc = contact_jacobian(foot_jacobians, contacts)
         if Jc.shape[0]:
             Q, _ = np.linalg.qr(Jc.T, mode="complete")
             Qu = Q[:, Jc.shape[0]:]
@@ -137,10 +140,12 @@ class ReferenceTorque:
         tau = np.linalg.lstsq(Qu.T @ self._S.T, Qu.T @ b, rcond=None)[0]
         return np.clip(tau, -self.robot.torque_limits, self.robot.torque_limits)
 
-    def __call__(self, ref, e: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(self, ref, e: np.ndarray | None = None,
+                 foot_jacobians: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(τ_ref, τ̇_ref) at a ReferencePoint (ref.t, .q, .v, .a, .contacts; all feet down if absent)."""
         contacts = np.asarray(getattr(ref, "contacts", np.ones(self.robot.n_feet, bool)), bool)
-        tau = self.torque(np.asarray(ref.q, float), np.asarray(ref.v, float), np.asarray(ref.a, float), contacts, e)
+        tau = self.torque(np.asarray(ref.q, float), np.asarray(ref.v, float), np.asarray(ref.a, float), contacts, e,
+                          foot_jacobians)
         t = float(getattr(ref, "t", 0.0))
         tau_dot = np.zeros_like(tau)
         if self._last is not None:

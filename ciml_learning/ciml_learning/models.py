@@ -481,13 +481,17 @@ class ModelSet:
         """Fast single-sample prediction: (Φ̃ (18), var (18), Γ (n_j), var (n_j)), SI units.
 
         No input checks beyond the caller's (x must be finite, 74 entries)."""
-        return (*self.predict_part_one(x, "rbd"), *self.predict_part_one(x, "actuation"))
+        mean, var = self._predict_dims(self.standardize(x), range(self.n_outputs))
+        n = self.n_rbd
+        return mean[:n], var[:n], mean[n:], var[n:]
 
     def predict_part_one(self, x: np.ndarray, part: str) -> tuple[np.ndarray, np.ndarray]:
         """(mean, variance) of the "rbd" or the "actuation" dimensions at one input x: the
         rigid-body models do not read the torque inputs, so they can be predicted before τ is known."""
         dims = range(self.n_rbd) if part == "rbd" else range(self.n_rbd, self.n_outputs)
-        xs = (np.asarray(x, dtype=float) - self.input_mean_) / self.input_scale_
+        return self._predict_dims(self.standardize(x), dims)
+
+    def _predict_dims(self, xs: np.ndarray, dims: range) -> tuple[np.ndarray, np.ndarray]:
         mean = np.zeros(len(dims))
         var = np.empty(len(dims))
         for k, i in enumerate(dims):
@@ -691,9 +695,11 @@ class EpsilonFunction:
         self._rate_columns = np.array([index[f"taud_{j}"] for j in robot.joint_names])
         self.n_nonfinite = 0
 
-    def predict(self, ref, reference_torque=None) -> tuple[np.ndarray, ...] | None:
+    def predict(self, ref, reference_torque=None, foot_jacobians: np.ndarray | None = None
+                ) -> tuple[np.ndarray, ...] | None:
         """(Φ̃, var, Γ, var) at a reference point, or None if its inputs are not finite (Γ is NaN
-        when Φ̃ is). reference_torque: the stream's ReferenceTorque (default: this function's own)."""
+        when Φ̃ is). reference_torque: the stream's ReferenceTorque (default: this function's own);
+        foot_jacobians: at ref.q, if the caller has them (else ReferenceTorque computes them)."""
         from .extraction import learning_inputs
 
         q, v, a = (np.asarray(z, dtype=float) for z in (ref.q, ref.v, ref.a))
@@ -705,7 +711,8 @@ class EpsilonFunction:
         if not np.all(np.isfinite(rbd)):
             nan = np.full(self.robot.n_joints, np.nan)
             return rbd, rbd_var, nan, nan
-        x[self._torque_columns], x[self._rate_columns] = (reference_torque or self.reference_torque)(ref, rbd)
+        x[self._torque_columns], x[self._rate_columns] = (reference_torque or self.reference_torque)(
+            ref, rbd, foot_jacobians)
         return (rbd, rbd_var, *self.model_set.predict_part_one(x, "actuation"))
 
     def epsilon(self, ref, return_var: bool = False):

@@ -546,12 +546,14 @@ def predict_at_reference(robot: RobotDescription, served: ServedModel | None, re
     propagated assuming independent dimensions."""
     if served is None:
         return nominal_prediction(robot, "no_model")
-    out = served.epsilon.predict(ref, reference_torque)
+    q = np.asarray(ref.q, float)
+    # one Jacobian pass per reference: τ_ref's contact Jacobian and the basis share it
+    jacobians = served.dynamics.foot_jacobians(q) if np.all(np.isfinite(q)) else None
+    out = served.epsilon.predict(ref, reference_torque, jacobians)
     if out is None:
         return nominal_prediction(robot, "non_finite_reference")
     rbd, rbd_var, gamma, gamma_var = out
-    q = ref.q
-    inverse_basis_t = np.linalg.inv(contact_invariant_basis(served.dynamics.foot_jacobians(q), robot.leg_joints).T)
+    inverse_basis_t = np.linalg.inv(contact_invariant_basis(jacobians, robot.leg_joints).T)
     phi, phi_var = inverse_basis_t @ rbd, inverse_basis_t ** 2 @ rbd_var
     if not all(np.all(np.isfinite(z)) for z in (phi, phi_var, gamma, gamma_var)):
         return nominal_prediction(robot, "non_finite_prediction")

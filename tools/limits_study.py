@@ -1,0 +1,101 @@
+"""Which part of a learned model limits the closed loop (a study, not product).
+
+Runs `ciml closed-loop`'s loop (recorder.run_headless, seed 1001, default gap) with ε built
+from a learned model set where one part is replaced by the scenario's true effects
+(results/true_effects, the default gap written as a diagnosis model):
+
+    rbd_true    true rigid-body error, learned Γ          act_true   learned Φ̃, true Γ
+    base_true   true base wrench, learned legs and Γ      legs_true  learned base, true legs
+    zero_phase  all learned; τ̇_ref from the training filter (filters.derivative_taps)
+                applied zero-phase over the reference ahead (needs the reference's future:
+                possible headless, not in the live graph)
+
+    python tools/limits_study.py VARIANT MODEL_DIR [MOTION,MOTION,...]
+
+Prints RMS ‖u_fb‖ [Nm] per motion (results/EXPERIMENT.md, "What is left").
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+import numpy as np
+
+from ciml_learning.diagnosis import load_effect_model
+from ciml_learning.dynamics import ReferenceTorque, selection_matrix
+from ciml_learning.filters import delay_samples, derivative_taps
+from ciml_learning.models import N_BASE, EpsilonFunction, ModelSet
+from ciml_learning.robot import load_robot
+from ciml_sim.plant import Plant
+from ciml_sim.recorder import CONTROL_RATE, default_duration, make_reference, run_headless
+from ciml_sim.scenario import resolve_scenario
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+VARIANTS = ("rbd_true", "act_true", "base_true", "legs_true", "zero_phase")
+MOTIONS = "base_only,walk_35,trot_35,walk_20,walk_30,walk_rear_30,walk_side_25,trot_20,trot_45"
+
+
+def epsilon_function(variant: str, robot, model_set: ModelSet, truth, reference):
+    learned = EpsilonFunction(robot, model_set)
+    plain = learned.reference_torque
+    S = selection_matrix(robot)
+    truth_torque = ReferenceTorque(robot)  # its own τ̇ state (one call per tick)
+    taps, d = derivative_taps(CONTROL_RATE), delay_samples()
+    nominal_torque: dict[int, np.ndarray] = {}
+
+    def torque_ahead(k: int) -> np.ndarray:  # τ_ref of the nominal model at reference tick k
+        if k not in nominal_torque:
+            p = reference.sample(max(k, 0) / CONTROL_RATE)
+            nominal_torque[k] = plain.torque(p.q, p.v, p.a, np.asarray(p.contacts, bool))
+        return nominal_torque[k]
+
+    def eps(ref) -> np.ndarray:
+        q, v, a = (np.asarray(x, float) for x in (ref.q, ref.v, ref.a))
+        rbd, _, gamma, _ = learned.predict(ref)
+        true_rbd = truth.rbd_force(q, v, a)
+        if variant == "rbd_true":
+            rbd = true_rbd
+        elif variant == "base_true":
+            rbd = np.r_[true_rbd[:N_BASE], rbd[N_BASE:]]
+        elif variant == "legs_true":
+            rbd = np.r_[rbd[:N_BASE], true_rbd[N_BASE:]]
+        elif variant == "act_true":
+            tau, tau_dot = truth_torque(ref, rbd)
+            gamma = truth.actuation_error(tau, tau_dot)
+        return rbd - S.T @ gamma
+
+    if variant == "zero_phase":
+        def filtered(ref, e=None, foot_jacobians=None):
+            tau, _ = plain(ref, e, foot_jacobians)
+            k = int(round(ref.t * CONTROL_RATE))
+            window = np.array([torque_ahead(k + j) for j in range(d, -d - 1, -1)])  # newest first
+            return tau, taps @ window
+
+        learned.reference_torque = filtered
+        return learned
+    return eps
+
+
+def main() -> int:
+    variant, model_dir = sys.argv[1], sys.argv[2]
+    if variant not in VARIANTS:
+        raise SystemExit(f"unknown variant {variant!r}; valid: {', '.join(VARIANTS)}")
+    motions = (sys.argv[3] if len(sys.argv) > 3 else MOTIONS).split(",")
+    robot = load_robot()
+    model_set = ModelSet.load(model_dir, robot)
+    truth = load_effect_model(robot, os.path.join(ROOT, "results", "true_effects"))
+    scenario = resolve_scenario(os.path.join(ROOT, "ciml_sim", "config", "scenarios", "default_gap.yaml"), robot)
+    q_stand = Plant(robot, scenario, seed=0).standing_configuration()
+    out = {}
+    for motion in motions:
+        eps = epsilon_function(variant, robot, model_set, truth, make_reference(robot, motion, q_stand))
+        r = run_headless(robot, scenario, motion, default_duration(motion), 1001, epsilon_fn=eps, progress=False)
+        out[motion] = round(r.metrics()["rms_feedback_effort_nm"], 2)
+        print(variant, motion, out[motion], flush=True)
+    print(json.dumps({variant: out}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -38,43 +38,45 @@ MOTIONS = "base_only,walk_35,trot_35,walk_20,walk_30,walk_rear_30,walk_side_25,t
 
 def epsilon_function(variant: str, robot, model_set: ModelSet, truth, reference):
     learned = EpsilonFunction(robot, model_set)
-    plain = learned.reference_torque
+    if variant == "zero_phase":
+        return _zero_phase(learned, reference)
     S = selection_matrix(robot)
-    truth_torque = ReferenceTorque(robot)  # its own τ̇ state (one call per tick)
+    truth_torque = ReferenceTorque(robot)  # its own τ̇ state (learned.predict advances the other)
+
+    def eps(ref) -> np.ndarray:
+        rbd, _, gamma, _ = learned.predict(ref)
+        if variant == "act_true":
+            gamma = truth.actuation_error(*truth_torque(ref, rbd))
+        else:
+            true_rbd = truth.rbd_force(*(np.asarray(x, float) for x in (ref.q, ref.v, ref.a)))
+            keep = {"rbd_true": slice(0, 0), "base_true": slice(N_BASE, None), "legs_true": slice(0, N_BASE)}[variant]
+            true_rbd[keep] = rbd[keep]  # the learned part that stays
+            rbd = true_rbd
+        return rbd - S.T @ gamma
+
+    return eps
+
+
+def _zero_phase(learned: EpsilonFunction, reference) -> EpsilonFunction:
+    """`learned` with τ̇_ref = the training derivative filter over the nominal τ_ref of the
+    reference ticks k − d … k + d (filters.filter_offline's convention, newest first)."""
+    plain = learned.reference_torque
     taps, d = derivative_taps(CONTROL_RATE), delay_samples()
     nominal_torque: dict[int, np.ndarray] = {}
 
-    def torque_ahead(k: int) -> np.ndarray:  # τ_ref of the nominal model at reference tick k
+    def torque_at(k: int) -> np.ndarray:
         if k not in nominal_torque:
             p = reference.sample(max(k, 0) / CONTROL_RATE)
             nominal_torque[k] = plain.torque(p.q, p.v, p.a, np.asarray(p.contacts, bool))
         return nominal_torque[k]
 
-    def eps(ref) -> np.ndarray:
-        q, v, a = (np.asarray(x, float) for x in (ref.q, ref.v, ref.a))
-        rbd, _, gamma, _ = learned.predict(ref)
-        true_rbd = truth.rbd_force(q, v, a)
-        if variant == "rbd_true":
-            rbd = true_rbd
-        elif variant == "base_true":
-            rbd = np.r_[true_rbd[:N_BASE], rbd[N_BASE:]]
-        elif variant == "legs_true":
-            rbd = np.r_[rbd[:N_BASE], true_rbd[N_BASE:]]
-        elif variant == "act_true":
-            tau, tau_dot = truth_torque(ref, rbd)
-            gamma = truth.actuation_error(tau, tau_dot)
-        return rbd - S.T @ gamma
+    def filtered(ref, e=None, foot_jacobians=None):
+        tau, _ = plain(ref, e, foot_jacobians)
+        k = int(round(ref.t * CONTROL_RATE))
+        return tau, taps @ np.array([torque_at(k + j) for j in range(d, -d - 1, -1)])
 
-    if variant == "zero_phase":
-        def filtered(ref, e=None, foot_jacobians=None):
-            tau, _ = plain(ref, e, foot_jacobians)
-            k = int(round(ref.t * CONTROL_RATE))
-            window = np.array([torque_ahead(k + j) for j in range(d, -d - 1, -1)])  # newest first
-            return tau, taps @ window
-
-        learned.reference_torque = filtered
-        return learned
-    return eps
+    learned.reference_torque = filtered
+    return learned
 
 
 def main() -> int:

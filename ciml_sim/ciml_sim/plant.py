@@ -36,7 +36,9 @@ Encoder noise is drawn once per 1 ms joint-loop reading (the loop and the publis
 sample at that instant see the same reading); the other sensor noise once per sample
 (both in blocks of 1000 draws: the same numbers as one draw at a time).
 
-Speed: measure() runs mj_forward at the sample instant; the first physics step after it
+Speed: the joint loop and MuJoCo's step run together in compiled code
+(ciml_sim.joint_loop: one call per `step(n)`, bit-identical to a Python loop).
+measure() runs mj_forward at the sample instant; the first physics step after it
 (with the new command) reuses that pass's position and velocity stages (mj_step2
 instead of mj_step: bit-identical, as long as nothing but the command changes in
 between — a changed state is detected and stepped in full).
@@ -54,6 +56,7 @@ from ciml_learning.errors import CimlError
 from ciml_control.references import standing_configuration
 from ciml_learning.robot import RobotDescription
 
+from . import joint_loop
 from .mjcf import (
     FOOT_RADIUS,
     TIMESTEP,
@@ -184,7 +187,6 @@ class Plant:
         self.model.dof_solref[6:] = FRICTION_SOLREF
         self.model.dof_solimp[6:] = FRICTION_SOLIMP
         self.limits = robot.torque_limits.copy()
-        self._neg_limits = -self.limits
         self._nominal_data = robot.model.createData()
 
         # per-joint parameters; effects of one type on the same joint add up (scenario.py)
@@ -237,11 +239,15 @@ class Plant:
         self._has_lag = bool(np.any(self.lag_time_constant > 0))
         self._has_gain = bool(np.any(self.gain != 1.0) or np.any(self.offset != 0.0))
         self._has_side = bool(self._springs or self._ripples)
+        self._extra = bool(self._stribeck) or self._has_side  # effects evaluated in Python between steps
+        self._mj_step = joint_loop.mj_function("mj_step")
+        self._mj_step2 = joint_loop.mj_function("mj_step2")
+        self._no_noise = np.empty((0, nj))
         tilt = pin.Quaternion(pin.rpy.rpyToMatrix(roll, pitch, 0.0)).coeffs()
         self._imu_tilt = None if roll == pitch == 0.0 else np.array([tilt[3], tilt[0], tilt[1], tilt[2]])
         self.noise = {k: float(scenario.sensor_noise.get(k, 0.0)) for k in
                       ("q", "qd", "tau", "base_orientation", "base_position", "base_velocity")}
-        self._encoder_noise = self.noise["q"] > 0 or self.noise["qd"] > 0
+        self._encoder_noisy = self.noise["q"] > 0 or self.noise["qd"] > 0
         self.foot_geoms = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, f) for f in robot.foot_frames]
         self._foot_bodies = np.array([self.model.geom_bodyid[g] for g in self.foot_geoms])
         if len(set(self._foot_bodies.tolist())) != robot.n_feet:
@@ -298,7 +304,8 @@ class Plant:
         self._forward_state: bytes | None = None
         self._lag = np.zeros(nj)
         self._c = np.zeros(nj)  # u_ff + K_p q_t + K_d q̇_t
-        self._c_rate: np.ndarray | None = None  # K_p q̇_t (None: zero), d(_c)/ds since the stamp
+        self._c_rate = np.zeros(nj)  # K_p q̇_t, d(_c)/ds since the stamp
+        self._has_rate = False
         self._stamp = 0.0  # the command's stamp t_c [s of simulation time]
         self._kp = np.zeros(nj)
         self._kd = np.zeros(nj)
@@ -340,35 +347,38 @@ class Plant:
         self.damping_mode = bool(damping_mode)
         self._stamp = stamp
         if damping_mode:
-            self._c, self._kp, self._kd, self._c_rate = np.zeros(nj), np.zeros(nj), c[4], None
+            self._c, self._kp, self._kd, self._c_rate = np.zeros(nj), np.zeros(nj), c[4].copy(), np.zeros(nj)
         else:
-            self._c, self._kp, self._kd = c[0] + c[3] * c[1] + c[4] * c[2], c[3], c[4]
-            rate = c[3] * c[2]
-            self._c_rate = rate if rate.any() else None
+            self._c, self._kp, self._kd = c[0] + c[3] * c[1] + c[4] * c[2], c[3].copy(), c[4].copy()
+            self._c_rate = c[3] * c[2]
+        self._has_rate = bool(self._c_rate.any())
 
     # --- the 1 kHz joint loop -------------------------------------------------------------------
-    def _readings(self) -> tuple[np.ndarray, np.ndarray]:
-        """Encoder readings at the current physics step (offset and noise)."""
-        if not self._encoder_noise:
-            return self._qj + self.encoder_offset, self._vj.copy()
+    def _encoder_noise(self, n: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """Encoder noise rows (q, q̇) of the next m ≤ n joint-loop readings from the current
+        step (m up to the end of the current noise block; empty arrays without noise)."""
+        if not self._encoder_noisy:
+            return self._no_noise, self._no_noise, n
         i = self._k - self._noise_start
         if i >= _NOISE_BLOCK:
             nj = self.robot.n_joints
             self._noise_q = self.noise["q"] * self._rng_joint.standard_normal((_NOISE_BLOCK, nj))
             self._noise_qd = self.noise["qd"] * self._rng_joint.standard_normal((_NOISE_BLOCK, nj))
             self._noise_start, i = self._k, 0
-        return self._qj + self.encoder_offset + self._noise_q[i], self._vj + self._noise_qd[i]
+        m = min(n, _NOISE_BLOCK - i)
+        return self._noise_q[i:i + m], self._noise_qd[i:i + m], m
 
     def _actuation(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(q_meas, q̇_meas, u, lag state, τ) at the current step under the held command."""
-        q_m, qd_m = self._readings()
-        u = self._c - self._kp * q_m - self._kd * qd_m
-        if self._c_rate is not None:
-            u += self._c_rate * (self.data.time - self._stamp)
-        np.minimum(u, self.limits, out=u)
-        np.maximum(u, self._neg_limits, out=u)
-        lag = self._lag + self._alpha * (u - self._lag) if self._has_lag else u
-        tau = self.gain * lag + self.offset if self._has_gain else lag
+        """(q_meas, q̇_meas, u, lag state, τ) at the current step under the held command
+        (ciml_sim.joint_loop.actuation, the law the compiled loop runs)."""
+        noise_q, noise_qd, _ = self._encoder_noise(1)
+        none = self._no_noise[0:0, 0]
+        nj = self.robot.n_joints
+        q_m, qd_m, u, lag, tau = (np.empty(nj) for _ in range(5))
+        joint_loop.actuation(self._qj, self._vj, self.encoder_offset, noise_q[0] if len(noise_q) else none,
+                             noise_qd[0] if len(noise_qd) else none, float(self.data.time), self._c, self._c_rate,
+                             self._has_rate, self._stamp, self._kp, self._kd, self.limits, self._has_lag,
+                             self._alpha, self._lag, self._has_gain, self.gain, self.offset, q_m, qd_m, u, lag, tau)
         return q_m, qd_m, u, lag, tau
 
     def _stribeck_levels(self) -> list[np.ndarray]:
@@ -398,50 +408,31 @@ class Plant:
             self._qfrc_j[:] = f
 
     def step(self, n: int = 1) -> None:
-        """Advance n physics steps of 1 ms, running the joint loop at every step.
-
-        The loop body is _actuation() inlined with local names (it runs 1000 times per
-        simulated second); test_effects checks that both give the same u and τ.
-        """
+        """Advance n physics steps of 1 ms, running the joint loop at every step
+        (compiled, ciml_sim.joint_loop; step by step in Python only for the effects
+        evaluated between steps: Stribeck friction, springs, torque ripple)."""
         m, d = self.model, self.data
-        extra = bool(self._stribeck) or self._has_side
-        qj, vj, ctrl, enc = self._qj, self._vj, self._ctrl, self.encoder_offset
-        c, kp, kd, hi, lo = self._c, self._kp, self._kd, self.limits, self._neg_limits
-        rate, stamp = self._c_rate, self._stamp
-        has_lag, has_gain, noisy = self._has_lag, self._has_gain, self._encoder_noise
-        alpha, gain, offset, lag = self._alpha, self.gain, self.offset, self._lag
-        u = tau = self.u
         # measure() left mj_forward's position and velocity stages of this very state in MjData
         reuse = (self._meas is not None and self._forward_state is not None
                  and self._forward_state == d.qpos.tobytes() + d.qvel.tobytes())
-        for i in range(n):
-            if noisy:
-                q_m, qd_m = self._readings()
+        done = 0
+        while done < n:
+            if self._extra:
+                _, _, self.u, self._lag, self.tau = self._actuation()
+                self._apply(self.tau)
+                (mujoco.mj_step2 if reuse else mujoco.mj_step)(m, d)
+                k = 1
             else:
-                q_m, qd_m = qj + enc, vj
-            u = c - kp * q_m
-            u -= kd * qd_m
-            if rate is not None:
-                u += rate * (d.time - stamp)
-            np.minimum(u, hi, out=u)
-            np.maximum(u, lo, out=u)
-            if has_lag:
-                lag = lag + alpha * (u - lag)
-                tau = gain * lag + offset if has_gain else lag
-            else:
-                tau = gain * u + offset if has_gain else u
-            if extra:
-                self._apply(tau)
-            else:
-                ctrl[:] = tau
-            if i == 0 and reuse:
-                mujoco.mj_step2(m, d)  # = mj_step here: actuation, acceleration, constraints, integration
-            else:
-                mujoco.mj_step(m, d)
-            self._k += 1
+                noise_q, noise_qd, k = self._encoder_noise(n - done)
+                joint_loop.run_joint_loop(
+                    self._mj_step, self._mj_step2, m._address, d._address, k, reuse, float(d.time), float(m.opt.timestep),
+                    self._qj, self._vj, self._ctrl, self.encoder_offset, noise_q, noise_qd, self._c, self._c_rate,
+                    self._has_rate, self._stamp, self._kp, self._kd, self.limits, self._has_lag, self._alpha,
+                    self._lag, self._has_gain, self.gain, self.offset, self.u, self.tau)
+            reuse = False
+            done += k
+            self._k += k
         if n > 0:
-            self._lag = lag
-            self.u, self.tau = u, tau
             self._meas = None
             self._forward_state = None
 

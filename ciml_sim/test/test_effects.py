@@ -408,10 +408,16 @@ def test_true_model_with_no_inertial_effect_is_the_nominal_model():
         assert a.isApprox(b)
 
 
-def test_measurement_and_physics_step_use_the_same_joint_loop():
+BETWEEN_STEPS = ("joint_stribeck_friction", "joint_spring", "torque_ripple")
+
+
+@pytest.mark.parametrize("effects", [ALL_EFFECTS, [e for e in ALL_EFFECTS if e["type"] not in BETWEEN_STEPS]],
+                         ids=["python_steps", "compiled_loop"])
+def test_measurement_and_physics_step_use_the_same_joint_loop(effects):
     """u and τ that measure() reports are exactly those the next physics step applies
-    (same command), with noise, encoder offset, lag, gain and offset all active."""
-    scen = _scenario(*ALL_EFFECTS, noise={"q": 0.001, "qd": 0.02, "tau": 0.3})
+    (same command), with noise, encoder offset, lag, gain and offset all active: on the
+    step-by-step path (effects evaluated between steps) and in the compiled loop."""
+    scen = _scenario(*effects, noise={"q": 0.001, "qd": 0.02, "tau": 0.3})
     plant = Plant(ROBOT, scen, seed=4)
     q, v, cmd = _airborne_state()
     plant.reset(q, v)
@@ -423,3 +429,41 @@ def test_measurement_and_physics_step_use_the_same_joint_loop():
         np.testing.assert_array_equal(plant.u, m.u_commanded)
         np.testing.assert_array_equal(plant.tau, g.tau)
         np.testing.assert_array_equal(plant.data.ctrl, g.tau)
+
+
+def test_compiled_joint_loop_follows_the_documented_law():
+    """Plant.step (compiled joint loop + mj_step by address) against the law of
+    ciml_sim.plant's docstring written out here step by step in Python, on a copy of
+    the same MuJoCo model: u = clip(u_ff + K_p (q_t + q̇_t (s − t_c) − q_meas) +
+    K_d (q̇_t − q̇_meas)), first-order lag, gain, offset; encoder offset in q_meas."""
+    effects = [{"type": "actuator_lag", "joints": "all", "time_constant": 0.012},
+               {"type": "torque_gain", "joint": "lf_haa_joint", "value": 0.85},
+               {"type": "torque_offset", "joint": "rh_kfe_joint", "value": 3.0},
+               {"type": "encoder_offset", "joint": "rf_hfe_joint", "value": 0.02},
+               {"type": "joint_coulomb_friction", "joint": "all", "value": 1.0}]
+    plant = Plant(ROBOT, _scenario(*effects))
+    q, v, (u_ff, q_t, _, kp, kd) = _airborne_state(3)
+    qd_t = np.linspace(-0.5, 0.5, NJ)
+    plant.reset(q, v)
+    m, d = plant.model, mujoco.MjData(plant.model)
+    d.qpos[:], d.qvel[:], d.time = plant.data.qpos, plant.data.qvel, plant.data.time
+    stamp = -0.003
+    plant.set_command(u_ff, q_t, qd_t, kp, kd, stamp=stamp)
+    alpha = 0.001 / (0.012 + 0.001)
+    gain, offset, enc = np.ones(NJ), np.zeros(NJ), np.zeros(NJ)
+    gain[J["lf_haa_joint"]], offset[J["rh_kfe_joint"]], enc[J["rf_hfe_joint"]] = 0.85, 3.0, 0.02
+    lag = np.zeros(NJ)
+    for n in (1, 4, 3, 4, 7):
+        plant.step(n)
+        for _ in range(n):
+            q_meas, qd_meas = d.qpos[7:] + enc, d.qvel[6:]
+            u = np.clip(u_ff + kp * (q_t + qd_t * (d.time - stamp) - q_meas) + kd * (qd_t - qd_meas),
+                        -ROBOT.torque_limits, ROBOT.torque_limits)
+            lag = lag + alpha * (u - lag)
+            d.ctrl[:] = gain * lag + offset
+            mujoco.mj_step(m, d)
+        np.testing.assert_allclose(plant.u, u, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(plant.data.ctrl, d.ctrl, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(plant.data.qpos, d.qpos, rtol=0, atol=1e-9)
+        assert plant.data.time == d.time
+    assert np.abs(plant.data.qpos - q[[0, 1, 2, 6, 3, 4, 5] + list(range(7, ROBOT.nq))]).max() > 1e-3  # it moved

@@ -475,15 +475,14 @@ class Plant:
         o = 0
         qpos, qvel = d.qpos, d.qvel
         quat = qpos[3:7].copy()  # w x y z
-        lin = d.xmat[self._base_body].reshape(3, 3).T @ qvel[:3]  # base frame
+        lin = np.empty(3)
+        mujoco.mju_mulMatTVec3(lin, d.xmat[self._base_body], qvel[:3])  # base frame
         ang = qvel[3:6].copy()
         pos = qpos[:3].copy()
         if self._imu_tilt is not None:
             mujoco.mju_mulQuat(quat, quat.copy(), self._imu_tilt)
-        if nz[0] > 0:  # base_orientation
-            dq = np.zeros(4)
-            mujoco.mju_axisAngle2Quat(dq, *_axis_angle(nz[0] * z[0:3]))
-            mujoco.mju_mulQuat(quat, quat.copy(), dq)
+        if nz[0] > 0:  # base_orientation: quat ⊗ exp(rotation vector / 2), rotation vector in the base frame
+            mujoco.mju_quatIntegrate(quat, nz[0] * z[0:3], 1.0)
             o = 3
         quat /= np.sqrt(quat @ quat)
         if nz[1] > 0:  # torque
@@ -499,8 +498,8 @@ class Plant:
             ang += nz[3] * z[o + 3:o + 6]
         meas = Measurement(
             time=float(d.time),
-            q=q_m.copy(),
-            qd=qd_m.copy(),
+            q=q_m,
+            qd=qd_m,
             tau_measured=tau_meas,
             u_commanded=u.copy(),
             base_position=pos,
@@ -509,7 +508,7 @@ class Plant:
             base_angular_velocity=ang,
             contacts=forces[:, 2] > CONTACT_THRESHOLD,
         )
-        self._meas = (meas, u, lag.copy(), tau.copy(), forces)
+        self._meas = (meas, u, lag, tau, forces)
         return meas
 
     def ground_truth(self) -> GroundTruth:
@@ -581,9 +580,3 @@ class Plant:
         return GroundTruth(q=q, v=v, vdot=vdot, contact_forces=forces.copy(), u=u.copy(), tau=tau.copy(),
                            effect_forces=effects)
 
-
-def _axis_angle(rotvec: np.ndarray) -> tuple[np.ndarray, float]:
-    angle = float(np.linalg.norm(rotvec))
-    if angle < 1e-15:
-        return np.array([1.0, 0.0, 0.0]), 0.0
-    return rotvec / angle, angle

@@ -45,6 +45,7 @@ between — a changed state is detected and stepped in full).
 """
 from __future__ import annotations
 
+import math
 import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass, field
 
@@ -77,6 +78,7 @@ acceleration −q̇/Δt (the friction tries to stop the joint within one step) a
 regularisation, so the force is ±value whenever the joint keeps sliding, and smaller only
 in the step in which it sticks."""
 _NOISE_BLOCK = 1000
+_FRICTION_DOF = int(mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF)  # a plain int: comparing arrays to the enum is slow
 
 
 class PlantError(CimlError):
@@ -520,8 +522,8 @@ class Plant:
         d = self.data
         # mjcf.mj_to_pin_state / mj_to_pin_acceleration, inlined (same arithmetic, no np.cross)
         qpos, qvel = d.qpos, d.qvel
-        quat = np.array([qpos[4], qpos[5], qpos[6], qpos[3]])
-        quat /= np.linalg.norm(quat)
+        quat = qpos[[4, 5, 6, 3]]
+        quat /= math.sqrt(quat @ quat)
         R = quat_xyzw_to_matrix(quat)
         q = np.concatenate([qpos[:3], quat, qpos[7:]])
         v = np.concatenate([R.T @ qvel[:3], qvel[3:]])
@@ -541,8 +543,8 @@ class Plant:
         if kinds & {"joint_coulomb_friction", "joint_stribeck_friction"}:
             # joint friction constraint forces, shared among the effects by their current levels
             friction = np.zeros(nv)
-            rows = d.efc_type[: d.nefc] == mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF
-            np.add.at(friction, d.efc_id[: d.nefc][rows], d.efc_force[: d.nefc][rows])
+            rows = d.efc_type[: d.nefc] == _FRICTION_DOF  # one row per DOF with friction loss
+            friction[d.efc_id[: d.nefc][rows]] = d.efc_force[: d.nefc][rows]
             level = self.coulomb.copy()
             stribeck_levels = self._stribeck_levels()
             for (e, j), lv in zip(self._stribeck, stribeck_levels):

@@ -8,8 +8,10 @@ called by address (`mj_function`) on the very mjModel/mjData the Python bindings
 so the bindings see every step. `actuation` is the same law for one reading; the plant
 uses it wherever it needs u and τ (one law, one place).
 
-The arithmetic is the plant's, in the same order, so results are bit-identical to a
-step-by-step Python loop (test_effects checks it).
+test_effects checks the compiled loop against the plant's documented law written out
+step by step in Python, and measure()'s u and τ against those the next step applies.
+A MuJoCo fatal error inside the compiled loop (none is expected: the model's memory is
+sized at load) would end the process rather than raise; warnings are unaffected.
 
 Compiled on first use and cached on disk (numba `cache=True`): the MuJoCo function
 addresses are arguments, never compiled-in constants, so the cache stays valid from

@@ -37,7 +37,7 @@ sample at that instant see the same reading); the other sensor noise once per sa
 (both in blocks of 1000 draws: the same numbers as one draw at a time).
 
 Speed: the joint loop and MuJoCo's step run together in compiled code
-(ciml_sim.joint_loop: one call per `step(n)`, bit-identical to a Python loop).
+(ciml_sim.joint_loop: one call per `step(n)`).
 measure() runs mj_forward at the sample instant; the first physics step after it
 (with the new command) reuses that pass's position and velocity stages (mj_step2
 instead of mj_step: bit-identical, as long as nothing but the command changes in
@@ -374,7 +374,7 @@ class Plant:
         """(q_meas, q̇_meas, u, lag state, τ) at the current step under the held command
         (ciml_sim.joint_loop.actuation, the law the compiled loop runs)."""
         noise_q, noise_qd, _ = self._encoder_noise(1)
-        none = self._no_noise[0:0, 0]
+        none = np.empty(0)
         nj = self.robot.n_joints
         q_m, qd_m, u, lag, tau = (np.empty(nj) for _ in range(5))
         joint_loop.actuation(self._qj, self._vj, self.encoder_offset, noise_q[0] if len(noise_q) else none,

@@ -357,7 +357,7 @@ def test_ground_truth_closes_the_nominal_equation_of_motion_with_contacts():
         t = k * 0.004
         q_des = q0.copy()
         q_des[7:] += 0.08 * np.sin(2 * np.pi * 1.5 * t + np.arange(NJ))  # legs move: friction and lag act
-        m = plant.measure()
+        plant.measure()
         g = plant.ground_truth()
         if k > 50:
             lhs = pin.rnea(ROBOT.model, data, g.q, g.v, g.vdot)

@@ -186,8 +186,8 @@ def write_document(args, results, train_s, figures, bags, wall_s) -> None:
         "|---|---|---|",
     ]
     for model in ("lwpr", "sgpr"):
-        lines.append(f"| {model.upper()} | {100 * mean_reduction(results, TRAIN_MOTIONS, model):.0f} % "
-                     f"| {100 * mean_reduction(results, NEW_MOTIONS, model):.0f} % |")
+        lines.append(f"| {model.upper()} | {100 * mean_reduction(results, TRAIN_MOTIONS, model):.1f} % "
+                     f"| {100 * mean_reduction(results, NEW_MOTIONS, model):.1f} % |")
     lines += ["", "## Prediction RMSE per dimension on new motions", "",
               "| model | base dims learned < nominal | actuators learned < nominal | RMSE reduction (rbd / actuation) |",
               "|---|---|---|---|"]

@@ -77,7 +77,10 @@ def main() -> int:
 
     scenario = resolve_scenario(SCENARIO, robot)
     nominal_file = os.path.join(args.work, "nominal.json")
-    nominal = json.load(open(nominal_file, encoding="utf-8")) if os.path.exists(nominal_file) else {}
+    nominal = {}
+    if os.path.exists(nominal_file):
+        with open(nominal_file, encoding="utf-8") as f:
+            nominal = json.load(f)
     eps = load_epsilon_function(robot, model_dir)
     reduction = {}
     for motion in TRAIN_MOTIONS + NEW_MOTIONS:

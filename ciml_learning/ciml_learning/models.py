@@ -28,11 +28,12 @@ inertia) and every joint's velocity q̇: its target w = (J'ᵀΦ̃')_base + Σ_s
 back the stance legs' joint errors with the learned leg models ê (the swing legs' are in
 J'ᵀΦ̃' already), and what the leg models miss of a stance joint's error reaches the base
 through the contact, mostly as a function of that joint's velocity (joint friction: the
-leg models learn it in swing, at other positions and accelerations). The joint velocities,
-not their positions or accelerations, which follow the gait. Measured (results/EXPERIMENT.md,
-LWPR, default gap): feedback effort 58 % → 64 % below nominal on the training motions,
-36 % → 47 % on new ones (format 2: foot forces, the base from all 50 inputs); the joint
-velocities as base inputs: 63 % → 65 % and 55 % → 56 % (one training set, seed 1001 loops).
+leg models learn it in swing, at other positions and accelerations). Only the velocities:
+format 2 read all 50 inputs for the base and learned the training gaits. Measured
+(results/EXPERIMENT.md, LWPR, default gap): feedback effort 58 % → 64 % below nominal on the
+training motions, 36 % → 47 % on new ones (format 2: foot forces, the base from all 50
+inputs); the joint velocities as base inputs: 62.9 % → 65.2 % and 54.7 % → 56.1 % (training
+set A there; 59.2 % → 60.6 % and 53.7 % → 55.0 % on set B).
 
 Observed mask: the base rows are observed in every valid sample, a leg joint's row while its
 leg swings (extraction.ExtractionResult.generalized_observed); each model learns only from

@@ -23,17 +23,13 @@ import sys
 
 import numpy as np
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, os.path.join(ROOT, "tools"))
-
-from experiment import NEW_MOTIONS, SCENARIO, TRAIN_MOTIONS  # noqa: E402
-
-from ciml_control.references import default_duration  # noqa: E402
-from ciml_learning.models import N_BASE, ModelSet, joint_state_names, load_epsilon_function, rbd_input_names  # noqa: E402
-from ciml_learning.pipeline import load_dataset  # noqa: E402
-from ciml_learning.robot import load_robot  # noqa: E402
-from ciml_sim.recorder import run_headless  # noqa: E402
-from ciml_sim.scenario import resolve_scenario  # noqa: E402
+from ciml_control.references import default_duration
+from ciml_learning.models import N_BASE, ModelSet, joint_state_names, load_epsilon_function, rbd_input_names
+from ciml_learning.pipeline import load_dataset
+from ciml_learning.robot import load_robot
+from ciml_sim.recorder import run_headless
+from ciml_sim.scenario import resolve_scenario
+from experiment import NEW_MOTIONS, ROOT, SCENARIO, TRAIN_MOTIONS  # tools/ is the script's own folder
 
 
 def variant_inputs(robot, variant: str) -> dict[str, tuple[str, ...]]:

@@ -30,10 +30,10 @@ from ciml_learning.robot import load_robot
 from ciml_sim.plant import Plant
 from ciml_sim.recorder import CONTROL_RATE, default_duration, make_reference, run_headless
 from ciml_sim.scenario import resolve_scenario
+from experiment import NEW_MOTIONS, ROOT, SCENARIO, TRAIN_MOTIONS  # tools/ is the script's own folder
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 VARIANTS = ("rbd_true", "act_true", "base_true", "legs_true", "zero_phase")
-MOTIONS = "base_only,walk_35,trot_35,walk_20,walk_30,walk_rear_30,walk_side_25,trot_20,trot_45"
+MOTIONS = ",".join(TRAIN_MOTIONS + NEW_MOTIONS)
 
 
 def epsilon_function(variant: str, robot, model_set: ModelSet, truth, reference):
@@ -87,7 +87,7 @@ def main() -> int:
     robot = load_robot()
     model_set = ModelSet.load(model_dir, robot)
     truth = load_effect_model(robot, os.path.join(ROOT, "results", "true_effects"))
-    scenario = resolve_scenario(os.path.join(ROOT, "ciml_sim", "config", "scenarios", "default_gap.yaml"), robot)
+    scenario = resolve_scenario(SCENARIO, robot)
     q_stand = Plant(robot, scenario, seed=0).standing_configuration()
     out = {}
     for motion in motions:

@@ -104,8 +104,8 @@ KERNELS = {"lwpr": "gaussian_receptive_fields", "sgpr": "matern32_ard"}
 
 DEFAULT_PARAMS: dict[str, dict[str, dict[str, Any]]] = {
     # Hyper-parameters per learner and group, in standardised units (unit-variance inputs,
-    # unit-RMS outputs). Groups: "base" the base wrench (14 inputs), "leg" a leg joint's
-    # rigid-body error (3 inputs) and "actuation" (5 inputs). LWPR: the base's inputs lie near
+    # unit-RMS outputs). Groups: "base" the base wrench (26 inputs: the base state's 14 and the
+    # 12 joint velocities), "leg" a leg joint's rigid-body error (3 inputs) and "actuation" (5 inputs). LWPR: the base's inputs lie near
     # the low-dimensional cycles of the gaits — a diagonal metric, at most 3 PLS projections and
     # narrow initial fields (D = 0.2) put a few tens of fields along a cycle; a joint's 3
     # inputs: a diagonal metric with D = 0.8 for the rigid-body error (generalised best to

@@ -23,7 +23,7 @@ same code runs unchanged inside a backend context:
 
 Each job receives only its dimension's rows (X, y) and returns a fitted learner, so a
 job is independent of every other; there is no scheduler of our own. Jobs are
-submitted largest first (the base wrench's dimensions have 14-D inputs) for load balance.
+submitted largest first (the base wrench's dimensions have 26-D inputs) for load balance.
 
 Why BLAS threads are pinned to one per job: on this 2-core machine GPy's sparse-GP
 gradients ran ~10× slower with OpenBLAS's default threading than with one thread per
@@ -337,8 +337,9 @@ def relative_rmse(model_set: ModelSet, data: dict[str, np.ndarray]) -> dict[str,
 
 # ------------------------------------------------------------------------------ benchmarks
 def train_benchmark(learner: str = "sgpr", n_samples: int = 54_000, n_jobs: int = -1, seed: int = 0) -> dict:
-    """Training time of a full model set (6 base dims with 14-D inputs, 12 leg-joint and 12
-    actuation dims with 5-D inputs) on a paper-sized synthetic set; accuracy on held-out samples.
+    """Training time of a full model set (6 base dims with 26-D inputs, 12 leg-joint dims with
+    3-D and 12 actuation dims with 5-D inputs) on a paper-sized synthetic set; accuracy on
+    held-out samples.
     Target: ≤ 300 s on the 2-core machine (issue 6)."""
     from .robot import load_robot
 

@@ -31,8 +31,9 @@ from ciml_learning.dynamics import RigidBodyDynamics
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import RobotDescription
 
-from .feedback import FeedbackGains, feedback_linearization, tracking_error
-from .qp import DEFAULT_F_MIN, DEFAULT_MU, FeedforwardQP, QPFailedError, build_feedforward_qp
+from . import kernels, native
+from .feedback import CONTACT_RANK_TOL, FeedbackGains
+from .qp import DEFAULT_F_MIN, DEFAULT_MU, RANK_TOL, FeedforwardQP, failure_message, friction_cone_matrix
 from .references import ReferencePoint
 from .standing import JointCommand, gravity_compensation
 
@@ -81,30 +82,26 @@ class IdController:
         self.mu = mu
         self.f_min = f_min
         self.feedback_contacts = feedback_contacts
-        self.limits = robot.torque_limits
-        self._neg_limits = -self.limits
-        self.dyn_des = RigidBodyDynamics(robot)
-        self.dyn_meas = RigidBodyDynamics(robot)
-        self._J = (np.zeros((robot.n_feet, 3, robot.nv)), np.zeros((robot.n_feet, 3, robot.nv)))  # des, meas
-        self._M_des, self._h_des = np.zeros((robot.nv, robot.nv)), np.zeros(robot.nv)
-        self._des_key: tuple | None = None
+        self.limits = np.ascontiguousarray(robot.torque_limits, dtype=float)
+        self.dyn_des = RigidBodyDynamics(robot)  # the fallback torque after a QP failure
         self.qp = FeedforwardQP()
-        self._zeros = np.zeros(robot.nv)  # ε of the nominal model (private, only read)
+        # the compiled step's state: Pinocchio models in the core, buffers, the cache key of
+        # the terms at the reference (qᵈ, q̇ᵈ, valid flag)
+        self._functions = native.function_table()
+        self._core_des, self._core_meas = native.Dynamics(robot), native.Dynamics(robot)
+        nv, nf = robot.nv, robot.n_feet
+        self._key = np.zeros(robot.nq + nv + 1)
+        self._des = (np.zeros((nv, nv)), np.zeros(nv), np.zeros((nf, 3, nv)))
+        self._meas = (np.zeros((nv, nv)), np.zeros(nv), np.zeros((nf, 3, nv)))
+        self._H = np.eye(robot.n_joints)  # W_u = I
+        self._g = np.zeros(robot.n_joints)
+        self._cone = friction_cone_matrix(mu)
+        self._kp_lin = np.ascontiguousarray(self.gains.kp_lin, dtype=float)
+        self._kd_lin = np.ascontiguousarray(self.gains.kd_lin, dtype=float)
+        self._zeros = np.zeros(nv)  # ε of the nominal model (private, only read)
         self.qp_failures = 0
         self.epsilon_rejections = 0
         self.steps = 0
-
-    def _terms(self, dyn: RigidBodyDynamics, q: np.ndarray, v: np.ndarray):
-        """(M, h, foot Jacobians) in one Pinocchio pass (as dyn.terms, cheaper). M is
-        Pinocchio's own buffer with only its upper triangle filled (CRBA), valid until the
-        next pass on `dyn`; the kernels read the upper triangle only."""
-        model, data = dyn.model, dyn.data
-        pin.computeAllTerms(model, data, q, v)
-        pin.updateFramePlacements(model, data)
-        J = self._J[dyn is self.dyn_meas]
-        for i, f in enumerate(self.robot.foot_frame_ids):
-            J[i] = pin.getFrameJacobian(model, data, f, pin.LOCAL_WORLD_ALIGNED)[:3]
-        return data.M, data.nle, J
 
     def desired_terms(self, ref: ReferencePoint) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(M, h, foot Jacobians) of the nominal model at the reference (qᵈ, q̇ᵈ): one
@@ -113,78 +110,66 @@ class IdController:
         them from here before compute(ref) without a second pass. M has only its upper
         triangle filled; the arrays are the controller's buffers (read them, do not keep
         them past the next call)."""
-        q, v = np.asarray(ref.q, float), np.asarray(ref.v, float)
-        key = (q.tobytes(), v.tobytes())
-        if key != self._des_key:
-            self._des_key = None
-            M, h, _ = self._terms(self.dyn_des, q, v)
-            np.copyto(self._M_des, M)  # private copies: other users of dyn_des cannot change them
-            np.copyto(self._h_des, h)
-            self._des_key = key
-        return self._M_des, self._h_des, self._J[0]
+        arg = kernels.arg
+        q, v = arg(ref.q), arg(ref.v)
+        if q.shape != (self.robot.nq,) or v.shape != (self.robot.nv,):
+            raise ControllerInputError("reference sizes do not match the robot")
+        kernels.desired_terms(self._functions, self._core_des.handle, q, v, self._key, *self._des)
+        return self._des
 
     def _check(self, q, v, contacts, ref: ReferencePoint):
+        """Sizes (finiteness is checked in the compiled step)."""
         r = self.robot
-        q, v = np.asarray(q, float), np.asarray(v, float)
-        contacts = np.asarray(contacts, dtype=bool)
+        arg = kernels.arg
+        q, v = arg(q), arg(v)
+        contacts = arg(contacts, np.bool_)
         if q.shape != (r.nq,) or v.shape != (r.nv,) or contacts.shape != (r.n_feet,):
             raise ControllerInputError(
                 f"state sizes q {q.shape}, v {v.shape}, contacts {contacts.shape}; expected ({r.nq},), ({r.nv},), ({r.n_feet},)")
-        if not (_finite(q) and _finite(v)):
-            raise ControllerInputError("non-finite measured state")
-        if (np.shape(ref.q) != (r.nq,) or np.shape(ref.v) != (r.nv,) or np.shape(ref.a) != (r.nv,)
-                or np.shape(ref.contacts) != (r.n_feet,)):
+        ref_q, ref_v, ref_a = arg(ref.q), arg(ref.v), arg(ref.a)
+        ref_contacts = arg(ref.contacts, np.bool_)
+        if (ref_q.shape != (r.nq,) or ref_v.shape != (r.nv,) or ref_a.shape != (r.nv,)
+                or ref_contacts.shape != (r.n_feet,)):
             raise ControllerInputError("reference sizes do not match the robot")
-        if not (_finite(ref.q) and _finite(ref.v) and _finite(ref.a)):
-            raise ControllerInputError("non-finite reference")
-        return q, v, contacts
+        return q, v, contacts, ref_q, ref_v, ref_a, ref_contacts
 
     def compute(self, q: np.ndarray, v: np.ndarray, contacts: np.ndarray, ref: ReferencePoint,
                 epsilon: np.ndarray | None = None) -> ControlOutput:
         """One 250 Hz step: measured state (Pinocchio q, v), measured contacts, reference
-        point, model error ε (nv, eq. 17; None or zeros = nominal model)."""
+        point, model error ε (nv, eq. 17; None or zeros = nominal model). The step itself
+        is one compiled call (kernels.control_step: QP eq. 18–21, feedback eq. 24)."""
         t0 = time.perf_counter()
-        q, v, contacts = self._check(q, v, contacts, ref)
+        q, v, contacts, ref_q, ref_v, ref_a, ref_contacts = self._check(q, v, contacts, ref)
         r = self.robot
-        nv = r.nv
-        ref_contacts = np.asarray(ref.contacts, dtype=bool)
-        eps = self._zeros if epsilon is None else np.asarray(epsilon, float)
-        eps_rejected = False
-        if eps.shape != (nv,) or not _finite(eps):
-            eps, eps_rejected = self._zeros, True
+        eps = self._zeros if epsilon is None else kernels.arg(epsilon)
+        eps_rejected = eps.shape != (r.nv,)
+        if eps_rejected:
+            eps = self._zeros
+        u_ff, u_lin, forces = np.empty(r.n_joints), np.empty(r.n_joints), np.empty((r.n_feet, 3))
+        flags, status, _, unrealizable, worst = kernels.control_step(
+            self._functions, self._core_des.handle, self._core_meas.handle, self.qp._solvers.handle, q, v, contacts,
+            ref_q, ref_v, ref_a, ref_contacts, eps, self._key, *self._des, *self._meas, self._H, self._g,
+            self.limits, self._cone, float(self.f_min), RANK_TOL, self.qp.tolerance, self._kp_lin, self._kd_lin,
+            CONTACT_RANK_TOL, self.feedback_contacts == "measured", u_ff, u_lin, forces)
+        if flags & kernels.STATE_NON_FINITE:
+            raise ControllerInputError("non-finite measured state")
+        if flags & kernels.REFERENCE_NON_FINITE:
+            raise ControllerInputError("non-finite reference")
+        if eps_rejected or flags & kernels.EPSILON_REJECTED:
+            eps_rejected = True
             self.epsilon_rejections += 1
-        # feedforward QP at the desired state, eq. (18–21)
-        M_des, h_des, J_des = self.desired_terms(ref)
-        problem = build_feedforward_qp(M_des, h_des, J_des, ref_contacts, ref.a, eps, self.limits, self.mu, self.f_min)
-        t1 = time.perf_counter()
-        qp_failed, qp_error = False, ""
-        forces = np.zeros((r.n_feet, 3))
-        try:
-            sol = self.qp.solve(problem)
-            u_ff = sol.u
-            forces[ref_contacts] = sol.contact_forces
-        except QPFailedError as err:
-            qp_failed, qp_error = True, str(err)
+        qp_failed, qp_error = status != kernels.QP_SOLVED, ""
+        if qp_failed:
+            qp_error = failure_message(status, worst, int(np.count_nonzero(ref_contacts)))
             self.qp_failures += 1
-            u_ff = np.clip(gravity_compensation(self.dyn_des, ref.q, ref_contacts), -self.limits, self.limits)
-        t2 = time.perf_counter()
-        # feedback linearisation at the measured state, eq. (24)
-        e, e_dot = tracking_error(r, q, v, ref.q, ref.v)
-        fb_contacts = ref_contacts if self.feedback_contacts == "reference" else contacts
-        M_meas, _, J_meas = self._terms(self.dyn_meas, q, v)
-        u_lin = feedback_linearization(M_meas, J_meas, fb_contacts, e, e_dot, self.gains.kp_lin, self.gains.kd_lin)
-        total = np.minimum(np.maximum(u_ff + u_lin, self._neg_limits), self.limits)  # np.clip, cheaper
-        u_lin = total - u_ff
-        if not (_finite(u_ff) and _finite(u_lin)):  # cannot happen with finite inputs
-            raise ControllerInputError("controller produced a non-finite torque")
+            u_ff = np.clip(gravity_compensation(self.dyn_des, ref_q, ref_contacts), -self.limits, self.limits)
+            kernels.clip_feedback(u_ff, u_lin, self.limits)
         self.steps += 1
-        t3 = time.perf_counter()
         return ControlOutput(
-            feedforward=u_ff, feedback_linearization=u_lin,
-            q_target=np.asarray(ref.q[7:], float).copy(), qd_target=np.asarray(ref.v[6:], float).copy(),
+            feedforward=u_ff, feedback_linearization=u_lin, q_target=ref_q[7:].copy(), qd_target=ref_v[6:].copy(),
             kp=self.gains.kp.copy(), kd=self.gains.kd.copy(), contact_forces=forces,
-            qp_failed=qp_failed, epsilon_rejected=eps_rejected, unrealizable=problem.unrealizable,
-            qp_error=qp_error, timings={"build_s": t1 - t0, "qp_s": t2 - t1, "feedback_s": t3 - t2})
+            qp_failed=qp_failed, epsilon_rejected=eps_rejected, unrealizable=float(unrealizable),
+            qp_error=qp_error, timings={"step_s": time.perf_counter() - t0})
 
 
 def compute_benchmark(motion: str = "trot_35", n_steps: int = 2000, seed: int = 0, model_dir: str | None = None) -> dict:
@@ -223,18 +208,15 @@ def compute_benchmark(motion: str = "trot_35", n_steps: int = 2000, seed: int = 
             return combined_error(basis, phi, gamma, S)
     for p in points[:50]:  # warm-up
         ctrl.compute(p.q, p.v, p.contacts, p, epsilon_fn(p))
-    times, qp_times = [], []
+    times = []
     for p in points:
         q = pin.integrate(robot.model, p.q, 0.005 * rng.standard_normal(robot.nv))
         v = p.v + 0.05 * rng.standard_normal(robot.nv)
         t0 = time.perf_counter()
-        out = ctrl.compute(q, v, p.contacts, p, epsilon_fn(p))
+        ctrl.compute(q, v, p.contacts, p, epsilon_fn(p))
         times.append(time.perf_counter() - t0)
-        qp_times.append(out.timings["qp_s"])
     t = np.array(times) * 1e6
-    tq = np.array(qp_times) * 1e6
     return {"motion": motion, "steps": n_steps, "model": model_dir or "fixed prediction",
             "p50_us": round(float(np.percentile(t, 50)), 1), "p99_us": round(float(np.percentile(t, 99)), 1),
             "max_us": round(float(t.max()), 1),
-            "qp_p50_us": round(float(np.percentile(tq, 50)), 1), "qp_p99_us": round(float(np.percentile(tq, 99)), 1),
             "qp_failures": ctrl.qp_failures, "target_p99_us": 1000.0}

@@ -21,6 +21,8 @@ import math
 import numpy as np
 from numba import njit
 
+from .native import ccall
+
 
 def arg(x, dtype=np.float64) -> np.ndarray:
     """x as a C-contiguous array of dtype (no copy if it is one already). numba compiles
@@ -487,3 +489,201 @@ def polish_and_check(A, b, C, l, c_u, lb, ub, lam0, G, x):
             s -= G[i, k] * u[k]
         lam[i] = s
     return u, lam, worst, scale, all_finite(u)
+
+
+# --- the QP solve and the whole control step (the C++ core by address: ciml_control.native) --
+
+INFINITY = 1e20
+"""The QP's bound for 'no bound' (proxsuite takes ±1e20 as infinite)."""
+QP_SOLVED = 0
+QP_EXCEPTION = -1
+QP_NON_FINITE = -2
+QP_VIOLATION = -3
+"""Status codes of `solve_feedforward` besides proxsuite's QPSolverOutput + 1."""
+
+STATE_NON_FINITE = 1
+REFERENCE_NON_FINITE = 2
+EPSILON_REJECTED = 4
+"""Flags of `control_step`."""
+
+
+@njit(cache=True)
+def eliminate_equality(A, b, H, g, C, l, c_u, lb, ub):
+    """The QP min ½uᵀHu + gᵀu, A u = b, l ≤ C u ≤ c_u, lb ≤ u ≤ ub (A: full row rank) in
+    the coordinates z of the equality's solutions u = u₀ + N z (QR of Aᵀ = [Q₁ N][R; 0],
+    u₀ = Q₁ R⁻ᵀ b its minimum-norm solution, N an orthonormal basis of null(A)):
+
+        min ½zᵀ(NᵀHN)z + (Nᵀ(H u₀ + g))ᵀz   s.t.   l − C u₀ ≤ C N z ≤ c_u − C u₀,
+                                                  lb − u₀ ≤ N z ≤ ub − u₀.
+
+    Returns (u₀, N, H_z, g_z, C_z, l_z, c_z). For the feedforward QP (eq. 18–21, W_u = I,
+    g = 0) H_z = I and g_z = 0: the torque of least norm, eq. (19) holding exactly."""
+    m, n = A.shape
+    u0 = np.zeros(n)
+    if m > 0:
+        Q, R = qr_complete(np.ascontiguousarray(A.T))
+        y = np.empty(m)  # Rᵀ y = b
+        for i in range(m):
+            s = b[i]
+            for k in range(i):
+                s -= R[k, i] * y[k]
+            y[i] = s / R[i, i]
+        for i in range(n):
+            s = 0.0
+            for k in range(m):
+                s += Q[i, k] * y[k]
+            u0[i] = s
+        N = np.ascontiguousarray(Q[:, m:])
+    else:
+        N = np.eye(n)
+    r = n - m
+    HN = H @ N
+    H_z = np.ascontiguousarray(N.T @ HN)
+    g_z = N.T @ (H @ u0 + g)
+    nc = C.shape[0]
+    C_z = np.empty((nc + n, r))
+    l_z = np.empty(nc + n)
+    c_z = np.empty(nc + n)
+    CN = C @ N
+    Cu0 = C @ u0
+    for i in range(nc):
+        C_z[i] = CN[i]
+        l_z[i] = l[i] - Cu0[i]
+        c_z[i] = c_u[i] - Cu0[i]
+    for i in range(n):
+        C_z[nc + i] = N[i]
+        l_z[nc + i] = lb[i] - u0[i]
+        c_z[nc + i] = ub[i] - u0[i]
+    return u0, N, H_z, g_z, C_z, l_z, c_z
+
+
+@njit(cache=True)
+def solve_feedforward(fns, qp, H, g, A, b, C, l, c_u, lb, ub, lam0, G, rhs, tolerance):
+    """Solve the QP of eq. (18–21) with the core's proxsuite solver, in the coordinates of
+    eliminate_equality (a QP in 12 − rank(A) variables with inequalities only: ~5× faster
+    than the same QP over u with eq. 19 as equality rows, same answer to the tolerance),
+    then polish and check the answer on the original problem (polish_and_check).
+    fns: ciml_control.native.function_table(); qp: a native.QpSolvers handle.
+    Returns (status, u, λ, iterations, worst violation): status QP_SOLVED, QP_NON_FINITE
+    (data not finite, nothing solved), QP_VIOLATION (the answer violates a constraint by
+    more than tolerance · scale; the solver is dropped), QP_EXCEPTION, or proxsuite's
+    QPSolverOutput + 1 (not solved; the solver is dropped)."""
+    nj = H.shape[0]
+    u = np.zeros(nj)
+    lam = np.zeros(lam0.shape[0])
+    if not (problem_finite(rhs, C, c_u, A, b) and all_finite(H) and all_finite(g)):
+        return QP_NON_FINITE, u, lam, 0, 0.0
+    u0, N, H_z, g_z, C_z, l_z, c_z = eliminate_equality(A, b, H, g, C, l, c_u, lb, ub)
+    r = N.shape[1]
+    iterations = 0
+    x = u0
+    sizes = np.array([r, 0, C_z.shape[0], 0], dtype=np.int64)
+    if r > 0:  # else A u = b has one solution
+        z = np.zeros(r)
+        none = np.zeros(1)  # A_z, b_z (no rows) and the box (none) are not read
+        info = np.zeros(2, dtype=np.int64)
+        ccall(fns[2], (qp, sizes.ctypes.data, H_z.ctypes.data, g_z.ctypes.data, none.ctypes.data,
+                       none.ctypes.data, C_z.ctypes.data, l_z.ctypes.data, c_z.ctypes.data, none.ctypes.data,
+                       none.ctypes.data, z.ctypes.data, info.ctypes.data))
+        iterations = info[1]
+        if info[0] != QP_SOLVED:
+            return info[0], u, lam, iterations, 0.0
+        x = u0 + N @ z
+    u, lam, worst, scale, finite = polish_and_check(A, b, C, l, c_u, lb, ub, lam0, G, x)
+    if not finite or not worst <= tolerance * scale:
+        if r > 0:
+            ccall(fns[3], (qp, sizes.ctypes.data))
+        return QP_VIOLATION, u, lam, iterations, worst
+    return QP_SOLVED, u, lam, iterations, worst
+
+
+@njit(cache=True)
+def desired_terms(fns, dyn, q, v, key, M, h, J) -> None:
+    """M, h, J of the core's model `dyn` at (q, v) into the buffers, skipped when key
+    (q, v, valid flag) already holds this very (q, v)."""
+    nq = q.shape[0]
+    nv = v.shape[0]
+    same = key[nq + nv] == 1.0
+    if same:
+        for i in range(nq):
+            if key[i] != q[i]:
+                same = False
+                break
+    if same:
+        for i in range(nv):
+            if key[nq + i] != v[i]:
+                same = False
+                break
+    if same:
+        return
+    key[nq + nv] = 0.0
+    ccall(fns[0], (dyn, q.ctypes.data, v.ctypes.data, M.ctypes.data, h.ctypes.data, J.ctypes.data))
+    key[:nq] = q
+    key[nq:nq + nv] = v
+    key[nq + nv] = 1.0
+
+
+@njit(cache=True)
+def clip_feedback(u_ff, u_lin, limits) -> None:
+    """u_lin ← clip(u_ff + u_lin, ±limits) − u_ff: the total within the torque limits,
+    the clipping taken from the linearisation part."""
+    for j in range(u_ff.shape[0]):
+        t = min(max(u_ff[j] + u_lin[j], -limits[j]), limits[j])
+        u_lin[j] = t - u_ff[j]
+
+
+@njit(cache=True)
+def control_step(fns, dyn_des, dyn_meas, qp, q, v, contacts, ref_q, ref_v, ref_a, ref_contacts, epsilon,
+                 key, M_des, h_des, J_des, M_meas, h_meas, J_meas, H, g, limits, F, f_min, rank_tol,
+                 qp_tolerance, kp_lin, kd_lin, feedback_rank_tol, feedback_measured, u_ff, u_lin, forces):
+    """One step of ciml_control.controller.IdController.compute in one compiled call:
+
+    1. the nominal terms at the reference (qᵈ, q̇ᵈ) (cached by `key`, see desired_terms);
+    2. the feedforward QP of eq. (18–21) with ε (zeros if ε is not finite), solved and
+       checked (solve_feedforward) → u_ff and the planned contact forces (n_feet × 3);
+    3. the feedback linearisation of eq. (24) at the measured state (the core's Pinocchio
+       pass and difference) → u_lin, clipped with u_ff to the limits (clip_feedback) when
+       the QP was solved; unclipped otherwise (the caller makes the fallback u_ff).
+
+    Returns (flags, qp status, QP iterations, unrealizable, worst violation); with
+    STATE_NON_FINITE or REFERENCE_NON_FINITE in flags nothing else was computed."""
+    if not (all_finite(q) and all_finite(v)):
+        return STATE_NON_FINITE, QP_SOLVED, 0, 0.0, 0.0
+    if not (all_finite(ref_q) and all_finite(ref_v) and all_finite(ref_a)):
+        return REFERENCE_NON_FINITE, QP_SOLVED, 0, 0.0, 0.0
+    flags = 0
+    eps = epsilon
+    if not all_finite(epsilon):
+        flags |= EPSILON_REJECTED
+        eps = np.zeros(epsilon.shape[0])
+    nv = v.shape[0]
+    desired_terms(fns, dyn_des, ref_q, ref_v, key, M_des, h_des, J_des)
+    A, b, unrealizable, lam0, G, C, c_u, _, rhs = feedforward_matrices(
+        M_des, h_des, J_des, ref_contacts, ref_a, eps, F, f_min, rank_tol)
+    nj = H.shape[0]
+    lower = np.full(C.shape[0], -INFINITY)
+    status, u, lam, iterations, worst = solve_feedforward(fns, qp, H, g, A, b, C, lower, c_u, -limits, limits,
+                                                          lam0, G, rhs, qp_tolerance)
+    forces[:] = 0.0
+    u_ff[:] = 0.0
+    if status == QP_SOLVED:
+        u_ff[:] = u
+        c = 0
+        for f in range(forces.shape[0]):
+            if ref_contacts[f]:
+                for a in range(3):
+                    forces[f, a] = lam[3 * c + a]
+                c += 1
+    # feedback linearisation at the measured state, eq. (24): q̈_fb = −K_d ė − K_p e
+    e = np.empty(nv)
+    ccall(fns[1], (dyn_meas, ref_q.ctypes.data, q.ctypes.data, e.ctypes.data))
+    qdd_fb = np.empty(nv)
+    for i in range(nv):
+        qdd_fb[i] = -kd_lin[i] * (v[i] - ref_v[i]) - kp_lin[i] * e[i]
+    ccall(fns[0], (dyn_meas, q.ctypes.data, v.ctypes.data, M_meas.ctypes.data, h_meas.ctypes.data,
+                   J_meas.ctypes.data))
+    u_lin[:] = projected_pinv_apply(M_meas, J_meas, contacts if feedback_measured else ref_contacts, qdd_fb,
+                                      feedback_rank_tol)
+    if status == QP_SOLVED:
+        clip_feedback(u_ff, u_lin, limits)
+    return flags, status, iterations, unrealizable, worst

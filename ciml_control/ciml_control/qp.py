@@ -26,11 +26,17 @@ for every full-rank case, so eq. 19 is unchanged there) and the dropped part of 
 right-hand side is reported as `FeedforwardProblem.unrealizable` [N or Nm] — feedback
 corrects what the reference asks for but the contacts cannot deliver.
 
+Solving: eq. (19) is eliminated before the solver sees the problem — u = u₀ + N z with
+u₀ the equality's minimum-norm solution and N an orthonormal basis of its null space
+(kernels.eliminate_equality), so proxsuite solves a QP in 12 − rank(Q_uᵀSᵀ) variables
+(1 in a trot's two-foot support, 6 in four-foot support) with inequalities only; the
+answer is then checked against every constraint of the problem above.
+
 `build_feedforward_qp` only builds matrices (tested without a solver);
-`FeedforwardQP.solve` solves with proxsuite, keeps one warm-started solver per problem
-size, and raises `QPFailedError` (carrying the problem) instead of returning a torque
-when the solve fails or the answer violates a constraint. The small dense algebra runs
-in compiled kernels (ciml_control.kernels); this module keeps the interfaces.
+`FeedforwardQP.solve` solves (proxsuite in the controller's C++ core, the controller's own
+compiled path) and raises `QPFailedError` (carrying the problem) instead of returning a
+torque when the solve fails or the answer violates a constraint. The small dense algebra
+runs in compiled kernels (ciml_control.kernels); this module keeps the interfaces.
 """
 from __future__ import annotations
 
@@ -44,13 +50,15 @@ import proxsuite
 
 from ciml_learning.errors import CimlError
 
-from . import kernels
+from . import kernels, native
 
 DEFAULT_MU = 0.5
 """Friction coefficient of the cone (paper §IV)."""
 DEFAULT_F_MIN = 5.0
 """[N] smallest normal force of a stance foot (keeps stance feet loaded)."""
-INFINITY = 1e20
+INFINITY = kernels.INFINITY
+RANK_TOL = 1e-9
+"""Relative eigenvalue tolerance of the rank test of Q_uᵀSᵀ (contact_decomposition)."""
 
 
 class QPFailedError(CimlError):
@@ -159,7 +167,7 @@ def build_feedforward_qp(
     mu: float = DEFAULT_MU,
     f_min: float = DEFAULT_F_MIN,
     W_u: np.ndarray | None = None,
-    rank_tol: float = 1e-9,
+    rank_tol: float = RANK_TOL,
 ) -> FeedforwardProblem:
     """Build the QP of eq. (18–21) at one desired state (no solver involved).
 
@@ -190,71 +198,48 @@ class FeedforwardSolution:
 
 
 class FeedforwardQP:
-    """proxsuite dense QP for eq. (18–21), one warm-started solver per problem size.
+    """proxsuite dense QP for eq. (18–21), solved in the controller's C++ core
+    (ciml_control.native; the same compiled path as the controller's step,
+    kernels.solve_feedforward).
 
-    The solver of a size is created once and updated afterwards (warm start from its
-    previous result); a trot alternates two- and four-foot support, each keeps its own.
+    One solver per problem size is kept and updated in place (a trot alternates two- and
+    four-foot support, each keeps its own); every solve starts from proxsuite's
+    equality-constrained initial guess, not from the previous answer (with the full QP over
+    u that took fewer iterations than a warm start, to the same answer; a stale warm start
+    cannot stall it).
     """
 
     def __init__(self, eps_abs: float = 1e-9, max_iter: int = 200, tolerance: float = 1e-6) -> None:
         self.eps_abs = eps_abs
         self.max_iter = max_iter
         self.tolerance = tolerance
-        self._solvers: dict[tuple[int, int, int], tuple] = {}  # size → (solver, H, g)
-
-    def _solver(self, p: FeedforwardProblem):
-        nj = p.H.shape[0]
-        key = (nj, len(p.b), len(p.l))
-        entry = self._solvers.get(key)
-        if entry is None:
-            qp = proxsuite.proxqp.dense.QP(nj, len(p.b), len(p.l), True)
-            qp.settings.eps_abs = self.eps_abs
-            qp.settings.eps_rel = 0.0
-            qp.settings.max_iter = self.max_iter
-            qp.settings.verbose = False
-            qp.settings.initial_guess = proxsuite.proxqp.InitialGuess.EQUALITY_CONSTRAINED_INITIAL_GUESS
-            qp.init(p.H, p.g, p.A, p.b, p.C, p.l, p.c_u, p.lb, p.ub)
-            self._solvers[key] = (qp, _keep(p.H), _keep(p.g))
-            return qp, True
-        qp, H, g = entry
-        qp.settings.initial_guess = proxsuite.proxqp.InitialGuess.WARM_START_WITH_PREVIOUS_RESULT
-        # the cost is the shared read-only W_u = I, g = 0 unless a caller passes its own
-        same_cost = (p.H is H or np.array_equal(H, p.H)) and (p.g is g or np.array_equal(g, p.g))
-        qp.update(None if same_cost else p.H, None if same_cost else p.g, p.A, p.b, p.C, p.l, p.c_u, p.lb, p.ub)
-        if not same_cost:
-            self._solvers[key] = (qp, _keep(p.H), _keep(p.g))
-        return qp, False
+        self._solvers = native.QpSolvers(eps_abs, max_iter)  # len(): how many sizes are kept
+        self._functions = native.function_table()
 
     def solve(self, p: FeedforwardProblem) -> FeedforwardSolution:
         """Solve; raise QPFailedError (with the problem) if no valid torque is found."""
         arg = kernels.arg
-        if not kernels.problem_finite(arg(p.rhs), arg(p.C), arg(p.c_u), arg(p.A), arg(p.b)):
-            raise QPFailedError("feedforward QP: non-finite problem data", p, "non_finite")
-        qp, fresh = self._solver(p)
-        qp.solve()
-        status = qp.results.info.status
-        if status != proxsuite.proxqp.QPSolverOutput.PROXQP_SOLVED and not fresh:
-            # a stale warm start can stall: retry once from a cold start
-            qp.init(p.H, p.g, p.A, p.b, p.C, p.l, p.c_u, p.lb, p.ub)
-            qp.settings.initial_guess = proxsuite.proxqp.InitialGuess.EQUALITY_CONSTRAINED_INITIAL_GUESS
-            qp.solve()
-            status = qp.results.info.status
-        if status != proxsuite.proxqp.QPSolverOutput.PROXQP_SOLVED:
-            # drop the solver: its state after a failure is no good warm start
-            self._solvers.pop((p.H.shape[0], len(p.b), len(p.l)), None)
-            raise QPFailedError(f"feedforward QP not solved ({status.name}, {p.n_contacts} contacts)", p, status.name)
-        # remove the solver's residual from the equality (min-norm correction, ~eps_abs; A has full row rank),
-        # then check every constraint at the corrected torque (one compiled call)
-        u, lam, worst, scale, finite = kernels.polish_and_check(
-            arg(p.A), arg(p.b), arg(p.C), arg(p.l), arg(p.c_u), arg(p.lb), arg(p.ub), arg(p.lam0), arg(p.G),
-            np.array(qp.results.x, dtype=float))
-        if not finite or not worst <= self.tolerance * scale:
-            self._solvers.pop((p.H.shape[0], len(p.b), len(p.l)), None)
-            raise QPFailedError(f"feedforward QP answer violates its constraints by {worst:.3g}", p, "violation")
-        return FeedforwardSolution(u=u, contact_forces=lam.reshape(-1, 3), iterations=int(qp.results.info.iter),
-                                   problem=p)
+        status, u, lam, iterations, worst = kernels.solve_feedforward(
+            self._functions, self._solvers.handle, arg(p.H), arg(p.g), arg(p.A), arg(p.b), arg(p.C), arg(p.l),
+            arg(p.c_u), arg(p.lb), arg(p.ub), arg(p.lam0), arg(p.G), arg(p.rhs), self.tolerance)
+        if status != kernels.QP_SOLVED:
+            raise QPFailedError(failure_message(status, worst, p.n_contacts), p, status_name(status))
+        return FeedforwardSolution(u=u, contact_forces=lam.reshape(-1, 3), iterations=int(iterations), problem=p)
 
 
-def _keep(a: np.ndarray) -> np.ndarray:
-    """The array itself if read-only (shared constant), else a private copy."""
-    return a if not a.flags.writeable else a.copy()
+_PROXSUITE_STATUS = {v.value + 1: k for k, v in proxsuite.proxqp.QPSolverOutput.__members__.items()}
+
+
+def status_name(status: int) -> str:
+    """Name of a kernels.solve_feedforward status."""
+    return {kernels.QP_NON_FINITE: "non_finite", kernels.QP_VIOLATION: "violation",
+            kernels.QP_EXCEPTION: "exception"}.get(status) or _PROXSUITE_STATUS.get(status, str(status))
+
+
+def failure_message(status: int, worst: float, n_contacts: int) -> str:
+    """One line on why the QP gave no torque."""
+    if status == kernels.QP_NON_FINITE:
+        return "feedforward QP: non-finite problem data"
+    if status == kernels.QP_VIOLATION:
+        return f"feedforward QP answer violates its constraints by {worst:.3g}"
+    return f"feedforward QP not solved ({status_name(status)}, {n_contacts} contacts)"

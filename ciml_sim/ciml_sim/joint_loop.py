@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import ctypes
 import glob
+import math
 import os
 from functools import lru_cache
 
@@ -117,3 +118,97 @@ def run_joint_loop(mj_step: int, mj_step2: int, model: int, data: int, n: int, r
         ctrl[:] = tau
         _call_model_data(mj_step2 if (i == 0 and reuse_first) else mj_step, model, data)
         t += dt
+
+
+@njit(cache=True)
+def command_coefficients(u_ff: np.ndarray, q_target: np.ndarray, qd_target: np.ndarray, kp: np.ndarray,
+                         kd: np.ndarray, damping_mode: bool, c: np.ndarray, c_rate: np.ndarray,
+                         kp_out: np.ndarray, kd_out: np.ndarray) -> int:
+    """A TorqueCommand as the joint loop's coefficients (see `actuation`):
+    c = u_ff + K_p q_t + K_d q̇_t, ċ = K_p q̇_t, K_p, K_d; in damping mode c = ċ = K_p = 0.
+    Returns 0, or 1 for a non-finite value, 2 for a negative gain (nothing written)."""
+    n = u_ff.shape[0]
+    for j in range(n):
+        if not (np.isfinite(u_ff[j]) and np.isfinite(q_target[j]) and np.isfinite(qd_target[j])
+                and np.isfinite(kp[j]) and np.isfinite(kd[j])):
+            return 1
+        if kp[j] < 0 or kd[j] < 0:
+            return 2
+    for j in range(n):
+        if damping_mode:
+            c[j], c_rate[j], kp_out[j] = 0.0, 0.0, 0.0
+        else:
+            c[j] = u_ff[j] + kp[j] * q_target[j] + kd[j] * qd_target[j]
+            c_rate[j] = kp[j] * qd_target[j]
+            kp_out[j] = kp[j]
+        kd_out[j] = kd[j]
+    return 0
+
+
+@njit(cache=True)
+def _mul_quat(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a ⊗ b (w, x, y, z), as mju_mulQuat."""
+    return np.array([a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+                     a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+                     a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+                     a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]])
+
+
+@njit(cache=True)
+def _quat_integrate(quat: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """quat ⊗ exp(rotation / 2) (rotation vector in the rotated frame), as mju_quatIntegrate
+    with scale 1."""
+    angle = math.sqrt(rotation[0] * rotation[0] + rotation[1] * rotation[1] + rotation[2] * rotation[2])
+    if angle == 0.0:
+        return quat.copy()
+    s = math.sin(0.5 * angle) / angle
+    return _mul_quat(quat, np.array([math.cos(0.5 * angle), rotation[0] * s, rotation[1] * s, rotation[2] * s]))
+
+
+@njit(cache=True)
+def sense(mj_forward: int, mj_rne_post_constraint: int, model: int, data: int, qpos: np.ndarray, qvel: np.ndarray,
+          xmat_base: np.ndarray, cfrc_ext: np.ndarray, foot_bodies: np.ndarray, imu_tilt: np.ndarray,
+          noise_std: np.ndarray, z: np.ndarray, tau: np.ndarray, contact_threshold: float,
+          quat_xyzw: np.ndarray, pos: np.ndarray, lin: np.ndarray, ang: np.ndarray, tau_meas: np.ndarray,
+          forces: np.ndarray, contacts: np.ndarray) -> None:
+    """MuJoCo's forward pass at the current state under the applied torque, then the
+    sensors of ciml_sim.plant.Plant.measure into the output arrays: base orientation
+    (IMU tilt imu_tilt (w, x, y, z; empty for none), orientation noise), position, base-frame
+    twist and torque with their noise (noise_std: orientation, torque, position, twist;
+    z: this sample's standard-normal draws of the enabled ones, in that order), each foot's
+    contact force (world frame) and contact flag (normal force above contact_threshold)."""
+    _call_model_data(mj_forward, model, data)
+    _call_model_data(mj_rne_post_constraint, model, data)  # cfrc_ext: the contact forces on the bodies
+    for i in range(foot_bodies.shape[0]):
+        for a in range(3):
+            forces[i, a] = cfrc_ext[foot_bodies[i], 3 + a]
+        contacts[i] = forces[i, 2] > contact_threshold
+    for a in range(3):  # base frame: Rᵀ v (xmat row-major), as mju_mulMatTVec3
+        lin[a] = xmat_base[a] * qvel[0] + xmat_base[3 + a] * qvel[1] + xmat_base[6 + a] * qvel[2]
+        ang[a] = qvel[3 + a]
+        pos[a] = qpos[a]
+    quat = qpos[3:7].copy()  # w x y z
+    if imu_tilt.shape[0] == 4:
+        quat = _mul_quat(quat, imu_tilt)
+    o = 0
+    if noise_std[0] > 0:  # rotation vector in the base frame
+        quat = _quat_integrate(quat, noise_std[0] * z[0:3])
+        o = 3
+    norm = math.sqrt(quat[0] * quat[0] + quat[1] * quat[1] + quat[2] * quat[2] + quat[3] * quat[3])
+    for a in range(4):
+        quat_xyzw[a] = quat[(a + 1) % 4] / norm
+    nj = tau.shape[0]
+    for j in range(nj):
+        tau_meas[j] = tau[j]
+    if noise_std[1] > 0:
+        for j in range(nj):
+            tau_meas[j] += noise_std[1] * z[o + j]
+        o += nj
+    if noise_std[2] > 0:
+        for a in range(3):
+            pos[a] += noise_std[2] * z[o + a]
+        o += 3
+    if noise_std[3] > 0:
+        for a in range(3):
+            lin[a] += noise_std[3] * z[o + a]
+            ang[a] += noise_std[3] * z[o + 3 + a]

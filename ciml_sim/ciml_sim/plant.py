@@ -244,9 +244,11 @@ class Plant:
         self._extra = bool(self._stribeck) or self._has_side  # effects evaluated in Python between steps
         self._mj_step = joint_loop.mj_function("mj_step")
         self._mj_step2 = joint_loop.mj_function("mj_step2")
+        self._mj_forward = joint_loop.mj_function("mj_forward")
+        self._mj_rne_post_constraint = joint_loop.mj_function("mj_rnePostConstraint")
         self._no_noise = np.empty((0, nj))
-        tilt = pin.Quaternion(pin.rpy.rpyToMatrix(roll, pitch, 0.0)).coeffs()
-        self._imu_tilt = None if roll == pitch == 0.0 else np.array([tilt[3], tilt[0], tilt[1], tilt[2]])
+        tilt = pin.Quaternion(pin.rpy.rpyToMatrix(roll, pitch, 0.0)).coeffs()  # x y z w
+        self._imu_tilt = np.empty(0) if roll == pitch == 0.0 else np.array([tilt[3], tilt[0], tilt[1], tilt[2]])
         self.noise = {k: float(scenario.sensor_noise.get(k, 0.0)) for k in
                       ("q", "qd", "tau", "base_orientation", "base_position", "base_velocity")}
         self._encoder_noisy = self.noise["q"] > 0 or self.noise["qd"] > 0
@@ -265,6 +267,8 @@ class Plant:
         self._vj = d.qvel[6:]
         self._ctrl = d.ctrl
         self._qfrc_j = d.qfrc_applied[6:]
+        self._xmat_base = d.xmat[self._base_body]
+        self._no_sample_noise = np.empty(0)
         self.reset()
 
     # --- state -----------------------------------------------------------------------------
@@ -336,24 +340,23 @@ class Plant:
         """
         nj = self.robot.n_joints
         try:
-            c = np.array([u_ff, q_target, qd_target, kp, kd], dtype=float)
-        except ValueError as err:
-            raise PlantError(f"command: expected {nj} values per field") from err
-        if c.shape != (5, nj) or not np.isfinite(c).all():
-            raise PlantError(f"command: expected {nj} finite values per field")
-        if (c[3:] < 0).any():
-            raise PlantError("command: negative stiffness or damping")
+            fields = [np.ascontiguousarray(a, dtype=float) for a in (u_ff, q_target, qd_target, kp, kd)]
+        except (TypeError, ValueError) as err:
+            raise PlantError(f"command: expected {nj} numbers per field") from err
+        if any(a.shape != (nj,) for a in fields):
+            raise PlantError(f"command: expected {nj} values per field")
         stamp = self.time if stamp is None else float(stamp)
-        if not np.isfinite(stamp):
+        if not math.isfinite(stamp):
             raise PlantError("command: non-finite stamp")
+        c, c_rate, kp_j, kd_j = np.empty(nj), np.empty(nj), np.empty(nj), np.empty(nj)
+        status = joint_loop.command_coefficients(*fields, bool(damping_mode), c, c_rate, kp_j, kd_j)
+        if status:
+            raise PlantError(f"command: expected {nj} finite values per field" if status == 1
+                             else "command: negative stiffness or damping")
         self.damping_mode = bool(damping_mode)
         self._stamp = stamp
-        if damping_mode:
-            self._c, self._kp, self._kd, self._c_rate = np.zeros(nj), np.zeros(nj), c[4].copy(), np.zeros(nj)
-        else:
-            self._c, self._kp, self._kd = c[0] + c[3] * c[1] + c[4] * c[2], c[3].copy(), c[4].copy()
-            self._c_rate = c[3] * c[2]
-        self._has_rate = bool(self._c_rate.any())
+        self._c, self._c_rate, self._kp, self._kd = c, c_rate, kp_j, kd_j
+        self._has_rate = bool(c_rate.any())
 
     # --- the 1 kHz joint loop -------------------------------------------------------------------
     def _encoder_noise(self, n: int) -> tuple[np.ndarray, np.ndarray, int]:
@@ -439,16 +442,6 @@ class Plant:
             self._forward_state = None
 
     # --- sensors ----------------------------------------------------------------------------
-    def _foot_forces(self) -> np.ndarray:
-        """Force of the floor (and anything else touching) on each foot, world frame [N].
-
-        The external force on a foot's body (cfrc_ext, linear part: independent of the
-        reference point); a foot sphere is the only colliding geom of its body (mjcf.py).
-        Needs mj_forward at the current state first.
-        """
-        mujoco.mj_rnePostConstraint(self.model, self.data)
-        return self.data.cfrc_ext[self._foot_bodies, 3:6].copy()
-
     def _measurement_noise(self) -> np.ndarray | None:
         """This sample's standard-normal draws of the enabled sensor noises (orientation,
         torque, position, twist, in that order), from blocks of _NOISE_BLOCK samples: the
@@ -469,47 +462,19 @@ class Plant:
         q_m, qd_m, u, lag, tau = self._actuation()
         self._apply(tau)
         d = self.data
-        mujoco.mj_forward(self.model, d)  # accelerations and contact forces at t under τ(t)
-        self._forward_state = d.qpos.tobytes() + d.qvel.tobytes()
-        forces = self._foot_forces()
-        nz = self._noise_std
+        nj, nf = self.robot.n_joints, self.robot.n_feet
+        quat, pos, lin, ang, tau_meas = np.empty(4), np.empty(3), np.empty(3), np.empty(3), np.empty(nj)
+        forces, contacts = np.empty((nf, 3)), np.empty(nf, dtype=np.bool_)
         z = self._measurement_noise()
-        o = 0
-        qpos, qvel = d.qpos, d.qvel
-        quat = qpos[3:7].copy()  # w x y z
-        lin = np.empty(3)
-        mujoco.mju_mulMatTVec3(lin, d.xmat[self._base_body], qvel[:3])  # base frame
-        ang = qvel[3:6].copy()
-        pos = qpos[:3].copy()
-        if self._imu_tilt is not None:
-            mujoco.mju_mulQuat(quat, quat.copy(), self._imu_tilt)
-        if nz[0] > 0:  # base_orientation: quat ⊗ exp(rotation vector / 2), rotation vector in the base frame
-            mujoco.mju_quatIntegrate(quat, nz[0] * z[0:3], 1.0)
-            o = 3
-        quat /= np.sqrt(quat @ quat)
-        if nz[1] > 0:  # torque
-            tau_meas = tau + nz[1] * z[o:o + tau.size]
-            o += tau.size
-        else:
-            tau_meas = tau.copy()
-        if nz[2] > 0:  # base_position
-            pos += nz[2] * z[o:o + 3]
-            o += 3
-        if nz[3] > 0:  # base_velocity
-            lin += nz[3] * z[o:o + 3]
-            ang += nz[3] * z[o + 3:o + 6]
-        meas = Measurement(
-            time=float(d.time),
-            q=q_m,
-            qd=qd_m,
-            tau_measured=tau_meas,
-            u_commanded=u.copy(),
-            base_position=pos,
-            base_orientation=quat[[1, 2, 3, 0]],
-            base_linear_velocity=lin,
-            base_angular_velocity=ang,
-            contacts=forces[:, 2] > CONTACT_THRESHOLD,
-        )
+        # mj_forward: accelerations and contact forces at t under τ(t); then the sensors
+        joint_loop.sense(self._mj_forward, self._mj_rne_post_constraint, self.model._address, d._address, d.qpos,
+                         d.qvel, self._xmat_base, d.cfrc_ext, self._foot_bodies, self._imu_tilt, self._noise_std,
+                         self._no_sample_noise if z is None else z, tau, CONTACT_THRESHOLD, quat, pos, lin, ang,
+                         tau_meas, forces, contacts)
+        self._forward_state = d.qpos.tobytes() + d.qvel.tobytes()
+        meas = Measurement(time=float(d.time), q=q_m, qd=qd_m, tau_measured=tau_meas, u_commanded=u.copy(),
+                           base_position=pos, base_orientation=quat, base_linear_velocity=lin,
+                           base_angular_velocity=ang, contacts=contacts)
         self._meas = (meas, u, lag, tau, forces)
         return meas
 

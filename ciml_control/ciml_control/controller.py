@@ -25,7 +25,6 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import pinocchio as pin
 
 from ciml_learning.dynamics import RigidBodyDynamics
 from ciml_learning.errors import CimlError
@@ -117,6 +116,13 @@ class IdController:
         kernels.desired_terms(self._functions, self._core_des.handle, q, v, self._key, *self._des)
         return self._des
 
+    def compiled_state(self) -> tuple:
+        """The controller's handles, buffers and parameters in the order of the arguments of
+        kernels.control_step before the state (shared, updated in place)."""
+        return (self._functions, self._core_des.handle, self._core_meas.handle, self.qp._solvers.handle, self._key,
+                *self._des, *self._meas, self._H, self._g, self.limits, self._cone, float(self.f_min), RANK_TOL,
+                self.qp.tolerance, self._kp_lin, self._kd_lin, CONTACT_RANK_TOL, self.feedback_contacts == "measured")
+
     def _check(self, q, v, contacts, ref: ReferencePoint):
         """Sizes (finiteness is checked in the compiled step)."""
         r = self.robot
@@ -147,10 +153,7 @@ class IdController:
             eps = self._zeros
         u_ff, u_lin, forces = np.empty(r.n_joints), np.empty(r.n_joints), np.empty((r.n_feet, 3))
         flags, status, _, unrealizable, worst = kernels.control_step(
-            self._functions, self._core_des.handle, self._core_meas.handle, self.qp._solvers.handle, q, v, contacts,
-            ref_q, ref_v, ref_a, ref_contacts, eps, self._key, *self._des, *self._meas, self._H, self._g,
-            self.limits, self._cone, float(self.f_min), RANK_TOL, self.qp.tolerance, self._kp_lin, self._kd_lin,
-            CONTACT_RANK_TOL, self.feedback_contacts == "measured", u_ff, u_lin, forces)
+            *self.compiled_state(), q, v, contacts, ref_q, ref_v, ref_a, ref_contacts, eps, u_ff, u_lin, forces)
         if flags & kernels.STATE_NON_FINITE:
             raise ControllerInputError("non-finite measured state")
         if flags & kernels.REFERENCE_NON_FINITE:

@@ -461,6 +461,28 @@ def leg_solve(J: np.ndarray, targets: np.ndarray, base: np.ndarray, cols: np.nda
     return out
 
 
+@njit(cache=True)
+def leg_ik(fns, dyn, q: np.ndarray, targets: np.ndarray, qidx: np.ndarray, cols: np.ndarray, tol: float,
+           max_iter: int, J: np.ndarray, feet: np.ndarray):
+    """Leg inverse kinematics: damped Newton per leg on the foot positions (leg_newton_step)
+    with the core's kinematics at each iterate (ciml_foot_kinematics, fns and dyn as in
+    control_step); q updated in place, J and feet left at the final q. Returns
+    (converged, largest |error|)."""
+    worst = np.inf
+    for _ in range(max_iter):
+        ccall(fns[4], (dyn, q.ctypes.data, J.ctypes.data, feet.ctypes.data))
+        done, worst = leg_newton_step(J, feet, targets, q, qidx, cols, tol, 1e-12, 0.5)
+        if done:
+            return True, worst
+    return False, worst
+
+
+@njit(cache=True)
+def foot_acceleration(fns, dyn, q: np.ndarray, v: np.ndarray, a: np.ndarray, out: np.ndarray) -> None:
+    """The feet's classical accelerations at (q, v, a) into out (ciml_foot_acceleration)."""
+    ccall(fns[5], (dyn, q.ctypes.data, v.ctypes.data, a.ctypes.data, out.ctypes.data))
+
+
 # --- the QP answer (ciml_control.qp.FeedforwardQP.solve) ------------------------------------
 
 
@@ -633,10 +655,11 @@ def clip_feedback(u_ff, u_lin, limits) -> None:
 
 
 @njit(cache=True)
-def control_step(fns, dyn_des, dyn_meas, qp, q, v, contacts, ref_q, ref_v, ref_a, ref_contacts, epsilon,
-                 key, M_des, h_des, J_des, M_meas, h_meas, J_meas, H, g, limits, F, f_min, rank_tol,
-                 qp_tolerance, kp_lin, kd_lin, feedback_rank_tol, feedback_measured, u_ff, u_lin, forces):
-    """One step of ciml_control.controller.IdController.compute in one compiled call:
+def control_step(fns, dyn_des, dyn_meas, qp, key, M_des, h_des, J_des, M_meas, h_meas, J_meas, H, g, limits, F,
+                 f_min, rank_tol, qp_tolerance, kp_lin, kd_lin, feedback_rank_tol, feedback_measured,
+                 q, v, contacts, ref_q, ref_v, ref_a, ref_contacts, epsilon, u_ff, u_lin, forces):
+    """One step of ciml_control.controller.IdController.compute in one compiled call (the
+    arguments before q: IdController.compiled_state()):
 
     1. the nominal terms at the reference (qᵈ, q̇ᵈ) (cached by `key`, see desired_terms);
     2. the feedforward QP of eq. (18–21) with ε (zeros if ε is not finite), solved and
@@ -660,7 +683,6 @@ def control_step(fns, dyn_des, dyn_meas, qp, q, v, contacts, ref_q, ref_v, ref_a
     desired_terms(fns, dyn_des, ref_q, ref_v, key, M_des, h_des, J_des)
     A, b, unrealizable, lam0, G, C, c_u, _, rhs = feedforward_matrices(
         M_des, h_des, J_des, ref_contacts, ref_a, eps, F, f_min, rank_tol)
-    nj = H.shape[0]
     lower = np.full(C.shape[0], -INFINITY)
     status, u, lam, iterations, worst = solve_feedforward(fns, qp, H, g, A, b, C, lower, c_u, -limits, limits,
                                                           lam0, G, rhs, qp_tolerance)

@@ -50,11 +50,14 @@ def address(name: str) -> int:
     return int(ctypes.cast(getattr(library(), name), ctypes.c_void_p).value)
 
 
+FUNCTIONS = ("ciml_terms", "ciml_difference", "ciml_qp_solve", "ciml_qp_drop", "ciml_foot_kinematics",
+             "ciml_foot_acceleration")
+"""The core's functions compiled code calls, in the order of function_table()."""
+
+
 def function_table() -> np.ndarray:
-    """Addresses of (ciml_terms, ciml_difference, ciml_qp_solve, ciml_qp_drop), the order
-    the compiled control step reads them in."""
-    return np.array([address(n) for n in ("ciml_terms", "ciml_difference", "ciml_qp_solve", "ciml_qp_drop")],
-                    dtype=np.int64)
+    """Addresses of FUNCTIONS, the table the compiled kernels index."""
+    return np.array([address(n) for n in FUNCTIONS], dtype=np.int64)
 
 
 @intrinsic

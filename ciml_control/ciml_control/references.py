@@ -51,7 +51,7 @@ from scipy.optimize import linprog
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import RobotDescription
 
-from . import kernels
+from . import kernels, native
 
 
 class ReferenceError_(CimlError):
@@ -202,12 +202,11 @@ class BaseState:
 
 
 class LegIK:
-    """Per-leg inverse kinematics on the foot position (damped Newton, Pinocchio)."""
+    """Per-leg inverse kinematics on the foot position (damped Newton, Pinocchio's
+    kinematics in the controller's C++ core: kernels.leg_ik)."""
 
     def __init__(self, robot: RobotDescription, q_seed: np.ndarray, tol: float = 1e-11, max_iter: int = 50) -> None:
         self.robot = robot
-        self.model = robot.model
-        self.data = robot.model.createData()
         self.q_seed = np.asarray(q_seed, float).copy()
         self.tol = tol
         self.max_iter = max_iter
@@ -222,23 +221,14 @@ class LegIK:
         self._J = np.zeros((n, 3, robot.model.nv))
         self._feet = np.zeros((n, 3))
         self._zeros6 = np.zeros(6)
-
-    def _jacobians(self, q: np.ndarray) -> np.ndarray:
-        """Foot Jacobians (world-aligned, linear) at q into self._J, foot positions into self._feet."""
-        model, data, J, feet = self.model, self.data, self._J, self._feet
-        pin.computeJointJacobians(model, data, q)
-        pin.updateFramePlacements(model, data)
-        for i, f in enumerate(self.robot.foot_frame_ids):
-            J[i] = pin.getFrameJacobian(model, data, f, pin.LOCAL_WORLD_ALIGNED)[:3]
-            feet[i] = data.oMf[f].translation
-        return J
+        self._functions = native.function_table()  # the robot's model in the C++ core (ciml_control.native)
+        self._core = native.Dynamics(robot)
 
     def solve(self, base: BaseState, feet_p: np.ndarray, feet_v: np.ndarray, feet_a: np.ndarray,
               guess: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q, v, a) that put the feet at feet_p with velocities feet_v and accelerations
         feet_a (world, n_feet × 3) for the given base trajectory point. `guess`: joint
         positions to start Newton from (default: the previous solution if close, else the seed)."""
-        model, data = self.model, self.data
         R = pin.rpy.rpyToMatrix(base.rpy)
         q = self.q_seed.copy()
         q[:3] = base.p
@@ -249,13 +239,11 @@ class LegIK:
                 and np.max(np.abs(self._last[1] - q[:7])) < 0.05:
             q[7:] = self._last[2]  # warm start from the previous solution (same branch)
         feet_p = kernels.arg(feet_p)
-        for _ in range(self.max_iter):
-            J = self._jacobians(q)  # also places the frames at q
-            # damped Newton per leg (ciml_control.kernels.leg_newton_step): (BᵀB + 1e-12 I) s = Bᵀ e, |s| ≤ 0.5
-            done, worst = kernels.leg_newton_step(J, self._feet, feet_p, q, self._qidx2, self._cols2, self.tol, 1e-12, 0.5)
-            if done:
-                break
-        else:
+        # damped Newton per leg (kernels.leg_ik, leg_newton_step): (BᵀB + 1e-12 I) s = Bᵀ e, |s| ≤ 0.5
+        J = self._J
+        done, worst = kernels.leg_ik(self._functions, self._core.handle, q, feet_p, self._qidx2, self._cols2, self.tol,
+                                     self.max_iter, J, self._feet)
+        if not done:
             raise InverseKinematicsError(
                 f"leg inverse kinematics did not converge (foot error {worst:.2e} m): "
                 "a foot target is out of reach")
@@ -266,18 +254,16 @@ class LegIK:
         v_lin = R.T @ base.dp
         domega = Einv_local @ base.ddrpy + pin.rpy.computeRpyJacobianTimeDerivative(base.rpy, base.drpy, pin.LOCAL) @ base.drpy
         a_lin = R.T @ base.ddp - _cross(omega, v_lin)
-        nv = model.nv
+        nv = self.robot.nv
         v = np.zeros(nv)
         v[:3], v[3:6] = v_lin, omega
         v[self._vidx_all] = kernels.leg_solve(J, kernels.arg(feet_v), v[:6], self._cols2).ravel()
         # accelerations: classical foot acceleration with zero joint acceleration = J_base a_base + J̇ q̇
         a = np.zeros(nv)
         a[:3], a[3:6] = a_lin, domega
-        pin.forwardKinematics(model, data, q, v, a)
-        pin.updateFramePlacements(model, data)
-        rhs = np.array(feet_a, dtype=float)  # p̈ − drift
-        for i, f in enumerate(self.robot.foot_frame_ids):
-            rhs[i] -= pin.getFrameClassicalAcceleration(model, data, f, pin.LOCAL_WORLD_ALIGNED).linear
+        drift = np.empty((self.robot.n_feet, 3))
+        kernels.foot_acceleration(self._functions, self._core.handle, q, v, a, drift)
+        rhs = np.array(feet_a, dtype=float) - drift  # p̈ − drift
         a[self._vidx_all] = kernels.leg_solve(J, rhs, self._zeros6, self._cols2).ravel()
         return q, v, a
 

@@ -15,6 +15,8 @@
 #include <pinocchio/multibody.hpp>
 #include <pinocchio/algorithm/compute-all-terms.hpp>
 #include <pinocchio/algorithm/frames.hpp>
+#include <pinocchio/algorithm/jacobian.hpp>
+#include <pinocchio/algorithm/kinematics.hpp>
 #include <pinocchio/algorithm/joint-configuration.hpp>
 #include <pinocchio/serialization.hpp>
 #include <proxsuite/proxqp/dense/dense.hpp>
@@ -92,6 +94,34 @@ CIML_API void ciml_terms(void* h, const double* q, const double* v, double* M, d
     pinocchio::getFrameJacobian(d->model, *d->data, d->feet[i], pinocchio::LOCAL_WORLD_ALIGNED, d->J6);
     Eigen::Map<RowMatrix>(J + i * 3 * nv, 3, nv) = d->J6.topRows<3>();
   }
+}
+
+// Forward kinematics at q: J (n_feet × 3 × nv) as ciml_terms and each foot frame's world
+// position into feet (n_feet × 3) — one Newton iteration's kinematics of the leg IK.
+CIML_API void ciml_foot_kinematics(void* h, const double* q, double* J, double* feet) {
+  auto* d = static_cast<Dynamics*>(h);
+  const auto nv = d->model.nv;
+  pinocchio::computeJointJacobians(d->model, *d->data, ConstVecMap(q, d->model.nq));
+  pinocchio::updateFramePlacements(d->model, *d->data);
+  for (size_t i = 0; i < d->feet.size(); ++i) {
+    d->J6.setZero();
+    pinocchio::getFrameJacobian(d->model, *d->data, d->feet[i], pinocchio::LOCAL_WORLD_ALIGNED, d->J6);
+    Eigen::Map<RowMatrix>(J + i * 3 * nv, 3, nv) = d->J6.topRows<3>();
+    VecMap(feet + 3 * i, 3) = d->data->oMf[d->feet[i]].translation();
+  }
+}
+
+// Each foot frame's classical acceleration (world-aligned, linear) at (q, v, a) into
+// out (n_feet × 3): with a's joint part zero, the foot acceleration the base motion and
+// the velocities alone produce.
+CIML_API void ciml_foot_acceleration(void* h, const double* q, const double* v, const double* a, double* out) {
+  auto* d = static_cast<Dynamics*>(h);
+  const auto nq = d->model.nq, nv = d->model.nv;
+  pinocchio::forwardKinematics(d->model, *d->data, ConstVecMap(q, nq), ConstVecMap(v, nv), ConstVecMap(a, nv));
+  pinocchio::updateFramePlacements(d->model, *d->data);
+  for (size_t i = 0; i < d->feet.size(); ++i)
+    VecMap(out + 3 * i, 3) =
+        pinocchio::getFrameClassicalAcceleration(d->model, *d->data, d->feet[i], pinocchio::LOCAL_WORLD_ALIGNED).linear();
 }
 
 // out (nv) = q1 ⊖ q0 (pinocchio::difference: base part in q0's base frame).

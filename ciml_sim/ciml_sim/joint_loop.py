@@ -31,6 +31,8 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
+from ciml_control.kernels import control_step
+
 
 @lru_cache(maxsize=None)
 def mj_function(name: str) -> int:
@@ -212,3 +214,111 @@ def sense(mj_forward: int, mj_rne_post_constraint: int, model: int, data: int, q
         for a in range(3):
             lin[a] += noise_std[3] * z[o + a]
             ang[a] += noise_std[3] * z[o + 3 + a]
+
+
+CLOSED_LOOP_DONE = 0
+CLOSED_LOOP_FELL = 1
+CLOSED_LOOP_HANDBACK = 2
+"""Why `closed_loop` returned: all ticks run, the robot fell (the last tick's sample is
+logged, no command applied), or a tick it leaves to the caller (not started: a QP
+failure, a non-finite state or reference, a noise block to refill)."""
+
+
+@njit(cache=True)
+def fallen(qpos: np.ndarray, min_base_height: float, cos_tilt: float) -> bool:
+    """Non-finite state, base below min_base_height, or tilted beyond the angle of cos_tilt
+    (MuJoCo qpos: quaternion w, x, y, z)."""
+    s = 0.0
+    for x in qpos:
+        s += x * x
+    if not math.isfinite(s):  # a non-finite (or exploded) state
+        return True
+    w, x, y, z = qpos[3], qpos[4], qpos[5], qpos[6]
+    n2 = w * w + x * x + y * y + z * z
+    # base z axis · world z = 1 − 2 (x² + y²) for the normalised quaternion
+    return qpos[2] < min_base_height or 1.0 - 2.0 * (x * x + y * y) / n2 < cos_tilt
+
+
+@njit(cache=True)
+def closed_loop(plant, control, kp, kd, ref_q, ref_v, ref_a, ref_contacts, k0, k1, t, steps_per_tick, min_base_height,
+                cos_tilt, t_log, effort_log, qpos_log, q_ref_log):
+    """Ticks k0 … k1−1 of the headless closed loop (ciml_sim.recorder.run_headless) without
+    leaving compiled code: at each tick the plant's sample (`actuation` and `sense`, as
+    Plant.measure), the controller's step (ciml_control.kernels.control_step, nominal
+    model), the logs of the paper metrics, the command (`command_coefficients`, as
+    Plant.set_command) and `steps_per_tick` physics steps (`run_joint_loop`, as Plant.step).
+    The same functions, in the same order, as the step-by-step path; `plant` and `control`
+    are Plant.compiled_state() and IdController.compiled_state(), kp and kd the joint PD
+    gains of the commands, ref_* the reference on the control grid (rows k).
+
+    Returns (k, why, t, enc_i, meas_i, stamp, has_rate): the first tick not run, why it
+    stopped (CLOSED_LOOP_*), the simulation time and the noise-block positions after the
+    last tick run, the last command's stamp and rate flag."""
+    (mj_step, mj_step2, mj_forward, mj_rne, model, data, qpos, qvel, qj, vj, ctrl, xmat_base, cfrc_ext, foot_bodies,
+     imu_tilt, noise_std, encoder_noisy, enc_q, enc_qd, enc_i, meas_noise, meas_i, encoder_offset, limits, has_lag, alpha, lag,
+     has_gain, gain, offset, c, c_rate, has_rate, stamp, kp_cmd, kd_cmd, u, tau, dt, contact_threshold) = plant
+
+    nj = qj.shape[0]
+    nf = foot_bodies.shape[0]
+    nv = nj + 6
+    noisy = encoder_noisy
+    no_noise = np.empty(0)
+    q_m, qd_m, u_now, lag_now, tau_now = np.empty(nj), np.empty(nj), np.empty(nj), np.empty(nj), np.empty(nj)
+    quat, pos, lin, ang, tau_meas = np.empty(4), np.empty(3), np.empty(3), np.empty(3), np.empty(nj)
+    forces, contacts = np.empty((nf, 3)), np.empty(nf, dtype=np.bool_)
+    q, v, eps = np.empty(nj + 7), np.empty(nv), np.zeros(nv)
+    u_ff, u_lin, planned = np.empty(nj), np.empty(nj), np.empty((nf, 3))
+    total = np.empty(nj)
+    for k in range(k0, k1):
+        if (noisy and enc_i + steps_per_tick > enc_q.shape[0]) or (meas_noise.shape[1] > 0
+                                                                    and meas_i >= meas_noise.shape[0]):
+            return k, CLOSED_LOOP_HANDBACK, t, enc_i, meas_i, stamp, has_rate
+        # the sample (Plant.measure)
+        actuation(qj, vj, encoder_offset, enc_q[enc_i] if noisy else no_noise, enc_qd[enc_i] if noisy else no_noise,
+                  t, c, c_rate, has_rate, stamp, kp_cmd, kd_cmd, limits, has_lag, alpha, lag, has_gain, gain, offset,
+                  q_m, qd_m, u_now, lag_now, tau_now)
+        ctrl[:] = tau_now
+        sense(mj_forward, mj_rne, model, data, qpos, qvel, xmat_base, cfrc_ext, foot_bodies, imu_tilt, noise_std,
+              meas_noise[meas_i] if meas_noise.shape[1] > 0 else no_noise, tau_now, contact_threshold, quat, pos,
+              lin, ang, tau_meas, forces, contacts)
+        q[:3] = pos  # the measured configuration (recorder.measured_configuration)
+        q[3:7] = quat
+        q[7:] = q_m
+        v[:3] = lin
+        v[3:6] = ang
+        v[6:] = qd_m
+        # the controller (IdController.compute, nominal model)
+        flags, status, _, _, _ = control_step(*control, q, v, contacts, ref_q[k], ref_v[k], ref_a[k],
+                                              ref_contacts[k], eps, u_ff, u_lin, planned)
+        if flags != 0 or status != 0:
+            return k, CLOSED_LOOP_HANDBACK, t, enc_i, meas_i, stamp, has_rate
+        # the tick is committed from here: noise consumed, logs written
+        if meas_noise.shape[1] > 0:
+            meas_i += 1
+        s = 0.0
+        for j in range(nj):  # feedback effort: the PD part as the joint loop computes it, plus u_fb,lin
+            pd = kp[j] * (ref_q[k, 7 + j] - q_m[j]) + kd[j] * (ref_v[k, 6 + j] - qd_m[j]) + u_lin[j]
+            s += pd * pd
+            total[j] = u_ff[j] + u_lin[j]
+        effort_log[k] = math.sqrt(s)
+        t_log[k] = t
+        qpos_log[k] = qpos
+        q_ref_log[k] = ref_q[k]
+        if fallen(qpos, min_base_height, cos_tilt):
+            return k + 1, CLOSED_LOOP_FELL, t, enc_i, meas_i, stamp, has_rate
+        # the command (Plant.set_command, stamped with the sample's time) and the physics (Plant.step)
+        command_coefficients(total, ref_q[k, 7:], ref_v[k, 6:], kp, kd, False, c, c_rate, kp_cmd, kd_cmd)
+        stamp = t
+        has_rate = False
+        for j in range(nj):
+            if c_rate[j] != 0.0:
+                has_rate = True
+        run_joint_loop(mj_step, mj_step2, model, data, steps_per_tick, True, t, dt, qj, vj, ctrl, encoder_offset,
+                       enc_q[enc_i:enc_i + steps_per_tick] if noisy else enc_q,
+                       enc_qd[enc_i:enc_i + steps_per_tick] if noisy else enc_qd, c, c_rate, has_rate, stamp,
+                       kp_cmd, kd_cmd, limits, has_lag, alpha, lag, has_gain, gain, offset, u, tau)
+        for _ in range(steps_per_tick):
+            t += dt
+        if noisy:
+            enc_i += steps_per_tick
+    return k1, CLOSED_LOOP_DONE, t, enc_i, meas_i, stamp, has_rate

@@ -441,6 +441,46 @@ class Plant:
             self._meas = None
             self._forward_state = None
 
+    # --- the compiled closed loop (ciml_sim.joint_loop.closed_loop) --------------------------------
+    @property
+    def compiles_closed_loop(self) -> bool:
+        """Whether joint_loop.closed_loop can run this plant: not with effects evaluated in
+        Python between steps (Stribeck friction, springs, torque ripple)."""
+        return not self._extra
+
+    def compiled_state(self) -> tuple:
+        """The plant's state and parameters as joint_loop.closed_loop reads and updates
+        them (arrays shared, updated in place); compiled_done() takes the scalars back."""
+        m, d = self.model, self.data
+        # the noise blocks in use (empty when none is drawn yet: closed_loop hands the tick back)
+        i = self._k - self._noise_start
+        if self._encoder_noisy and 0 <= i < _NOISE_BLOCK:
+            enc_q, enc_qd = self._noise_q, self._noise_qd
+        else:
+            enc_q, enc_qd, i = self._no_noise, self._no_noise, 0
+        if self._meas_noise_len and self._meas_noise_i < _NOISE_BLOCK:
+            meas, meas_i = self._meas_noise, self._meas_noise_i
+        else:
+            meas, meas_i = np.empty((0, self._meas_noise_len)), 0
+        return (self._mj_step, self._mj_step2, self._mj_forward, self._mj_rne_post_constraint, m._address,
+                d._address, d.qpos, d.qvel, self._qj, self._vj, self._ctrl, self._xmat_base, d.cfrc_ext,
+                self._foot_bodies, self._imu_tilt, self._noise_std, self._encoder_noisy, enc_q, enc_qd, i, meas,
+                meas_i, self.encoder_offset, self.limits,
+                self._has_lag, self._alpha, self._lag, self._has_gain, self.gain, self.offset, self._c,
+                self._c_rate, self._has_rate, self._stamp, self._kp, self._kd, self.u, self.tau, float(m.opt.timestep),
+                CONTACT_THRESHOLD)
+
+    def compiled_done(self, physics_steps: int, meas_i: int, stamp: float, has_rate: bool) -> None:
+        """After joint_loop.closed_loop: the steps it ran, the measurement-noise position,
+        the last command's stamp and rate flag."""
+        self._k += physics_steps
+        if self._meas_noise_len and self._meas_noise_i < _NOISE_BLOCK:  # a block was in use
+            self._meas_noise_i = meas_i
+        self._stamp, self._has_rate = float(stamp), bool(has_rate)
+        self.damping_mode = False
+        self._meas = None
+        self._forward_state = None
+
     # --- sensors ----------------------------------------------------------------------------
     def _measurement_noise(self) -> np.ndarray | None:
         """This sample's standard-normal draws of the enabled sensor noises (orientation,

@@ -43,6 +43,7 @@ from ciml_control.controller import IdController
 from ciml_control.references import MOTIONS, default_duration, make_reference
 from ciml_learning.robot import RobotDescription
 
+from . import joint_loop
 from .plant import GroundTruth, Measurement, Plant
 from .scenario import Scenario
 
@@ -158,76 +159,114 @@ def run_headless(
     grid = reference_grid(robot, motion, q_stand, reference)
     result = RunResult(controller=name)
     nv = robot.nv
-    timing = {"plant_s": 0.0, "reference_s": 0.0, "controller_s": 0.0, "writer_s": 0.0}
+    timing = {"plant_s": 0.0, "reference_s": 0.0, "controller_s": 0.0, "writer_s": 0.0, "compiled_s": 0.0}
     zeros = np.zeros(nv)  # ε of the nominal model (the controller only reads it)
 
     def eps(ref) -> np.ndarray:
         return zeros if epsilon_fn is None else np.asarray(epsilon_fn(ref), dtype=float)
 
-    # pre-roll: hold the first reference point, then restart the clock at 0
-    ref0 = grid.point(0)
-    for _ in range(int(round(settle_time * CONTROL_RATE))):
-        m = plant.measure()
-        q, v = measured_configuration(m)
-        out = controller.compute(q, v, m.contacts, ref0, eps(ref0))
-        plant.set_command(out.feedforward + out.feedback_linearization, out.q_target, out.qd_target, out.kp, out.kd,
-                          stamp=m.time)
-        plant.step(PHYSICS_STEPS_PER_TICK)
-    plant.rewind_clock()
-
     n_ticks = int(round(duration * CONTROL_RATE))
+    n_settle = int(round(settle_time * CONTROL_RATE))
     sample_writer = _SampleWriter(writer, robot, plant, ground_truth) if writer is not None else None
-    t_meas = np.empty(n_ticks)
-    effort = np.empty(n_ticks)
+    # logs of the run (paper metrics from arrays at the end) and scratch logs of the pre-roll
+    t_meas, effort = np.empty(n_ticks), np.empty(n_ticks)
     qpos = np.empty((n_ticks, plant.model.nq))   # true state (MuJoCo order: quaternion w x y z)
     q_ref = np.empty((n_ticks, robot.nq))
+    settle_logs = (np.empty(n_settle), np.empty(n_settle), np.empty((n_settle, plant.model.nq)),
+                   np.empty((n_settle, robot.nq)))
     qpos_now = plant.data.qpos
     cos_tilt = math.cos(FALL_TILT)
-    n = 0
+    # Without Python between ticks (nominal model, no bag, no effect evaluated in Python) the
+    # ticks run in compiled code (joint_loop.closed_loop: the same functions as python_tick);
+    # a tick it hands back (QP failure, a noise block to draw) runs in python_tick.
+    compiled = epsilon_fn is None and sample_writer is None and plant.compiles_closed_loop
+    if compiled:
+        control = controller.compiled_state()
+        gains = (np.ascontiguousarray(controller.gains.kp, dtype=float),
+                 np.ascontiguousarray(controller.gains.kd, dtype=float))
+
+    def python_tick(k: int, ref, logs, writer) -> bool:
+        """One tick step by step; True if the robot fell (then no command is applied)."""
+        t0 = time.perf_counter()
+        m = plant.measure()
+        t1 = time.perf_counter()
+        e = eps(ref)
+        t2 = time.perf_counter()
+        q, v = measured_configuration(m)
+        out = controller.compute(q, v, m.contacts, ref, e)
+        t3 = time.perf_counter()
+        if writer is not None:
+            writer.write(m, out)
+        t4 = time.perf_counter()
+        # feedback effort from the command (PD part on the measured joints, as the joint loop
+        # computes it); tracking errors of the true state
+        pd = out.kp * (out.q_target - m.q)
+        pd += out.kd * (out.qd_target - m.qd)
+        pd += out.feedback_linearization
+        logs[0][k], logs[1][k] = m.time, math.sqrt(pd @ pd)
+        logs[2][k], logs[3][k] = qpos_now, ref.q
+        if out.qp_failed and logs is not settle_logs:
+            result.qp_failures += 1
+        if joint_loop.fallen(qpos_now, min_base_height, cos_tilt):
+            return True
+        plant.set_command(out.feedforward + out.feedback_linearization, out.q_target, out.qd_target, out.kp, out.kd,
+                          stamp=m.time)  # computed for this sample (its /torque_command stamp)
+        plant.step(PHYSICS_STEPS_PER_TICK)
+        t5 = time.perf_counter()
+        timing["plant_s"] += (t1 - t0) + (t5 - t4)
+        timing["reference_s"] += t2 - t1
+        timing["controller_s"] += t3 - t2
+        timing["writer_s"] += t4 - t3
+        return False
+
+    def run_ticks(count: int, point, refs, logs, writer, fall_height: float, bar) -> int:
+        """Ticks 0 … count−1 (reference point(k), or the rows of refs compiled); returns the
+        ticks logged, and sets result.fell / fall_time if the robot fell."""
+        k = 0
+        while k < count:
+            if compiled:
+                t0 = time.perf_counter()
+                k_end, why, _, _, meas_i, stamp, has_rate = joint_loop.closed_loop(
+                    plant.compiled_state(), control, *gains, *refs, k, count, plant.time, PHYSICS_STEPS_PER_TICK,
+                    fall_height, cos_tilt, *logs)
+                fell = why == joint_loop.CLOSED_LOOP_FELL
+                plant.compiled_done((k_end - k - fell) * PHYSICS_STEPS_PER_TICK, meas_i, stamp, has_rate)
+                controller.steps += k_end - k
+                timing["compiled_s"] += time.perf_counter() - t0
+                if bar is not None:
+                    bar.update(k_end - k)
+                k = k_end
+                if fell or k >= count:
+                    if fell:
+                        result.fell, result.fall_time = True, float(logs[0][k - 1])
+                    return k
+            if python_tick(k, point(k), logs, writer):
+                result.fell, result.fall_time = True, float(logs[0][k])
+                return k + 1
+            if bar is not None:
+                bar.update()
+            k += 1
+        return k
+
+    # pre-roll: hold the first reference point (no fall check), then restart the clock at 0
+    ref0 = grid.point(0)
+    t0 = time.perf_counter()
+    settle_refs = tuple(np.repeat(a[:1], n_settle, axis=0) for a in grid.arrays(1)) if compiled else None
+    timing["reference_s"] += time.perf_counter() - t0
+    run_ticks(n_settle, lambda k: ref0, settle_refs, settle_logs, None, -math.inf, None)
+    result.fell = False
+    plant.rewind_clock()
+
+    t0 = time.perf_counter()
+    refs = grid.arrays(n_ticks) if compiled else None
+    timing["reference_s"] += time.perf_counter() - t0
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=n_ticks, desc=f"simulating {motion}", unit="tick", leave=False, mininterval=0.5)
     try:
-        for k in range(n_ticks):
-            t0 = time.perf_counter()
-            m = plant.measure()
-            t1 = time.perf_counter()
-            ref = grid.point(k)
-            e = eps(ref)
-            t2 = time.perf_counter()
-            q, v = measured_configuration(m)
-            out = controller.compute(q, v, m.contacts, ref, e)
-            t3 = time.perf_counter()
-            if sample_writer is not None:
-                sample_writer.write(m, out)
-            t4 = time.perf_counter()
-            # paper metrics (from arrays at the end): feedback effort from the command (PD part on
-            # the measured joints, as the joint loop computes it); tracking errors of the true state
-            pd = out.kp * (out.q_target - m.q)
-            pd += out.kd * (out.qd_target - m.qd)
-            pd += out.feedback_linearization
-            effort[k] = math.sqrt(pd @ pd)
-            t_meas[k] = m.time
-            qpos[k] = qpos_now
-            q_ref[k] = ref.q
-            n = k + 1
-            if getattr(out, "qp_failed", False):
-                result.qp_failures += 1
-            if _fallen(qpos_now, min_base_height, cos_tilt):
-                result.fell, result.fall_time = True, m.time
-                break
-            plant.set_command(out.feedforward + out.feedback_linearization, out.q_target, out.qd_target, out.kp, out.kd,
-                              stamp=m.time)  # computed for this sample (its /torque_command stamp)
-            plant.step(PHYSICS_STEPS_PER_TICK)
-            t5 = time.perf_counter()
-            timing["plant_s"] += (t1 - t0) + (t5 - t4)
-            timing["reference_s"] += t2 - t1
-            timing["controller_s"] += t3 - t2
-            timing["writer_s"] += t4 - t3
-            if bar is not None:
-                bar.update()
+        n = run_ticks(n_ticks, grid.point, refs, (t_meas, effort, qpos, q_ref), sample_writer, min_base_height, bar)
     finally:
         if bar is not None:
             bar.close()
@@ -235,17 +274,6 @@ def run_headless(
     result.wall_time = time.perf_counter() - wall0
     result.timings = {k: round(v, 4) for k, v in timing.items()}
     return result
-
-
-def _fallen(qpos: np.ndarray, min_base_height: float, cos_tilt: float) -> bool:
-    """Non-finite state, base below min_base_height, or tilted beyond the angle of cos_tilt
-    (MuJoCo qpos: quaternion w, x, y, z)."""
-    if not math.isfinite(float(qpos @ qpos)):  # a non-finite (or exploded) state
-        return True
-    w, x, y, z = qpos[3], qpos[4], qpos[5], qpos[6]
-    n2 = w * w + x * x + y * y + z * z
-    # base z axis · world z = 1 − 2 (x² + y²) for the normalised quaternion
-    return bool(qpos[2] < min_base_height or 1.0 - 2.0 * (x * x + y * y) / n2 < cos_tilt)
 
 
 def _metrics_from_arrays(result: RunResult, t: np.ndarray, effort: np.ndarray, qpos: np.ndarray,
@@ -284,6 +312,18 @@ class ReferenceGrid:
         self.reference = reference
         self.points: list = []
         self._lock = threading.Lock()
+        self._arrays: tuple | None = None
+
+    def arrays(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(q, v, a, contacts) of points 0 … n−1 stacked in rows (kept; read-only)."""
+        if self._arrays is None or len(self._arrays[0]) < n:
+            self.point(n - 1)
+            pts = self.points[:max(n, len(self.points))]
+            self._arrays = tuple(np.array([getattr(p, f) for p in pts], dtype=d)
+                                 for f, d in (("q", float), ("v", float), ("a", float), ("contacts", np.bool_)))
+            for a in self._arrays:
+                a.setflags(write=False)
+        return self._arrays
 
     def point(self, k: int):
         if k >= len(self.points):

@@ -192,6 +192,48 @@ def test_epsilon_function_is_used_by_the_controller(monkeypatch):
     assert informed["rms_base_position_error_mm"] < nominal["rms_base_position_error_mm"]
 
 
+ALL_SENSORS = {"name": "s", "sensor_noise": {"q": 0.0005, "qd": 0.01, "tau": 0.5, "base_orientation": 0.001,
+                                              "base_position": 0.001, "base_velocity": 0.01},
+               "effects": ACTUATOR_ONLY["effects"] + [{"type": "base_imu_tilt", "roll": 0.01, "pitch": -0.005},
+                                                      {"type": "payload", "mass": 6.0, "com": [0.15, 0.0, 0.05]}]}
+
+
+def _same_runs(a, b) -> None:
+    assert (a.fell, a.fall_time, a.qp_failures, len(a.t)) == (b.fell, b.fall_time, b.qp_failures, len(b.t))
+    for f in ("t", "feedback_effort", "attitude_error", "base_position_error", "joint_error"):
+        np.testing.assert_allclose(getattr(a, f), getattr(b, f), rtol=1e-9, atol=1e-12, err_msg=f)
+
+
+@pytest.mark.parametrize("scenario", ["default_gap", "all_sensors"])
+def test_compiled_closed_loop_runs_the_step_by_step_ticks(scenario):
+    """The compiled closed loop (nominal model, no bag) gives the run of the step-by-step
+    ticks (forced by a model error of zeros), noise streams included: 1.2 s crosses a
+    noise block, which the compiled loop hands back to a Python tick."""
+    scen = (parse_scenario(ALL_SENSORS, ROBOT) if scenario == "all_sensors" else resolve_scenario(scenario, ROBOT))
+    compiled = run_headless(ROBOT, scen, "trot_35", 1.2, seed=3, progress=False)
+    stepwise = run_headless(ROBOT, scen, "trot_35", 1.2, seed=3, progress=False,
+                            epsilon_fn=lambda ref: np.zeros(ROBOT.nv))
+    assert compiled.timings["compiled_s"] > 0 and stepwise.timings["compiled_s"] == 0
+    assert stepwise.timings["controller_s"] > 20 * compiled.timings["controller_s"]
+    _same_runs(compiled, stepwise)
+
+
+def test_compiled_closed_loop_hands_qp_failures_back(monkeypatch):
+    """A controller whose QP always fails (f_min · 4 feet > m g): every tick goes back to
+    Python for the fallback torque, and the run equals the step-by-step one."""
+    from ciml_control.controller import IdController
+
+    make = recorder.make_controller
+    monkeypatch.setattr(recorder, "make_controller",
+                        lambda robot, motion, q: (IdController(robot, f_min=400.0),) + make(robot, motion, q)[1:])
+    scen = resolve_scenario("nominal", ROBOT)
+    compiled = run_headless(ROBOT, scen, "stand", 0.2, seed=0, progress=False, settle_time=0.02)
+    stepwise = run_headless(ROBOT, scen, "stand", 0.2, seed=0, progress=False, settle_time=0.02,
+                            epsilon_fn=lambda ref: np.zeros(ROBOT.nv))
+    assert compiled.qp_failures == len(compiled.t) == 50
+    _same_runs(compiled, stepwise)
+
+
 @pytest.mark.slow
 def test_robot_stands_30_s_on_the_nominal_scenario_without_drifting():
     result = run_headless(ROBOT, resolve_scenario("nominal", ROBOT), "stand", 30.0, seed=0, progress=False)

@@ -60,18 +60,12 @@ fi
 
 # The controller's C++ core (Pinocchio + proxsuite, headers from the cmeel wheels; ~2.5 min)
 CORE="$ROOT/ciml_control/ciml_control/libciml_control_core.so"
-h=$(hash_of "$ROOT"/ciml_control/cpp/*.cpp "$ROOT/tools/install.sh" "$STAMPS/wheels")
+h=$(hash_of "$ROOT"/ciml_control/cpp/* "$STAMPS/wheels")
 if ! stamp_ok core "$h" || [ ! -f "$CORE" ]; then
   log "compiling the controller core (C++: Pinocchio, proxsuite)"
-  CMEEL="$("$PY" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/cmeel.prefix"
   mkdir -p "$ROOT/build"
-  g++ -O2 -DNDEBUG -std=c++17 -fPIC -shared -fvisibility=hidden -fvisibility-inlines-hidden \
-      -DBOOST_MPL_LIMIT_LIST_SIZE=30 -DBOOST_MPL_LIMIT_VECTOR_SIZE=30 -DBOOST_MPL_CFG_NO_PREPROCESSED_HEADERS \
-      -DBOOST_FUSION_INVOKE_MAX_ARITY=12 -I"$CMEEL/include" -I"$CMEEL/include/eigen3" \
-      "$ROOT"/ciml_control/cpp/control_core.cpp -o "$CORE.tmp" \
-      -L"$CMEEL/lib" -lboost_serialization -Wl,-rpath,"$CMEEL/lib" -Wl,-Bsymbolic > "$ROOT/build/control_core.log" 2>&1 \
+  "$ROOT/ciml_control/cpp/build.sh" "$PY" > "$ROOT/build/control_core.log" 2>&1 \
     || { tail -30 "$ROOT/build/control_core.log"; log "controller core build failed"; exit 1; }
-  mv "$CORE.tmp" "$CORE"
   stamp_set core "$h"
 fi
 

@@ -478,9 +478,48 @@ def leg_ik(fns, dyn, q: np.ndarray, targets: np.ndarray, qidx: np.ndarray, cols:
 
 
 @njit(cache=True)
-def foot_acceleration(fns, dyn, q: np.ndarray, v: np.ndarray, a: np.ndarray, out: np.ndarray) -> None:
-    """The feet's classical accelerations at (q, v, a) into out (ciml_foot_acceleration)."""
-    ccall(fns[5], (dyn, q.ctypes.data, v.ctypes.data, a.ctypes.data, out.ctypes.data))
+def leg_rates(fns, dyn, q: np.ndarray, J: np.ndarray, R: np.ndarray, E: np.ndarray, E_dot: np.ndarray,
+              dp: np.ndarray, ddp: np.ndarray, drpy: np.ndarray, ddrpy: np.ndarray, feet_v: np.ndarray,
+              feet_a: np.ndarray, cols: np.ndarray):
+    """(v, a) of the reference at its IK solution q (J: the foot Jacobians at q) for the
+    base's world velocity dp, acceleration ddp and roll-pitch-yaw rates drpy, ddrpy (R its
+    rotation, E and E_dot Pinocchio's local rpy Jacobian and its time derivative) and the
+    feet's velocities and accelerations:
+        ω = E ṙ,  v_lin = Rᵀ ṗ,  ω̇ = E r̈ + Ė ṙ,  a_lin = Rᵀ p̈ − ω × v_lin,
+        J_leg q̇_leg = ṗ_foot − J_base v_base,
+        J_leg q̈_leg = p̈_foot − (classical foot acceleration at zero joint acceleration)."""
+    nv = J.shape[2]
+    v = np.zeros(nv)
+    a = np.zeros(nv)
+    for i in range(3):
+        s_w = 0.0
+        s_dw = 0.0
+        s_v = 0.0
+        s_a = 0.0
+        for k in range(3):
+            s_w += E[i, k] * drpy[k]
+            s_dw += E[i, k] * ddrpy[k] + E_dot[i, k] * drpy[k]
+            s_v += R[k, i] * dp[k]
+            s_a += R[k, i] * ddp[k]
+        v[3 + i] = s_w
+        a[3 + i] = s_dw
+        v[i] = s_v
+        a[i] = s_a
+    w0, w1, w2 = v[3], v[4], v[5]
+    a[0] -= w1 * v[2] - w2 * v[1]
+    a[1] -= w2 * v[0] - w0 * v[2]
+    a[2] -= w0 * v[1] - w1 * v[0]
+    rates = leg_solve(J, feet_v, v[:6].copy(), cols)
+    for i in range(cols.shape[0]):
+        for b in range(cols.shape[1]):
+            v[cols[i, b]] = rates[i, b]
+    drift = np.empty((J.shape[0], 3))
+    ccall(fns[5], (dyn, q.ctypes.data, v.ctypes.data, a.ctypes.data, drift.ctypes.data))
+    acc = leg_solve(J, feet_a - drift, np.zeros(6), cols)
+    for i in range(cols.shape[0]):
+        for b in range(cols.shape[1]):
+            a[cols[i, b]] = acc[i, b]
+    return v, a
 
 
 # --- the QP answer (ciml_control.qp.FeedforwardQP.solve) ------------------------------------

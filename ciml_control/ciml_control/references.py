@@ -214,13 +214,10 @@ class LegIK:
         self.qidx = [7 + np.asarray(leg) for leg in robot.leg_joints]
         self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         n = robot.n_feet
-        self._qidx_all = np.concatenate(self.qidx)
-        self._vidx_all = np.concatenate(self.cols)
         self._qidx2 = np.ascontiguousarray(self.qidx, dtype=np.int64)   # n_feet × n_leg
         self._cols2 = np.ascontiguousarray(self.cols, dtype=np.int64)
         self._J = np.zeros((n, 3, robot.model.nv))
         self._feet = np.zeros((n, 3))
-        self._zeros6 = np.zeros(6)
         self._functions = native.function_table()  # the robot's model in the C++ core (ciml_control.native)
         self._core = native.Dynamics(robot)
 
@@ -248,23 +245,12 @@ class LegIK:
                 f"leg inverse kinematics did not converge (foot error {worst:.2e} m): "
                 "a foot target is out of reach")
         self._last = (feet_p.copy(), q[:7].copy(), q[7:].copy())
-        # velocities: J_leg q̇_leg = ṗ − J_base v_base
-        Einv_local = pin.rpy.computeRpyJacobian(base.rpy, pin.LOCAL)
-        omega = Einv_local @ base.drpy
-        v_lin = R.T @ base.dp
-        domega = Einv_local @ base.ddrpy + pin.rpy.computeRpyJacobianTimeDerivative(base.rpy, base.drpy, pin.LOCAL) @ base.drpy
-        a_lin = R.T @ base.ddp - _cross(omega, v_lin)
-        nv = self.robot.nv
-        v = np.zeros(nv)
-        v[:3], v[3:6] = v_lin, omega
-        v[self._vidx_all] = kernels.leg_solve(J, kernels.arg(feet_v), v[:6], self._cols2).ravel()
-        # accelerations: classical foot acceleration with zero joint acceleration = J_base a_base + J̇ q̇
-        a = np.zeros(nv)
-        a[:3], a[3:6] = a_lin, domega
-        drift = np.empty((self.robot.n_feet, 3))
-        kernels.foot_acceleration(self._functions, self._core.handle, q, v, a, drift)
-        rhs = np.array(feet_a, dtype=float) - drift  # p̈ − drift
-        a[self._vidx_all] = kernels.leg_solve(J, rhs, self._zeros6, self._cols2).ravel()
+        # velocities and accelerations of the legs that carry the feet along (kernels.leg_rates)
+        v, a = kernels.leg_rates(self._functions, self._core.handle, q, J, R,
+                                 pin.rpy.computeRpyJacobian(base.rpy, pin.LOCAL),
+                                 pin.rpy.computeRpyJacobianTimeDerivative(base.rpy, base.drpy, pin.LOCAL),
+                                 *(kernels.arg(x) for x in (base.dp, base.ddp, base.drpy, base.ddrpy, feet_v, feet_a)),
+                                 self._cols2)
         return q, v, a
 
 
@@ -278,10 +264,6 @@ def _hermite(s: float, d: float, y0: float, v0: float, y1: float, v1: float) -> 
     dy = (d00 * y0 + d10 * d * v0 + d01 * y1 + d11 * d * v1) / d
     ddy = (e00 * y0 + e10 * d * v0 + e01 * y1 + e11 * d * v1) / d ** 2
     return y, dy, ddy
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 # --- references ------------------------------------------------------------------------------
@@ -449,8 +431,8 @@ class GaitReference(Reference):
             if k < 0:
                 p[i] = self.foothold(i, -1)
                 continue
-            T = self.swing_time[i]
-            start, end = np.array(self.foothold(i, k - 1)), np.array(self.foothold(i, k))
+            T = float(self.swing_time[i])
+            start, end = self.foothold(i, k - 1), self.foothold(i, k)
             if since >= T - 1e-9 or since <= 1e-9:  # touch-down/lift-off instants count as stance
                 p[i] = end if since >= 0.5 * T else start
                 continue
@@ -458,10 +440,13 @@ class GaitReference(Reference):
             s = since / T
             w, dw, ddw = quintic(s)
             b, db, ddb = bump(s)
-            p[i] = start + w * (end - start)
-            v[i] = dw / T * (end - start)
-            a[i] = ddw / T ** 2 * (end - start)
             h = self.spec.step_height
+            # straight line start → end (quintic) plus the step height's bump; scalar arithmetic
+            # (a handful of 3-vectors: numpy's per-call cost would dominate)
+            fv, fa = dw / T, ddw / T ** 2
+            for c in range(3):
+                d = end[c] - start[c]
+                p[i, c], v[i, c], a[i, c] = start[c] + w * d, fv * d, fa * d
             p[i, 2] += h * b
             v[i, 2] += h * db / T
             a[i, 2] += h * ddb / T ** 2

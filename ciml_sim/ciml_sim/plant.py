@@ -37,7 +37,9 @@ sample at that instant see the same reading); the other sensor noise once per sa
 (both in blocks of 1000 draws: the same numbers as one draw at a time).
 
 Speed: the joint loop and MuJoCo's step run together in compiled code
-(ciml_sim.joint_loop: one call per `step(n)`).
+(ciml_sim.joint_loop: one call per `step(n)`; the sensors of measure() and the command
+coefficients of set_command() are compiled too, and compiled_state() hands all of it to
+joint_loop.closed_loop, the headless closed loop without Python between ticks).
 measure() runs mj_forward at the sample instant; the first physics step after it
 (with the new command) reuses that pass's position and velocity stages (mj_step2
 instead of mj_step: bit-identical, as long as nothing but the command changes in

@@ -21,7 +21,10 @@ are cached per (robot, motion, standing pose), so runs of the same motion (model
 scenarios, seeds) share them; messages go into the bag as CDR bytes from fixed-layout
 templates (ciml_sim.serialized: rclpy's serialisation with the padding zeroed); the ground
 truth is computed only when it is written; the metrics are computed from arrays at the
-end of the run.
+end of the run. Without Python between ticks (nominal model, no writer, no effect the
+plant evaluates in Python) the ticks above run in one compiled call
+(ciml_sim.joint_loop.closed_loop, the same functions as the step-by-step tick, which
+takes the ticks it hands back).
 """
 from __future__ import annotations
 
@@ -451,7 +454,8 @@ def write_ground_truth(writer, robot: RobotDescription, ns: int, truth: GroundTr
 
 def speed_benchmark(motion: str = "trot_35", duration: float = 4.0, scenario: str = "default_gap") -> dict:
     """Headless real-time factor at 1 kHz physics with the controller (target ≥ 20×),
-    without and with bag writing, and where the wall time goes.
+    without and with bag writing, and where the wall time goes (`compiled_s`: the ticks
+    run by joint_loop.closed_loop).
 
     A short warm-up run first loads the compiled kernels (numba's on-disk cache; compiled
     on the very first use after an install) — a once-per-process cost reported as

@@ -20,7 +20,6 @@ Safety (documented contract of `compute`):
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 
@@ -39,13 +38,6 @@ from .standing import JointCommand, gravity_compensation
 
 class ControllerInputError(CimlError):
     """The controller was given a state, reference or contact vector it cannot use."""
-
-
-def _finite(x) -> bool:
-    """All entries finite (fast path: one dot product is finite unless an entry is
-    non-finite or huge; only then are the entries checked one by one)."""
-    x = np.asarray(x, dtype=float)
-    return math.isfinite(x @ x) or bool(np.isfinite(x).all())
 
 
 @dataclass
@@ -167,6 +159,8 @@ class IdController:
             self.qp_failures += 1
             u_ff = np.clip(gravity_compensation(self.dyn_des, ref_q, ref_contacts), -self.limits, self.limits)
             kernels.clip_feedback(u_ff, u_lin, self.limits)
+        if not (kernels.all_finite(u_ff) and kernels.all_finite(u_lin)):  # not expected with finite inputs
+            raise ControllerInputError("controller produced a non-finite torque")
         self.steps += 1
         return ControlOutput(
             feedforward=u_ff, feedback_linearization=u_lin, q_target=ref_q[7:].copy(), qd_target=ref_v[6:].copy(),

@@ -31,7 +31,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
-from ciml_control.kernels import control_step
+from ciml_control.kernels import all_finite, control_step
 
 
 @lru_cache(maxsize=None)
@@ -178,7 +178,9 @@ def sense(mj_forward: int, mj_rne_post_constraint: int, model: int, data: int, q
     (IMU tilt imu_tilt (w, x, y, z; empty for none), orientation noise), position, base-frame
     twist and torque with their noise (noise_std: orientation, torque, position, twist;
     z: this sample's standard-normal draws of the enabled ones, in that order), each foot's
-    contact force (world frame) and contact flag (normal force above contact_threshold)."""
+    contact force (world frame) and contact flag (normal force above contact_threshold).
+    A foot's contact force is the external force on its body (cfrc_ext after
+    mj_rnePostConstraint, linear part): its sphere is the body's only colliding geom (mjcf.py)."""
     _call_model_data(mj_forward, model, data)
     _call_model_data(mj_rne_post_constraint, model, data)  # cfrc_ext: the contact forces on the bodies
     for i in range(foot_bodies.shape[0]):
@@ -221,7 +223,7 @@ CLOSED_LOOP_FELL = 1
 CLOSED_LOOP_HANDBACK = 2
 """Why `closed_loop` returned: all ticks run, the robot fell (the last tick's sample is
 logged, no command applied), or a tick it leaves to the caller (not started: a QP
-failure, a non-finite state or reference, a noise block to refill)."""
+failure, a non-finite state, reference or torque, a noise block to refill)."""
 
 
 @njit(cache=True)
@@ -290,7 +292,7 @@ def closed_loop(plant, control, kp, kd, ref_q, ref_v, ref_a, ref_contacts, k0, k
         # the controller (IdController.compute, nominal model)
         flags, status, _, _, _ = control_step(*control, q, v, contacts, ref_q[k], ref_v[k], ref_a[k],
                                               ref_contacts[k], eps, u_ff, u_lin, planned)
-        if flags != 0 or status != 0:
+        if flags != 0 or status != 0 or not (all_finite(u_ff) and all_finite(u_lin)):
             return k, CLOSED_LOOP_HANDBACK, t, enc_i, meas_i, stamp, has_rate
         # the tick is committed from here: noise consumed, logs written
         if meas_noise.shape[1] > 0:

@@ -358,6 +358,7 @@ class GaitReference(Reference):
         # balanced base: CoM over the centre of the feet
         self.base_bal = self.base_p0.copy()
         self.base_bal[:2] = center - self.com_offset
+        self._balance_shift = self.base_bal - self.base_p0
         self.com0 = center
         rel = self.feet0[:, :2] - center
         along = rel @ self.direction
@@ -456,21 +457,22 @@ class GaitReference(Reference):
         rpy = self.base_rpy0.copy()
         zero = np.zeros(3)
         if self.spec.kind == "trot" or t < self.t0:
+            # balance shift (quintic), plus the trot's progression and sway in the plane; scalar
+            # arithmetic on 3-vectors (numpy's per-call cost would dominate)
             w, dw, ddw = quintic(t / self.t0)
-            p = self.base_p0 + w * (self.base_bal - self.base_p0)
-            dp = dw / self.t0 * (self.base_bal - self.base_p0)
-            ddp = ddw / self.t0 ** 2 * (self.base_bal - self.base_p0)
+            fv, fa = dw / self.t0, ddw / self.t0 ** 2
+            p0, d = self.base_p0, self._balance_shift
+            p, dp, ddp = [p0[c] + w * d[c] for c in range(3)], [fv * d[c] for c in range(3)], [fa * d[c] for c in range(3)]
             if self.spec.kind == "trot":
-                x, dx, ddx = self.progression(t)
-                p[:2] += x * self.direction
-                dp[:2] += dx * self.direction
-                ddp[:2] += ddx * self.direction
+                planar = [(self.progression(t), self.direction)]
                 if sway:
-                    y, dy, ddy = self.trot_sway(t)
-                    p[:2] += y * self.lateral
-                    dp[:2] += dy * self.lateral
-                    ddp[:2] += ddy * self.lateral
-            return BaseState(p, dp, ddp, rpy, zero, zero)
+                    planar.append((self.trot_sway(t), self.lateral))
+                for (x, dx, ddx), e in planar:
+                    for c in range(2):
+                        p[c] += x * e[c]
+                        dp[c] += dx * e[c]
+                        ddp[c] += ddx * e[c]
+            return BaseState(np.array(p), np.array(dp), np.array(ddp), rpy, zero, zero)
         # static walk: two shifts per cycle, CoM held in the support region during swings
         tc = t - self.t0
         n = int(math.floor(tc / self.period))

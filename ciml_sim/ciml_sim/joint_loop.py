@@ -253,17 +253,15 @@ def closed_loop(plant, control, kp, kd, ref_q, ref_v, ref_a, ref_contacts, k0, k
     are Plant.compiled_state() and IdController.compiled_state(), kp and kd the joint PD
     gains of the commands, ref_* the reference on the control grid (rows k).
 
-    Returns (k, why, t, enc_i, meas_i, stamp, has_rate): the first tick not run, why it
-    stopped (CLOSED_LOOP_*), the simulation time and the noise-block positions after the
-    last tick run, the last command's stamp and rate flag."""
+    Returns (k, why, meas_i, stamp, has_rate): the first tick not run, why it stopped
+    (CLOSED_LOOP_*), the measurement-noise block position after the last tick run, the last
+    command's stamp and rate flag (Plant.compiled_done takes them back)."""
     (mj_step, mj_step2, mj_forward, mj_rne, model, data, qpos, qvel, qj, vj, ctrl, xmat_base, cfrc_ext, foot_bodies,
-     imu_tilt, noise_std, encoder_noisy, enc_q, enc_qd, enc_i, meas_noise, meas_i, encoder_offset, limits, has_lag, alpha, lag,
-     has_gain, gain, offset, c, c_rate, has_rate, stamp, kp_cmd, kd_cmd, u, tau, dt, contact_threshold) = plant
-
+     imu_tilt, noise_std, noisy, enc_q, enc_qd, enc_i, meas_noise, meas_i, encoder_offset, limits, has_lag, alpha,
+     lag, has_gain, gain, offset, c, c_rate, has_rate, stamp, kp_cmd, kd_cmd, u, tau, dt, contact_threshold) = plant
     nj = qj.shape[0]
     nf = foot_bodies.shape[0]
     nv = nj + 6
-    noisy = encoder_noisy
     no_noise = np.empty(0)
     q_m, qd_m, u_now, lag_now, tau_now = np.empty(nj), np.empty(nj), np.empty(nj), np.empty(nj), np.empty(nj)
     quat, pos, lin, ang, tau_meas = np.empty(4), np.empty(3), np.empty(3), np.empty(3), np.empty(nj)
@@ -274,7 +272,7 @@ def closed_loop(plant, control, kp, kd, ref_q, ref_v, ref_a, ref_contacts, k0, k
     for k in range(k0, k1):
         if (noisy and enc_i + steps_per_tick > enc_q.shape[0]) or (meas_noise.shape[1] > 0
                                                                     and meas_i >= meas_noise.shape[0]):
-            return k, CLOSED_LOOP_HANDBACK, t, enc_i, meas_i, stamp, has_rate
+            return k, CLOSED_LOOP_HANDBACK, meas_i, stamp, has_rate
         # the sample (Plant.measure)
         actuation(qj, vj, encoder_offset, enc_q[enc_i] if noisy else no_noise, enc_qd[enc_i] if noisy else no_noise,
                   t, c, c_rate, has_rate, stamp, kp_cmd, kd_cmd, limits, has_lag, alpha, lag, has_gain, gain, offset,
@@ -293,7 +291,7 @@ def closed_loop(plant, control, kp, kd, ref_q, ref_v, ref_a, ref_contacts, k0, k
         flags, status, _, _, _ = control_step(*control, q, v, contacts, ref_q[k], ref_v[k], ref_a[k],
                                               ref_contacts[k], eps, u_ff, u_lin, planned)
         if flags != 0 or status != 0 or not (all_finite(u_ff) and all_finite(u_lin)):
-            return k, CLOSED_LOOP_HANDBACK, t, enc_i, meas_i, stamp, has_rate
+            return k, CLOSED_LOOP_HANDBACK, meas_i, stamp, has_rate
         # the tick is committed from here: noise consumed, logs written
         if meas_noise.shape[1] > 0:
             meas_i += 1
@@ -307,7 +305,7 @@ def closed_loop(plant, control, kp, kd, ref_q, ref_v, ref_a, ref_contacts, k0, k
         qpos_log[k] = qpos
         q_ref_log[k] = ref_q[k]
         if fallen(qpos, min_base_height, cos_tilt):
-            return k + 1, CLOSED_LOOP_FELL, t, enc_i, meas_i, stamp, has_rate
+            return k + 1, CLOSED_LOOP_FELL, meas_i, stamp, has_rate
         # the command (Plant.set_command, stamped with the sample's time) and the physics (Plant.step)
         command_coefficients(total, ref_q[k, 7:], ref_v[k, 6:], kp, kd, False, c, c_rate, kp_cmd, kd_cmd)
         stamp = t
@@ -323,4 +321,4 @@ def closed_loop(plant, control, kp, kd, ref_q, ref_v, ref_a, ref_contacts, k0, k
             t += dt
         if noisy:
             enc_i += steps_per_tick
-    return k1, CLOSED_LOOP_DONE, t, enc_i, meas_i, stamp, has_rate
+    return k1, CLOSED_LOOP_DONE, meas_i, stamp, has_rate

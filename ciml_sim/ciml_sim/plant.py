@@ -467,10 +467,9 @@ class Plant:
         return (self._mj_step, self._mj_step2, self._mj_forward, self._mj_rne_post_constraint, m._address,
                 d._address, d.qpos, d.qvel, self._qj, self._vj, self._ctrl, self._xmat_base, d.cfrc_ext,
                 self._foot_bodies, self._imu_tilt, self._noise_std, self._encoder_noisy, enc_q, enc_qd, i, meas,
-                meas_i, self.encoder_offset, self.limits,
-                self._has_lag, self._alpha, self._lag, self._has_gain, self.gain, self.offset, self._c,
-                self._c_rate, self._has_rate, self._stamp, self._kp, self._kd, self.u, self.tau, float(m.opt.timestep),
-                CONTACT_THRESHOLD)
+                meas_i, self.encoder_offset, self.limits, self._has_lag, self._alpha, self._lag, self._has_gain,
+                self.gain, self.offset, self._c, self._c_rate, self._has_rate, self._stamp, self._kp, self._kd,
+                self.u, self.tau, float(m.opt.timestep), CONTACT_THRESHOLD)
 
     def compiled_done(self, physics_steps: int, meas_i: int, stamp: float, has_rate: bool) -> None:
         """After joint_loop.closed_loop: the steps it ran, the measurement-noise position,

@@ -208,8 +208,6 @@ def run_headless(
         pd += out.feedback_linearization
         logs[0][k], logs[1][k] = m.time, math.sqrt(pd @ pd)
         logs[2][k], logs[3][k] = qpos_now, ref.q
-        if out.qp_failed and logs is not settle_logs:
-            result.qp_failures += 1
         if joint_loop.fallen(qpos_now, min_base_height, cos_tilt):
             return True
         plant.set_command(out.feedforward + out.feedback_linearization, out.q_target, out.qd_target, out.kp, out.kd,
@@ -222,14 +220,14 @@ def run_headless(
         timing["writer_s"] += t4 - t3
         return False
 
-    def run_ticks(count: int, point, refs, logs, writer, fall_height: float, bar) -> int:
-        """Ticks 0 … count−1 (reference point(k), or the rows of refs compiled); returns the
-        ticks logged, and sets result.fell / fall_time if the robot fell."""
+    def run_ticks(count: int, point, refs, logs, writer, fall_height: float, bar) -> tuple[int, float | None]:
+        """Ticks 0 … count−1 (reference point(k), or the rows of refs compiled): the ticks
+        logged and the time of the fall (None if the robot did not fall)."""
         k = 0
         while k < count:
             if compiled:
                 t0 = time.perf_counter()
-                k_end, why, _, _, meas_i, stamp, has_rate = joint_loop.closed_loop(
+                k_end, why, meas_i, stamp, has_rate = joint_loop.closed_loop(
                     plant.compiled_state(), control, *gains, *refs, k, count, plant.time, PHYSICS_STEPS_PER_TICK,
                     fall_height, cos_tilt, *logs)
                 fell = why == joint_loop.CLOSED_LOOP_FELL
@@ -239,26 +237,26 @@ def run_headless(
                 if bar is not None:
                     bar.update(k_end - k)
                 k = k_end
-                if fell or k >= count:
-                    if fell:
-                        result.fell, result.fall_time = True, float(logs[0][k - 1])
-                    return k
+                if fell:
+                    return k, float(logs[0][k - 1])
+                if k >= count:
+                    return k, None
             if python_tick(k, point(k), logs, writer):
-                result.fell, result.fall_time = True, float(logs[0][k])
-                return k + 1
+                return k + 1, float(logs[0][k])
             if bar is not None:
                 bar.update()
             k += 1
-        return k
+        return k, None
 
-    # pre-roll: hold the first reference point (no fall check), then restart the clock at 0
+    # pre-roll: hold the first reference point (no height check: it only ends on a
+    # non-finite or tipped-over state), then restart the clock at 0
     ref0 = grid.point(0)
     t0 = time.perf_counter()
     settle_refs = tuple(np.repeat(a[:1], n_settle, axis=0) for a in grid.arrays(1)) if compiled else None
     timing["reference_s"] += time.perf_counter() - t0
     run_ticks(n_settle, lambda k: ref0, settle_refs, settle_logs, None, -math.inf, None)
-    result.fell = False
     plant.rewind_clock()
+    qp_failures_before = controller.qp_failures
 
     t0 = time.perf_counter()
     refs = grid.arrays(n_ticks) if compiled else None
@@ -269,10 +267,13 @@ def run_headless(
 
         bar = tqdm(total=n_ticks, desc=f"simulating {motion}", unit="tick", leave=False, mininterval=0.5)
     try:
-        n = run_ticks(n_ticks, grid.point, refs, (t_meas, effort, qpos, q_ref), sample_writer, min_base_height, bar)
+        n, fall_time = run_ticks(n_ticks, grid.point, refs, (t_meas, effort, qpos, q_ref), sample_writer,
+                                 min_base_height, bar)
     finally:
         if bar is not None:
             bar.close()
+    result.fell, result.fall_time = fall_time is not None, fall_time
+    result.qp_failures = controller.qp_failures - qp_failures_before
     _metrics_from_arrays(result, t_meas[:n], effort[:n], qpos[:n], q_ref[:n])
     result.wall_time = time.perf_counter() - wall0
     result.timings = {k: round(v, 4) for k, v in timing.items()}
@@ -318,11 +319,11 @@ class ReferenceGrid:
         self._arrays: tuple | None = None
 
     def arrays(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(q, v, a, contacts) of points 0 … n−1 stacked in rows (kept; read-only)."""
+        """(q, v, a, contacts) of the points sampled so far, at least n, stacked in rows
+        (kept; read-only)."""
         if self._arrays is None or len(self._arrays[0]) < n:
             self.point(n - 1)
-            pts = self.points[:max(n, len(self.points))]
-            self._arrays = tuple(np.array([getattr(p, f) for p in pts], dtype=d)
+            self._arrays = tuple(np.array([getattr(p, f) for p in self.points], dtype=d)
                                  for f, d in (("q", float), ("v", float), ("a", float), ("contacts", np.bool_)))
             for a in self._arrays:
                 a.setflags(write=False)

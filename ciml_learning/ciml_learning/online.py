@@ -413,28 +413,33 @@ class SnapshotWriter:
         return sorted(out)
 
     def write(self, snap: Snapshot) -> SavedSnapshot:
-        from .fileio import atomic_write_bytes
+        """Write the next snapshot directory (published whole: fileio.atomic_dir, the stamps in
+        its manifest), then point `latest` at it (a symlink swapped with one rename), then
+        remove snapshots beyond `keep`. Killed at any step: every snapshot-NNNNNN is complete."""
+        from .fileio import clean_stale, fault_point, fsync_dir
 
         t0 = time.perf_counter()
         self.seq += 1
         name = f"{SNAPSHOT_PREFIX}{self.seq:06d}"
         path = os.path.join(self.root, name)
-        if os.path.exists(path):  # a leftover of an interrupted run with the same number
-            shutil.rmtree(path)
-        os.makedirs(path)
+        clean_stale(self.root, rf"{SNAPSHOT_PREFIX}\d+|{LATEST}")
+        extra = {}
         if snap.stamps is not None:
             buf = io.BytesIO()
             np.save(buf, snap.stamps.astype(np.int64), allow_pickle=False)
-            atomic_write_bytes(os.path.join(path, STAMPS_FILE), buf.getvalue())
+            extra[STAMPS_FILE] = buf.getvalue()
         snap.model_set.training_ = {**snap.model_set.training_, "source": "online_learner",
                                     "samples": int(snap.samples), "snapshot": self.seq}
-        meta = snap.model_set.save(path)  # npz then json, each atomically
-        tmp = os.path.join(self.root, f".{LATEST}.tmp{os.getpid()}")
+        meta = snap.model_set.save(path, extra_files=extra, what="snapshot")
+        tmp = os.path.join(self.root, f".{LATEST}.tmp-{os.getpid()}")
         if os.path.lexists(tmp):
             os.unlink(tmp)
         os.symlink(name, tmp)
+        fault_point("rename")
         os.replace(tmp, os.path.join(self.root, LATEST))
+        fsync_dir(self.root)
         for _, old in self.snapshots()[: -self.keep]:
+            fault_point("cleanup")
             shutil.rmtree(old, ignore_errors=True)
         return SavedSnapshot(path, snap.model_set.learner, int(snap.samples), meta["npz"]["sha256"],
                              time.perf_counter() - t0)

@@ -12,6 +12,7 @@ from ciml_learning.dynamics import ReferenceState, ReferenceTorque, RigidBodyDyn
 from ciml_learning.extraction import combined_error, learning_inputs
 from ciml_learning.models import (
     FORMAT_VERSION,
+    model_checksum,
     MODEL_JSON,
     MODEL_NPZ,
     EpsilonFunction,
@@ -212,16 +213,26 @@ def test_tampered_truncated_and_wrong_version_files_are_refused(lwpr_set, tmp_pa
     buf = io.BytesIO()
     np.savez(buf, **arrays)
     bad = buf.getvalue()
-    forged = {**meta, "npz": {"file": MODEL_NPZ, "sha256": hashlib.sha256(bad).hexdigest(), "bytes": len(bad)}}
-    one_line_error(variant("malformed", bad, forged), "rf.c has shape")
+    def forge(blob: bytes) -> dict:
+        info = {"sha256": hashlib.sha256(blob).hexdigest(), "bytes": len(blob)}
+        m = {**meta, "npz": {"file": MODEL_NPZ, **info}, "manifest": {MODEL_NPZ: info}}
+        return {**m, "checksum": model_checksum(m)}
+
+    one_line_error(variant("malformed", bad, forge(bad)), "rf.c has shape")
     # pickled object arrays are never loaded
     arrays2 = dict(arrays)
     arrays2["input_mean"] = np.array([{"evil": 1}], dtype=object)
     buf = io.BytesIO()
     np.savez(buf, **arrays2)
     objs = buf.getvalue()
-    forged = {**meta, "npz": {"file": MODEL_NPZ, "sha256": hashlib.sha256(objs).hexdigest(), "bytes": len(objs)}}
-    one_line_error(variant("pickled", objs, forged), "not a readable npz|input_mean")
+    one_line_error(variant("pickled", objs, forge(objs)), "not a readable npz|input_mean")
+    # the description is covered too: reversed input names or a dimension switched off
+    names = meta["inputs"]["names"]
+    one_line_error(variant("names", meta_obj={**meta, "inputs": {**meta["inputs"], "names": names[::-1]}}),
+                   "its own checksum")
+    dims = [dict(d) for d in meta["dimensions"]]
+    dims[0]["learned"] = False
+    one_line_error(variant("unlearned", meta_obj={**meta, "dimensions": dims}), "its own checksum")
     shutil.rmtree(os.path.join(good))
     one_line_error(good, "not found")
 

@@ -30,7 +30,7 @@ def play_bag(path: str, rate: float = 1.0, exclude_prefixes: Iterable[str] = (),
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    from .ros_common import COMMAND_QOS, SENSOR_QOS
+    from .ros_common import COMMAND_QOS, SENSOR_PUB_QOS
 
     if not rate > 0:
         raise BagError(f"--rate must be > 0, got {rate}")
@@ -43,7 +43,7 @@ def play_bag(path: str, rate: float = 1.0, exclude_prefixes: Iterable[str] = (),
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         pubs = {
-            t: node.create_publisher(message_class(ty), t, SENSOR_QOS if t in topics.MEASUREMENT_TOPICS else COMMAND_QOS)
+            t: node.create_publisher(message_class(ty), t, SENSOR_PUB_QOS if t in topics.MEASUREMENT_TOPICS else COMMAND_QOS)
             for t, ty in types.items()
         }
         # give discovery up to `wait_subscribers` s to match subscribers before the first message

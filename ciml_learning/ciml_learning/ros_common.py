@@ -1,54 +1,109 @@
-"""What every CIML node shares: the Jazzy main skeleton, parameters with descriptors,
-health counters on /diagnostics. Nodes stay thin adapters around pure modules.
+"""What every CIML node shares: the Jazzy main skeleton (clean exits, one-line errors),
+parameters declared from one schema per node (ciml_learning.params), QoS profiles, and
+health conditions on /diagnostics that return to OK when they clear.
+Nodes stay thin adapters around pure modules (docs/ARCHITECTURE.md).
 """
 from __future__ import annotations
 
 import os
+import time
 from collections import Counter
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 from . import topics
+from .errors import CimlError
 
+SENSOR_PUB_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+"""Publishers of sensor topics (/joint_states, /base_state, /contact_state): reliable, so a
+subscriber with default QoS (a dashboard, `ros2 topic echo`) matches as well as a best-effort
+one; keep-last 10 never blocks the publisher (a slow reader loses the oldest samples)."""
 SENSOR_QOS = qos_profile_sensor_data
-"""Sensor topics: best effort, keep last 5 — a late sample is worthless."""
+"""Subscriptions to sensor topics: best effort, keep last 5 — a late sample is worthless, and a
+best-effort reader matches both a reliable publisher and a robot driver that publishes best effort."""
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-"""Commands, references, model errors: reliable."""
+"""Commands, references, model errors: reliable (the ROS default profile)."""
+LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+"""Published once, kept for late joiners (/robot_description, /tf_static, /gap_diagnosis)."""
 
 
+PUBLISH_PERIOD = 1.0
+"""[s] between /diagnostics messages of a node (diagnostic_updater's default rate)."""
 OK, WARN, ERROR = 0, 1, 2
 """diagnostic_msgs/DiagnosticStatus levels (the message field is a byte)."""
 
 
-def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> None:
-    """rclpy.init → spin → clean shutdown (the ros2/demos skeleton).
+def _one_line(err: BaseException) -> str:
+    return " ".join(str(err).split()) or type(err).__name__
+
+
+def _node_name(factory: Callable[[], Node]) -> str:
+    """IdControllerNode -> id_controller (the logger name of a node that failed to start)."""
+    cls = getattr(factory, "__name__", "node").removesuffix("Node")
+    return "".join(f"_{c.lower()}" if c.isupper() else c for c in cls).lstrip("_")
+
+
+def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, name: str | None = None) -> None:
+    """rclpy.init → spin → clean shutdown (the ros2/demos skeleton), once for every node.
+
+    - SIGINT/SIGTERM: rclpy's signal handler shuts the context down; whatever the spin (or a
+      callback, or the node's construction) raises after that is the shutdown racing the
+      node, not an error: the process exits 0 without a traceback.
+    - A bad parameter (wrong type, out of range, refused by the schema) or a CimlError while
+      building the node (bad URDF, scenario, model folder): one logged line, exit status 1.
 
     DDS discovery defaults to this machine only; set ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET
     explicitly to talk to other hosts.
     """
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    rclpy.init(args=args)
+    label = name or _node_name(factory)
+    try:
+        rclpy.init(args=args)
+    except Exception as err:  # malformed --ros-args (rcl parses them here)
+        rclpy.logging.get_logger(label).error(f"bad arguments: {_one_line(err)}")
+        raise SystemExit(1) from None
+    context = rclpy.get_default_context()
     node = None
+    status = 0
     try:
         node = factory()
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except (ParameterException, CimlError) as err:
+        if context.ok():
+            rclpy.logging.get_logger(label).error(f"{_one_line(err)}")
+            status = 1
+    except Exception:
+        if context.ok():
+            raise
+        # a signal shut the context down while spin or a callback was using it
     finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        try:
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
+        except (KeyboardInterrupt, Exception):  # a second signal, or destroy racing the shutdown
+            pass
+    if status:
+        raise SystemExit(status)
 
 
-def declare(node: Node, name: str, default, description: str, lo: float | None = None, hi: float | None = None):
-    """Declare a parameter with a description and (for numbers) a range; return its value."""
-    desc = ParameterDescriptor(description=description)
+def declare(node: Node, name: str, default, description: str, lo: float | None = None, hi: float | None = None,
+            read_only: bool = False):
+    """Declare one parameter with a description and (for numbers) a range; return its value.
+
+    Prefer `declare_schema` (one schema per node, ciml_learning.params)."""
+    desc = ParameterDescriptor(description=description, read_only=read_only)
     if lo is not None and hi is not None:
         if isinstance(default, bool):
             pass
@@ -59,37 +114,130 @@ def declare(node: Node, name: str, default, description: str, lo: float | None =
     return node.declare_parameter(name, default, desc).value
 
 
-class Health:
-    """Counts events (rejected inputs, fallbacks, …) and publishes them on /diagnostics at 1 Hz."""
+def declare_schema(node: Node, schema, apply: Callable[[dict[str, Any]], str | None] | None = None) -> dict[str, Any]:
+    """Declare every parameter of `schema` (a ciml_learning.params.NodeSchema) on `node`, with its
+    description, range and read_only flag, and check the start values against the schema
+    (choices included); return {name: value}.
 
-    def __init__(self, node: Node, hardware_id: str = "") -> None:
+    Run-time sets: rclpy refuses read-only parameters and values outside a range itself; the
+    other parameters are checked against the schema and then handed to `apply({name: value})`,
+    which makes them take effect (and may refuse with a reason string). A schema with
+    reconfigurable parameters must come with `apply`: a set is never "successful and ignored".
+    """
+    from rclpy.exceptions import InvalidParameterValueException
+
+    values: dict[str, Any] = {}
+    for p in schema.params:
+        desc = ParameterDescriptor(description=p.description_line(), read_only=p.read_only,
+                                   additional_constraints=p.constraints_line())
+        if p.lo is not None and p.hi is not None and not isinstance(p.default, bool):
+            if isinstance(p.default, int):
+                desc.integer_range = [IntegerRange(from_value=int(p.lo), to_value=int(p.hi), step=1)]
+            elif isinstance(p.default, float):
+                desc.floating_point_range = [FloatingPointRange(from_value=float(p.lo), to_value=float(p.hi),
+                                                                step=0.0)]
+        value = node.declare_parameter(p.name, p.default, desc).value
+        problem = p.check(value)
+        if problem:
+            raise InvalidParameterValueException(p.name, value, problem)
+        values[p.name] = value
+    if any(not p.read_only for p in schema.params):
+        if apply is None:
+            raise TypeError(f"{schema.node}: reconfigurable parameters need an apply callback")
+
+        def on_set(params) -> SetParametersResult:
+            changes = {}
+            for param in params:
+                spec = schema.get(param.name)
+                if spec is None:  # use_sim_time and other rclpy parameters: rclpy applies them
+                    continue
+                problem = spec.check(param.value)
+                if problem:
+                    return SetParametersResult(successful=False, reason=f"{param.name}: {problem}")
+                changes[param.name] = param.value
+            if changes:
+                reason = apply(changes)
+                if reason:
+                    return SetParametersResult(successful=False, reason=reason)
+            return SetParametersResult(successful=True)
+
+        node.add_on_set_parameters_callback(on_set)
+    return values
+
+
+class Health:
+    """The node's health on /diagnostics at 1 Hz: a level and a message that describe the
+    *current* conditions, and event counts as KeyValues.
+
+    - `set(level, message)`: the node's mode ("torque control", "holding the standing pose: …").
+    - `condition(key, active, level, message)`: a named condition, raised while `active`, gone
+      when cleared.
+    - `count(event, warn)`: count an event; with `warn`, the event is also a WARN condition that
+      clears `event_hold` seconds after its last occurrence (a rejected message is news for a
+      moment, not for the rest of the run; one publish period plus a margin, so every warned
+      event reaches at least one /diagnostics message).
+
+    The published level is the worst of the mode and the active conditions; the message is the
+    text of those at that level. With nothing active it is the mode's ("ok" by default).
+    """
+
+    def __init__(self, node: Node, hardware_id: str = "", event_hold: float = PUBLISH_PERIOD + 0.2) -> None:
         self.node = node
         self.counts: Counter[str] = Counter()
-        self.level = OK
-        self.message = "ok"
+        self.mode_level = OK
+        self.mode_message = "ok"
+        self.event_hold = event_hold
+        self._conditions: dict[str, tuple[int, str, float | None]] = {}  # key -> (level, message, last event or None)
         self._hardware_id = hardware_id
         self._pub = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        node.create_timer(1.0, self.publish)
+        node.create_timer(PUBLISH_PERIOD, self.publish)
 
-    def count(self, event: str, warn: str | None = None) -> None:
-        """Count one event; with `warn`, also log it (throttled) and raise the level to WARN."""
+    def count(self, event: str, warn: str | None = None, level: int = WARN) -> None:
+        """Count one event; with `warn`, also log it (throttled) and hold it as a condition."""
         self.counts[event] += 1
         if warn is not None:
-            self.level = max(self.level, WARN)
-            self.message = warn
+            self._conditions[event] = (level, warn, time.monotonic())
             self.node.get_logger().warning(f"{warn} ({event}: {self.counts[event]})", throttle_duration_sec=1.0)
 
-    def set(self, level: int, message: str) -> None:
-        self.level, self.message = level, message
+    def condition(self, key: str, active: bool, level: int = WARN, message: str = "") -> None:
+        """Raise (active) or clear a named condition."""
+        if active:
+            self._conditions[key] = (level, message or key, None)
+        else:
+            self._conditions.pop(key, None)
 
-    def publish(self) -> None:
-        status = DiagnosticStatus(
+    def set(self, level: int, message: str) -> None:
+        """The node's mode (kept until the next set)."""
+        self.mode_level, self.mode_message = level, message
+
+    def active(self) -> dict[str, tuple[int, str]]:
+        """Conditions active now: key -> (level, message)."""
+        now = time.monotonic()
+        for key in [k for k, (_, _, t) in self._conditions.items() if t is not None and now - t >= self.event_hold]:
+            del self._conditions[key]
+        return {k: (lv, m) for k, (lv, m, _) in self._conditions.items()}
+
+    @property
+    def level(self) -> int:
+        return max([self.mode_level, *(lv for lv, _ in self.active().values())])
+
+    @property
+    def message(self) -> str:
+        level = self.level
+        texts = [self.mode_message] if self.mode_level == level else []
+        texts += [m for lv, m in self.active().values() if lv == level]
+        return "; ".join(texts)
+
+    def status(self) -> DiagnosticStatus:
+        return DiagnosticStatus(
             level=bytes([self.level]),
             name=self.node.get_fully_qualified_name(),
             message=self.message,
             hardware_id=self._hardware_id,
             values=[KeyValue(key=k, value=str(v)) for k, v in sorted(self.counts.items())],
         )
-        msg = DiagnosticArray(status=[status])
+
+    def publish(self) -> None:
+        msg = DiagnosticArray(status=[self.status()])
         msg.header.stamp = self.node.get_clock().now().to_msg()
         self._pub.publish(msg)

@@ -42,7 +42,7 @@ TYPES: dict[str, str] = {
 SENSOR_TOPICS: tuple[str, ...] = (JOINT_STATES, BASE_STATE, CONTACT_STATE, TORQUE_COMMAND)
 """What a robot log must contain to learn from it (no force sensors needed)."""
 MEASUREMENT_TOPICS: tuple[str, ...] = (JOINT_STATES, BASE_STATE, CONTACT_STATE)
-"""Published with sensor-data QoS (best effort); everything else is reliable."""
+"""Sensor topics: published reliable (depth 10) so default-QoS readers match; our nodes read them best effort."""
 
 
 def topic_type(topic: str) -> str:

@@ -10,7 +10,7 @@ is caught up (up to 20 ms); beyond that the debt is dropped and counted as an ov
 so the simulation slows down instead of bursting. The achieved physics rate and the
 p99 tick-period error are reported on /diagnostics.
 
-Topics: /joint_states, /base_state, /contact_state (sensor-data QoS), /clock (sim time),
+Topics: /joint_states, /base_state, /contact_state (reliable, depth 10: default-QoS readers match), /clock (sim time),
 /diagnostics; optional /sim/ ground truth (`publish_ground_truth`); subscribes
 /torque_command (reliable). Service ~/reset (std_srvs/Trigger).
 
@@ -47,7 +47,7 @@ from ciml_learning import conversions as cv
 from ciml_learning import topics
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import load_robot
-from ciml_learning.ros_common import COMMAND_QOS, OK, SENSOR_QOS, WARN, Health, declare, run_node
+from ciml_learning.ros_common import COMMAND_QOS, OK, SENSOR_PUB_QOS, SENSOR_QOS, WARN, Health, declare, run_node
 
 from .plant import Plant
 from .scenario import nominal_scenario, resolve_scenario
@@ -80,9 +80,9 @@ class MujocoBridge(Node):
         self.steps_per_sample = max(1, int(round(1000.0 / rate)))
         self.plant = Plant(self.robot, self.scenario, seed=self.seed)
         self.health = Health(self, "mujoco")
-        self.pub_joints = self.create_publisher(JointState, topics.JOINT_STATES, SENSOR_QOS)
-        self.pub_base = self.create_publisher(Odometry, topics.BASE_STATE, SENSOR_QOS)
-        self.pub_contacts = self.create_publisher(ContactState, topics.CONTACT_STATE, SENSOR_QOS)
+        self.pub_joints = self.create_publisher(JointState, topics.JOINT_STATES, SENSOR_PUB_QOS)
+        self.pub_base = self.create_publisher(Odometry, topics.BASE_STATE, SENSOR_PUB_QOS)
+        self.pub_contacts = self.create_publisher(ContactState, topics.CONTACT_STATE, SENSOR_PUB_QOS)
         self.pub_clock = self.create_publisher(Clock, topics.CLOCK, 10)
         self._truth_pubs: dict[str, object] = {}
         self.create_subscription(TorqueCommand, topics.TORQUE_COMMAND, self.on_command, COMMAND_QOS)
@@ -144,11 +144,7 @@ class MujocoBridge(Node):
                                        cmd.velocity_target, cmd.stiffness, cmd.damping,
                                        stamp=cv.stamp_to_ns(msg.header.stamp) * 1e-9)
         except CimlError as err:  # ConversionError, RobotDescriptionError (joint names), PlantError
-            self.health.count("rejected_commands")
-            if not (self.damping or self.holding):
-                self.health.set(WARN, f"command rejected: {err}")
-            self.get_logger().warning(f"command rejected: {err} (rejected_commands: "
-                                      f"{self.health.counts['rejected_commands']})", throttle_duration_sec=1.0)
+            self.health.count("rejected_commands", f"command rejected: {err}")  # WARN while they keep coming
             return
         self.commands_received += 1
         self.health.counts["commands_received"] = self.commands_received

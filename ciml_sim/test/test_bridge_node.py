@@ -163,7 +163,11 @@ def test_bridge_command_handling_in_process():
             node.on_command(msg)
         assert node.health.counts["rejected_commands"] == 4 and node.holding and node.commands_received == 0
         node.on_command(_command())
-        assert not node.damping and not node.holding and not node.plant.damping_mode and node.health.level == 0
+        assert not node.damping and not node.holding and not node.plant.damping_mode and node.health.mode_level == 0
+        # the rejections just now stay a WARN condition for a moment, then the level is the mode's (OK)
+        assert node.health.level == 1 and "command rejected" in node.health.message
+        node.health.event_hold = 0.0
+        assert node.health.level == 0 and node.health.message == "torque control"
         for _ in range(3):
             node._sample()  # 12 ms of simulation time: within the timeout
         assert not node.damping

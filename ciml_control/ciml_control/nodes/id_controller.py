@@ -37,7 +37,7 @@ from ciml_learning.errors import CimlError
 from ciml_learning.extraction import combined_error
 from ciml_learning.projection import contact_invariant_basis
 from ciml_learning.robot import load_robot
-from ciml_learning.ros_common import COMMAND_QOS, SENSOR_QOS, Health, declare, run_node
+from ciml_learning.ros_common import COMMAND_QOS, SENSOR_PUB_QOS, SENSOR_QOS, Health, declare, run_node
 
 from ..controller import IdController
 from ..conversions import model_error_arrays, reference_point
@@ -237,9 +237,9 @@ def dds_latency_benchmark(duration_s: float = 5.0, rate: float = 250.0) -> dict:
             latencies.append(t - sent.pop(ns))
 
     node.create_subscription(TorqueCommand, topics.TORQUE_COMMAND, on_command, COMMAND_QOS)
-    pub_j = node.create_publisher(JointState, topics.JOINT_STATES, SENSOR_QOS)
-    pub_b = node.create_publisher(Odometry, topics.BASE_STATE, SENSOR_QOS)
-    pub_c = node.create_publisher(ContactState, topics.CONTACT_STATE, SENSOR_QOS)
+    pub_j = node.create_publisher(JointState, topics.JOINT_STATES, SENSOR_PUB_QOS)
+    pub_b = node.create_publisher(Odometry, topics.BASE_STATE, SENSOR_PUB_QOS)
+    pub_c = node.create_publisher(ContactState, topics.CONTACT_STATE, SENSOR_PUB_QOS)
     pub_r = node.create_publisher(RobotReference, topics.REFERENCE, COMMAND_QOS)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)

@@ -85,10 +85,14 @@ class BagWriter:
             raise BagError(f"bag compression {compression!r} is not supported; valid: {', '.join(COMPRESSIONS)}")
         self.compression = compression
         self.path = Path(path)
-        if self.path.exists():
+        if os.path.lexists(self.path):
             raise BagError(f"{self.path} exists already; choose a new --out")
+        from .fileio import check_out_parent, clean_stale, temp_sibling
+
+        check_out_parent(str(self.path), "--out")
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = self.path.with_name(f".{self.path.name}.partial")
+        clean_stale(str(self.path))  # folders of killed recordings
+        self._tmp = Path(temp_sibling(str(self.path), "partial"))
         if self._tmp.exists():
             import shutil
 
@@ -121,23 +125,44 @@ class BagWriter:
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        self._writer.close()
-        if exc_type is None:
-            # the bag folder's own name is recorded nowhere inside, so renaming is safe
-            os.replace(self._tmp, self.path)
-            mcap = list(self.path.glob("*.mcap"))
-            meta = self.path / "metadata.yaml"
-            text = meta.read_text()
-            for m in mcap:
-                old = m.name
-                new = f"{self.path.name}_0.mcap"
-                if old != new:
-                    m.rename(self.path / new)
-                    text = text.replace(old, new)
-            meta.write_text(text)
-        else:
+        if exc_type is not None:
             import shutil
 
+            try:
+                self._writer.close()
+            finally:
+                shutil.rmtree(self._tmp, ignore_errors=True)
+            return
+        self._finish()
+
+    def _finish(self) -> None:
+        """Complete the bag inside its temporary folder — the MCAP under its final name,
+        metadata.yaml naming it, every CRC written (mcap_check.seal_mcap) — then publish the
+        folder with one rename: a kill at any point leaves no bag or the whole bag at `path`
+        (the folder's own name is recorded nowhere inside)."""
+        import shutil
+
+        from .fileio import OutputError, fault_point, publish_dir
+        from .mcap_check import seal_mcap
+
+        try:
+            self._writer.close()
+            meta = self._tmp / "metadata.yaml"
+            text = meta.read_text(encoding="utf-8")
+            for i, m in enumerate(sorted(self._tmp.glob("*.mcap"))):
+                new = f"{self.path.name}_{i}.mcap"
+                fault_point("rename")
+                m.rename(self._tmp / new)
+                text = text.replace(m.name, new)
+                seal_mcap(self._tmp / new)
+            fault_point("write")
+            meta.write_text(text, encoding="utf-8")
+            if os.path.lexists(self.path):
+                raise BagError(f"{self.path} appeared while recording; the recording is discarded")
+            publish_dir(str(self._tmp), str(self.path.absolute()))
+        except OutputError as err:
+            raise BagError(str(err)) from None
+        finally:
             shutil.rmtree(self._tmp, ignore_errors=True)
 
 
@@ -148,6 +173,13 @@ def _open_reader(paths: Sequence[str | os.PathLike]):
     for p in paths:
         if not p.exists():
             raise BagError(f"bag not found: {p}")
+    from .mcap_check import BagCorruptError, check_bag
+
+    try:  # CRCs and framing before any byte is decoded (mcap_check)
+        for p in paths:
+            check_bag(p)
+    except BagCorruptError as err:
+        raise BagError(str(err)) from None
     try:
         reader = AnyReader(paths, default_typestore=typestore())
         reader.open()

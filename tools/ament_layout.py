@@ -3,7 +3,8 @@
 An editable pip install installs neither setup.py's data_files nor scripts under
 ``lib/<pkg>``. This does both, in the venv (an ament prefix):
 - ``share/ament_index/resource_index/packages/<pkg>`` (the package marker),
-- ``share/<pkg>/package.xml`` and ``share/<pkg>/config/`` (parameters, scenarios),
+- ``share/<pkg>/package.xml``, ``share/<pkg>/config/`` (parameters, scenarios) and
+  ``share/<pkg>/launch/`` (launch files),
 - ``lib/<pkg>/<exe>``: a link to each console script of the package in ``bin/``.
 """
 import os
@@ -21,8 +22,9 @@ def main(root: str, venv: str, packages: list[str]) -> int:
         share = os.path.join(venv, "share", pkg)
         shutil.rmtree(share, ignore_errors=True)
         os.makedirs(share)
-        if os.path.isdir(os.path.join(src, "config")):
-            shutil.copytree(os.path.join(src, "config"), os.path.join(share, "config"))
+        for folder in ("config", "launch"):  # parameters and scenarios; launch files
+            if os.path.isdir(os.path.join(src, folder)):
+                shutil.copytree(os.path.join(src, folder), os.path.join(share, folder))
         shutil.copyfile(os.path.join(src, "package.xml"), os.path.join(share, "package.xml"))
         dest = os.path.join(venv, "lib", pkg)
         shutil.rmtree(dest, ignore_errors=True)  # drop executables no longer registered

@@ -36,6 +36,8 @@ register("id_controller_dds_latency", "ciml_control.nodes.id_controller", "dds_l
 register("sim_headless_speed", "ciml_sim.recorder", "speed_benchmark", motion="trot_35", duration=4.0)
 register("sim_bridge_rate", "ciml_sim.bridge_node", "rate_benchmark", seconds=8.0, publish_rate=250.0)
 register("diagnosis_50k", "ciml_learning.diagnosis.run", "benchmark", n_samples=50_000)
+register("live_graph_rates", "ciml_learning.live_bench", "graph_rates", duration=60.0)
+register("live_online_learning", "ciml_learning.live_bench", "online_learning_effort", duration=60.0)
 
 
 def _machine() -> dict:

@@ -96,6 +96,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="bench .json")
     s.add_argument("--only", nargs="+", help="run only these benchmarks")
     s.set_defaults(func=_run("ciml_learning.commands", "bench"))
+
+    s = sub.add_parser("launch", help="start the nodes of a YAML launch file (the file ros2 launch reads)")
+    s.add_argument("file", help="launch file, or a package name followed by a file of its share/PKG/launch")
+    s.add_argument("arguments", nargs="*", metavar="name:=value", help="launch arguments")
+    s.add_argument("-s", "--show-args", action="store_true", help="list the file's arguments and exit")
+    s.add_argument("--print", action="store_true", help="print each node's command line and exit")
+    s.add_argument("--log-dir", help="also write each node's output to LOG_DIR/<node>.log")
+    s.add_argument("--stop-timeout", type=float, default=10.0, help="[s] after SIGINT before SIGTERM")
+    s.set_defaults(func=_run("ciml_learning.launcher", "launch_command"))
     return p
 
 

@@ -1,0 +1,373 @@
+"""Benchmarks of the live graph started from its launch file (`ciml bench`; docs/LIVE_GRAPH.md).
+
+Both benchmarks start `ciml_sim/launch/closed_loop.launch.yaml` with the same launcher as
+`ciml launch` (ciml_learning.launcher; the file and the executables are found by name in
+the ament index, so nothing here imports a package above this one) and watch the graph
+from a probe node in this process, on a private DDS domain (loopback only):
+
+- `live_graph_rates`: per topic the receive rate and the period p50/p99 and jitter
+  (p99 of |period − nominal|) measured at the probe; the QP-failure fraction from
+  id_controller's /diagnostics counters and the fraction of MODE_DAMPING commands; the
+  resident memory (VmRSS of /proc/<pid>/status) of every node at the start and the end
+  of the window; the lowest measured base height (/base_state).
+- `live_online_learning`: the feedback effort of the paper's Tables I–II,
+  ‖K_p(qᵈ − q) + K_d(q̇ᵈ − q̇) + u_fb,lin‖ per command (feedback_effort: the law of
+  `ciml closed-loop`, the PD part on the joint sample the command was computed for),
+  RMS over the first and the last 10 s of a trot, with the nominal model and with
+  online learning.
+The probe itself costs CPU on the same machine: rates measured here are a lower bound.
+"""
+from __future__ import annotations
+
+import os
+import random
+import tempfile
+import threading
+import time
+from collections import defaultdict
+
+import numpy as np
+
+from . import conversions as cv
+from . import topics
+from .errors import CimlError
+
+LAUNCH_PACKAGE = "ciml_sim"
+LAUNCH_FILE = "closed_loop.launch.yaml"
+
+NOMINAL_RATES_HZ = {topics.JOINT_STATES: 250.0, topics.BASE_STATE: 250.0, topics.CONTACT_STATE: 250.0,
+                    topics.CLOCK: 250.0, topics.TORQUE_COMMAND: 250.0, topics.FILTERED_STATE: 250.0,
+                    topics.MODEL_ERROR_MEASURED: 250.0, topics.REFERENCE: 250.0,
+                    topics.MODEL_ERROR_PREDICTED: 250.0}
+"""Configured rates of the shipped launch file's defaults (bridge publish_rate, reference rate)."""
+
+
+def feedback_effort(cmd: cv.TorqueCommandArrays, q: np.ndarray, qd: np.ndarray) -> float:
+    """‖u_fb,pd + u_fb,lin‖ [Nm] of one command on the joint sample (q, q̇) it was computed for:
+    u_fb,pd = K_p (qᵈ − q) + K_d (q̇ᵈ − q̇) as the joint loop computes it (TorqueCommand.msg),
+    the same law as ciml_sim.recorder's closed-loop effort."""
+    pd = cmd.stiffness * (cmd.position_target - q) + cmd.damping * (cmd.velocity_target - qd)
+    pd += cmd.feedback_linearization
+    return float(np.sqrt(pd @ pd))
+
+
+def rss_mb(pid: int) -> float | None:
+    """Resident memory of a process [MB] (VmRSS), None once it has exited."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return round(int(line.split()[1]) / 1024.0, 1)
+    except OSError:
+        return None
+    return None
+
+
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU time of a process, all threads [s] (/proc/<pid>/stat), None once it has exited."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def period_stats(receipts: np.ndarray, nominal_hz: float) -> dict:
+    """Rate and period statistics of receipt times [s] (monotonic)."""
+    if len(receipts) < 3:
+        return {"messages": int(len(receipts))}
+    dt = np.diff(receipts)
+    span = receipts[-1] - receipts[0]
+    nominal = 1.0 / nominal_hz
+    rate = (len(receipts) - 1) / span
+    return {
+        "messages": int(len(receipts)),
+        "rate_hz": round(rate, 1),
+        "nominal_hz": nominal_hz,
+        "rate_error_pct": round(100.0 * (rate - nominal_hz) / nominal_hz, 1),
+        "period_p50_ms": round(1e3 * float(np.percentile(dt, 50)), 3),
+        "period_p99_ms": round(1e3 * float(np.percentile(dt, 99)), 3),
+        "period_max_ms": round(1e3 * float(dt.max()), 3),
+        "jitter_p99_ms": round(1e3 * float(np.percentile(np.abs(dt - nominal), 99)), 3),
+    }
+
+
+class GraphProbe:
+    """Watches the live graph from a private rclpy context spun in a background thread.
+
+    Rate topics are taken serialized (raw): only the receipt time is recorded, so the
+    probe's own cost stays small. /torque_command, /joint_states and /base_state are
+    deserialized for the effort, the damping count and the base height; /diagnostics
+    keeps each node's newest counters.
+    """
+
+    def __init__(self, rate_topics: dict[str, str] | None = None, keep_samples: bool = False) -> None:
+        import rclpy
+        from ciml_msgs.msg import TorqueCommand
+        from diagnostic_msgs.msg import DiagnosticArray
+        from nav_msgs.msg import Odometry
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+        from sensor_msgs.msg import JointState
+
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("ciml_graph_probe", context=self.context)
+        self.lock = threading.Lock()
+        self.recording = False
+        self.keep_samples = keep_samples
+        self.receipts: dict[str, list[float]] = defaultdict(list)
+        self.diagnostics: dict[str, dict[str, str]] = {}
+        self.diag_levels: dict[str, int] = {}
+        self.base_z: list[tuple[float, float]] = []       # (stamp [s], z [m])
+        self.base_x: list[tuple[float, float]] = []
+        self.commands: list[tuple[int, int, object]] = []  # (stamp ns, mode, msg)
+        self.joints: dict[int, object] = {}                # stamp ns -> JointState
+        self.n_commands = self.n_damping = 0
+        self.first_torque_stamp: int | None = None
+        self.first_torque_time: float | None = None
+        # best effort takes both reliable and best-effort publishers (sensor topics are either)
+        best_effort = qos_profile_sensor_data
+        reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        self._subs = []
+        for topic, type_name in (rate_topics or {}).items():
+            if topic in (topics.TORQUE_COMMAND, topics.JOINT_STATES, topics.BASE_STATE):
+                continue
+            self._subs.append(self.node.create_subscription(
+                _message_class(type_name), topic, lambda _m, t=topic: self._stamp(t), best_effort, raw=True))
+        self.node.create_subscription(TorqueCommand, topics.TORQUE_COMMAND, self._on_command, reliable)
+        self.node.create_subscription(JointState, topics.JOINT_STATES, self._on_joints, best_effort)
+        self.node.create_subscription(Odometry, topics.BASE_STATE, self._on_base, best_effort)
+        self.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, reliable)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._spin, name="graph-probe", daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def _stamp(self, topic: str) -> None:
+        if self.recording:
+            self.receipts[topic].append(time.monotonic())
+
+    def _on_command(self, msg) -> None:
+        self._stamp(topics.TORQUE_COMMAND)
+        stamp = cv.stamp_to_ns(msg.header.stamp)
+        if msg.mode == 0 and self.first_torque_stamp is None:
+            self.first_torque_stamp, self.first_torque_time = stamp, time.monotonic()
+        if self.recording:
+            self.n_commands += 1
+            self.n_damping += msg.mode != 0
+        if self.keep_samples and msg.mode == 0:
+            with self.lock:
+                self.commands.append((stamp, msg.mode, msg))
+
+    def _on_joints(self, msg) -> None:
+        self._stamp(topics.JOINT_STATES)
+        if self.keep_samples:
+            with self.lock:
+                self.joints[cv.stamp_to_ns(msg.header.stamp)] = msg
+
+    def _on_base(self, msg) -> None:
+        self._stamp(topics.BASE_STATE)
+        p = msg.pose.pose.position
+        with self.lock:
+            t = cv.stamp_to_ns(msg.header.stamp) * 1e-9
+            self.base_z.append((t, p.z))
+            self.base_x.append((t, p.x))
+
+    def _on_diagnostics(self, msg) -> None:
+        with self.lock:
+            for s in msg.status:
+                self.diagnostics[s.name] = {kv.key: kv.value for kv in s.values}
+                self.diag_levels[s.name] = s.level[0] if isinstance(s.level, bytes) else int(s.level)
+
+    def node_names(self) -> set[str]:
+        return {name for name, _ns in self.node.get_node_names_and_namespaces()}
+
+    def wait_for(self, predicate, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if predicate():
+                return True
+            time.sleep(0.1)
+        return bool(predicate())
+
+    def latest_base(self) -> tuple[float, float] | None:
+        """(x, z) of the newest /base_state [m]."""
+        with self.lock:
+            return (self.base_x[-1][1], self.base_z[-1][1]) if self.base_z else None
+
+    def counter(self, node: str, key: str) -> float | None:
+        with self.lock:
+            values = self.diagnostics.get(node) or self.diagnostics.get("/" + node) or {}
+        try:
+            return float(values[key])
+        except (KeyError, ValueError):
+            return None
+
+    def close(self) -> None:
+        import rclpy
+
+        self._stop.set()
+        self.thread.join(timeout=5)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def _message_class(type_name: str) -> type:
+    """'pkg/msg/Name' → the message class."""
+    import importlib
+
+    pkg, _, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+
+def _private_domain() -> None:
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(1, 101)))
+
+
+def _load_average() -> list[float]:
+    return [round(x, 2) for x in os.getloadavg()]
+
+
+def start_graph(arguments: dict[str, str], log_dir: str, only: list[str] | None = None):
+    """The shipped launch file's nodes started by the launcher (output to log_dir/<node>.log)."""
+    from .launch_file import find_package_share, load
+    from .launcher import Launcher
+
+    path = os.path.join(find_package_share(LAUNCH_PACKAGE), "launch", LAUNCH_FILE)
+    desc = load(path, arguments)
+    out = open(os.path.join(log_dir, "launch.log"), "w", encoding="utf-8")
+    launcher = Launcher(desc, out=out, log_dir=log_dir)
+    launcher.start(only)
+    return launcher, out
+
+
+def graph_rates(duration: float = 60.0, warmup: float = 10.0, arguments: dict[str, str] | None = None,
+                startup_timeout: float = 120.0) -> dict:
+    """`live_graph_rates`: the shipped graph (trot on the default gap, online learning) for
+    `duration` seconds after the controller commands torques and `warmup` seconds more."""
+    _private_domain()
+    rate_topics = {t: topics.TYPES[t] for t in NOMINAL_RATES_HZ}
+    with tempfile.TemporaryDirectory(prefix="ciml_live_") as tmp:
+        args = {"model_dir": os.path.join(tmp, "online_model"), **(arguments or {})}
+        probe = GraphProbe(rate_topics)
+        launcher, out = start_graph(args, tmp)
+        result: dict = {"arguments": args, "load_average_start": _load_average()}
+        try:
+            if not probe.wait_for(lambda: probe.first_torque_time is not None, startup_timeout):
+                raise CimlError(f"the graph sent no torque command within {startup_timeout:g} s")
+            result["startup_s"] = round(probe.first_torque_time - min(n.started for n in launcher.nodes), 1)
+            time.sleep(warmup)
+            pids = {n.label: n.proc.pid for n in launcher.nodes}
+            rss_start = {k: rss_mb(p) for k, p in pids.items()}
+            cpu_start = {k: cpu_seconds(p) for k, p in pids.items()}
+            with probe.lock:
+                probe.base_z.clear()
+            probe.recording = True
+            t0 = time.monotonic()
+            time.sleep(duration)
+            probe.recording = False
+            wall = time.monotonic() - t0
+            rss_end = {k: rss_mb(p) for k, p in pids.items()}
+            cpu_end = {k: cpu_seconds(p) for k, p in pids.items()}
+            result["load_average_end"] = _load_average()
+            result["window_s"] = round(wall, 1)
+            result["topics"] = {t: period_stats(np.asarray(probe.receipts.get(t, [])), hz)
+                                for t, hz in NOMINAL_RATES_HZ.items()}
+            qp = probe.counter("id_controller", "qp_failures") or 0.0
+            cmds = probe.counter("id_controller", "commands")
+            result["qp_failure_fraction"] = round(qp / cmds, 4) if cmds else None
+            result["damping_command_fraction"] = round(probe.n_damping / max(probe.n_commands, 1), 4)
+            result["rss_mb"] = {k: {"start": rss_start[k], "end": rss_end[k],
+                                    "growth": None if rss_start[k] is None or rss_end[k] is None
+                                    else round(rss_end[k] - rss_start[k], 1)} for k in pids}
+            # CPU demand of each node: 1.0 = one core busy the whole window
+            result["cpu_cores"] = {k: None if cpu_start[k] is None or cpu_end[k] is None
+                                   else round((cpu_end[k] - cpu_start[k]) / wall, 3) for k in pids}
+            result["cpu_cores_total"] = round(sum(v for v in result["cpu_cores"].values() if v), 3)
+            with probe.lock:
+                z = [v for _t, v in probe.base_z]
+            result["base_height_min_m"] = round(min(z), 3) if z else None
+            bridge = {k: probe.counter("mujoco_bridge", k) for k in
+                      ("achieved_physics_rate_hz", "tick_period_error_p99_ms", "realtime_overruns")}
+            result["bridge_diagnostics"] = bridge
+        finally:
+            result["shutdown_rc"] = launcher.stop()
+            out.close()
+            probe.close()
+        tails = {}
+        for n in launcher.nodes:
+            try:
+                with open(os.path.join(tmp, f"{n.label}.log"), encoding="utf-8") as f:
+                    text = f.read()
+            except OSError:
+                continue
+            if "Traceback" in text:
+                tails[n.label] = text[-2000:]
+        result["tracebacks"] = tails
+    return result
+
+
+def online_learning_effort(duration: float = 60.0, window: float = 10.0, startup_timeout: float = 120.0) -> dict:
+    """`live_online_learning`: feedback effort RMS over the first and the last `window`
+    seconds of a `duration` trot on the default gap, nominal model vs online learning."""
+    _private_domain()
+    out: dict = {"duration_s": duration, "window_s": window, "load_average_start": _load_average()}
+    for label, online in (("nominal", "false"), ("online_learning", "true")):
+        out[label] = _effort_run({"online_learning": online}, duration, window, startup_timeout)
+    n, o = out["nominal"], out["online_learning"]
+    if n.get("last_rms_nm") and o.get("last_rms_nm"):
+        out["last_window_reduction_pct"] = round(100.0 * (1.0 - o["last_rms_nm"] / n["last_rms_nm"]), 1)
+    out["load_average_end"] = _load_average()
+    return out
+
+
+def _effort_run(arguments: dict[str, str], duration: float, window: float, startup_timeout: float) -> dict:
+    from .robot import load_robot
+
+    robot = load_robot()
+    with tempfile.TemporaryDirectory(prefix="ciml_live_") as tmp:
+        args = {"model_dir": os.path.join(tmp, "online_model"), **arguments}
+        probe = GraphProbe(keep_samples=True)
+        launcher, log = start_graph(args, tmp)
+        try:
+            if not probe.wait_for(lambda: probe.first_torque_stamp is not None, startup_timeout):
+                raise CimlError(f"the graph sent no torque command within {startup_timeout:g} s")
+            t0 = probe.first_torque_stamp
+            # simulated time: wait until the trot has run `duration` seconds of it
+            probe.wait_for(lambda: bool(probe.base_z) and probe.base_z[-1][0] - t0 * 1e-9 >= duration,
+                           duration * 4 + 30)
+            snapshots = probe.counter("online_learner", "snapshots_written")
+            swaps = probe.counter("model_server", "model_swaps")
+        finally:
+            rc = launcher.stop()
+            log.close()
+            probe.close()
+    with probe.lock:
+        commands, joints = list(probe.commands), dict(probe.joints)
+        z = [v for _t, v in probe.base_z]
+    t, effort = [], []
+    for stamp, _mode, msg in commands:
+        js = joints.get(stamp)
+        if js is None:
+            continue
+        q, qd, _tau = cv.joint_state_arrays(robot, js)
+        effort.append(feedback_effort(cv.torque_command_arrays(robot, msg), q, qd))
+        t.append((stamp - t0) * 1e-9)
+    t, effort = np.asarray(t), np.asarray(effort)
+
+    def rms(mask) -> float | None:
+        return round(float(np.sqrt(np.mean(effort[mask] ** 2))), 2) if mask.any() else None
+
+    return {"first_rms_nm": rms(t < window), "last_rms_nm": rms((t >= duration - window) & (t < duration)),
+            "commands_matched": int(len(t)), "commands_received": len(commands),
+            "simulated_s": round(float(t[-1]), 1) if len(t) else 0.0,
+            "base_height_min_m": round(min(z), 3) if z else None,
+            "snapshots_written": snapshots, "model_swaps": swaps, "shutdown_rc": rc}

@@ -1,0 +1,232 @@
+"""The YAML launch subset of `ciml launch` (ciml_learning.launch_file) and its process runner,
+without ROS: parsing, substitutions, conditions, parameter typing, errors, signals."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+import yaml
+
+from ciml_learning import launch_file as lf
+from ciml_learning.launcher import Launcher
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+SHIPPED = os.path.join(ROOT, "ciml_sim", "launch", "closed_loop.launch.yaml")
+
+
+def _share(pkg: str) -> str:
+    return f"/prefix/share/{pkg}"
+
+
+def _write(tmp_path, text: str) -> str:
+    path = tmp_path / "t.launch.yaml"
+    path.write_text(textwrap.dedent(text))
+    return str(path)
+
+
+def test_shipped_file_defaults_and_arguments():
+    desc = lf.load(SHIPPED, {}, find_share=_share)
+    names = [n.label for n in desc.nodes]
+    assert names == ["mujoco_bridge", "reference_generator", "id_controller", "model_server", "state_filter",
+                     "error_extractor", "online_learner"]
+    bridge = dict(desc.nodes[0].parameters)
+    assert bridge["scenario"] == "/prefix/share/ciml_sim/config/scenarios/default_gap.yaml"
+    assert bridge["real_time_factor"] == 1.0 and isinstance(bridge["real_time_factor"], float)
+    assert bridge["seed"] == 0 and isinstance(bridge["seed"], int)
+    assert dict(desc.nodes[2].parameters)["use_sim_time"] is True
+
+    desc = lf.load(SHIPPED, {"online_learning": "false", "motion": "walk_30", "use_model_error": "False"},
+                   find_share=_share)
+    assert "online_learner" not in [n.label for n in desc.nodes]
+    assert dict(desc.nodes[1].parameters)["motion"] == "walk_30"
+    assert dict(desc.nodes[2].parameters)["use_model_error"] is False
+
+
+def test_shipped_file_is_the_ros2_yaml_launch_format():
+    """Only keys that ros2 launch's YAML frontend knows (launch_yaml + launch_ros)."""
+    doc = yaml.safe_load(open(SHIPPED))
+    allowed = {"arg": {"name", "default", "description"}, "node": {"pkg", "exec", "name", "param", "if", "unless",
+                                                                  "namespace", "remap", "ros_args", "args"}}
+    for entry in doc["launch"]:
+        (kind, body), = entry.items()
+        assert set(body) <= allowed[kind], (kind, body)
+        for p in body.get("param", []):
+            assert set(p) == {"name", "value"}
+
+
+def test_command_line_of_a_node():
+    desc = lf.load(SHIPPED, {"model_dir": "/tmp/m x"}, find_share=_share)
+    learner = desc.nodes[-1]
+    args = learner.ros_arguments()
+    assert args[:3] == ["--ros-args", "-r", "__node:=online_learner"]
+    assert "model_dir:='/tmp/m x'" not in args  # a path with a space needs no YAML quotes
+    assert "model_dir:=/tmp/m x" in args
+    server = desc.nodes[3].ros_arguments()
+    assert "model_dir:=''" in server  # the empty string stays a string for rcl's YAML reading
+
+
+@pytest.mark.parametrize("value,expected", [("250.0", 250.0), ("3", 3), ("true", True), ("False", False),
+                                            ("", ""), ("trot_35", "trot_35"), ("[1, 2]", [1, 2]),
+                                            ("a: b", "a: b"), ("null", "null")])
+def test_parameter_values_are_typed_as_launch_ros_types_them(value, expected):
+    got = lf.parameter_value(value)
+    assert got == expected and type(got) is type(expected)
+    # and the -p text reads back as the same value
+    back = lf.parameter_value(lf.parameter_text(got)) if got != "" else yaml.safe_load(lf.parameter_text(got))
+    assert back == expected
+
+
+def test_substitutions_conditions_and_let(tmp_path, monkeypatch):
+    monkeypatch.setenv("CIML_TEST_ENV", "from_env")
+    monkeypatch.delenv("CIML_UNSET", raising=False)
+    path = _write(tmp_path, """
+        launch:
+        - arg: {name: a, default: "1"}
+        - let: {name: b, value: "$(var a)-$(env CIML_TEST_ENV)-$(env CIML_UNSET dflt)"}
+        - node: {pkg: p, exec: e1, name: n1, param: [{name: x, value: "$(var b)"}, {name: d, value: "$(dirname)"}],
+                 remap: [{from: /in, to: /out}], namespace: ns}
+        - node: {pkg: p, exec: e2, if: "$(var a)"}
+        - node: {pkg: p, exec: e3, unless: "$(var a)"}
+        """)
+    desc = lf.load(path, {}, find_share=_share)
+    assert [n.executable for n in desc.nodes] == ["e1", "e2"]
+    n1 = desc.nodes[0]
+    assert dict(n1.parameters) == {"x": "1-from_env-dflt", "d": str(tmp_path)}
+    assert n1.ros_arguments() == ["--ros-args", "-r", "__node:=n1", "-r", "__ns:=/ns", "-p", "x:=1-from_env-dflt",
+                                  "-p", f"d:={tmp_path}", "-r", "/in:=/out"]
+    desc = lf.load(path, {"a": "0"}, find_share=_share)
+    assert [n.executable for n in desc.nodes] == ["e1", "e3"]
+
+
+@pytest.mark.parametrize("text,args,message", [
+    ("launch:\n- include: {file: x}\n", {}, "unsupported action 'include'"),
+    ("launch:\n- node: {pkg: p, exec: e, param: [{name: x, value: '$(command ls)'}]}\n", {}, "unsupported substitution"),
+    ("launch:\n- node: {pkg: p, exec: e, param: [{name: x, value: '$(var nope)'}]}\n", {}, "'nope' is not set"),
+    ("launch:\n- arg: {name: a}\n", {}, "'a' is required"),
+    ("launch:\n- arg: {name: a, default: x}\n", {"b": "1"}, "unknown launch argument(s) b"),
+    ("launch:\n- arg: {name: a, default: maybe}\n- node: {pkg: p, exec: e, if: $(var a)}\n", {}, "neither true nor false"),
+    ("launch:\n- node: {pkg: p, exec: e, respawn: true}\n", {}, "unsupported node attribute(s) respawn"),
+    ("launch:\n- node: {pkg: p}\n", {}, "missing exec"),
+    ("nodes: []\n", {}, "not a YAML launch file"),
+    ("launch: [\n", {}, "not valid YAML"),
+    ("launch:\n- node: {pkg: p, exec: e, param: [{name: x, value: '$(env CIML_UNSET)'}]}\n", {}, "is not set"),
+])
+def test_bad_files_and_arguments_are_refused_in_one_line(tmp_path, monkeypatch, text, args, message):
+    monkeypatch.delenv("CIML_UNSET", raising=False)
+    path = _write(tmp_path, text)
+    with pytest.raises(lf.LaunchFileError) as err:
+        lf.load(path, args, find_share=_share)
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_argument_syntax():
+    assert lf.parse_arguments(["a:=1", "b:=", "c:=x:=y"]) == {"a": "1", "b": "", "c": "x:=y"}
+    for bad in ("a=1", ":=1", "1a:=2"):
+        with pytest.raises(lf.LaunchFileError):
+            lf.parse_arguments([bad])
+
+
+def test_cli_errors_exit_1_with_one_line(tmp_path):
+    ciml = os.path.join(sys.prefix, "bin", "ciml")
+    for argv in (["launch", str(tmp_path / "missing.yaml")], ["launch", SHIPPED, "nope:=1"],
+                 ["launch", SHIPPED, "motion"]):
+        r = subprocess.run([ciml, *argv], capture_output=True, text=True, timeout=60)
+        assert r.returncode == 1, r
+        assert len(r.stderr.strip().splitlines()) == 1 and r.stderr.startswith("ciml launch: error:"), r.stderr
+    r = subprocess.run([ciml, "launch", "--show-args", SHIPPED], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and "online_learning" in r.stdout and "scenario" in r.stdout
+
+
+# --- the runner, with stand-in executables (shell scripts; no ROS) ---------------------------------
+
+
+def _fake_package(tmp_path, scripts: dict[str, str]) -> None:
+    """An ament prefix with package 'fake' whose executables are the given shell scripts."""
+    prefix = tmp_path / "prefix"
+    (prefix / "share" / "ament_index" / "resource_index" / "packages").mkdir(parents=True)
+    (prefix / "share" / "ament_index" / "resource_index" / "packages" / "fake").write_text("")
+    (prefix / "lib" / "fake").mkdir(parents=True)
+    for name, body in scripts.items():
+        exe = prefix / "lib" / "fake" / name
+        exe.write_text("#!/bin/sh\n" + body)
+        exe.chmod(0o755)
+
+
+TRAP_INT = 'echo "up $*"; trap \'echo "got INT"; exit 0\' INT; while true; do sleep 0.05; done\n'
+
+
+def test_runner_forwards_sigint_and_reports_rc(tmp_path, monkeypatch):
+    _fake_package(tmp_path, {"good": TRAP_INT, "dies": "echo bye; exit 3\n",
+                             "stubborn": "trap '' INT; while true; do sleep 0.05; done\n"})
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(tmp_path / "prefix"))
+    monkeypatch.delenv("ROS_AUTOMATIC_DISCOVERY_RANGE", raising=False)
+    path = _write(tmp_path, """
+        launch:
+        - node: {pkg: fake, exec: good, name: a, param: [{name: k, value: "2.5"}]}
+        - node: {pkg: fake, exec: dies, name: b}
+        """)
+    out = tmp_path / "out.txt"
+    with open(out, "w") as f:
+        launcher = Launcher(lf.load(path), out=f, log_dir=str(tmp_path / "logs"), stop_timeout=3.0)
+        assert launcher.env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+        launcher.start()
+        deadline = time.monotonic() + 10
+        while launcher.poll() and time.monotonic() < deadline and launcher.nodes[1].returncode is None:
+            time.sleep(0.05)
+        assert launcher.nodes[1].returncode == 3
+        assert launcher.nodes[0].returncode is None  # the other node keeps running
+        time.sleep(0.3)
+        assert launcher.stop() == 1  # one node did not exit cleanly
+    text = out.read_text()
+    assert "[a] up --ros-args -r __node:=a -p k:=2.5" in text
+    assert "[b] bye" in text and "b (pid" in text and "died with exit code 3" in text
+    assert "[a] got INT" in text and "a (pid" in text and "exited cleanly" in text
+    assert (tmp_path / "logs" / "a.log").read_text().startswith("up ")
+
+    path = _write(tmp_path, "launch:\n- node: {pkg: fake, exec: good, name: a}\n"
+                            "- node: {pkg: fake, exec: stubborn, name: s}\n")
+    with open(out, "w") as f:
+        launcher = Launcher(lf.load(path), out=f, stop_timeout=0.5)
+        launcher.start()
+        time.sleep(0.5)
+        t0 = time.monotonic()
+        rc = launcher.stop()
+        assert time.monotonic() - t0 < 5.0
+    assert rc == 1 and launcher.nodes[0].returncode == 0 and launcher.nodes[1].returncode == -signal.SIGTERM
+    assert "still running 0.5 s after SIGINT: SIGTERM" in out.read_text()
+
+
+def test_ciml_launch_process_exits_0_on_sigint(tmp_path):
+    _fake_package(tmp_path, {"good": TRAP_INT})
+    path = _write(tmp_path, "launch:\n- node: {pkg: fake, exec: good, name: a}\n"
+                            "- node: {pkg: fake, exec: good, name: b}\n")
+    env = dict(os.environ, AMENT_PREFIX_PATH=str(tmp_path / "prefix"))
+    proc = subprocess.Popen([os.path.join(sys.prefix, "bin", "ciml"), "launch", path], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        lines = []
+        while sum("] up" in ln for ln in lines) < 2:
+            line = proc.stdout.readline()
+            assert line, "".join(lines)
+            lines.append(line)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, out
+    assert out.count("got INT") == 2 and "all 2 nodes exited cleanly" in out
+    with pytest.raises(lf.LaunchFileError, match="executable 'nope' not found"):
+        os.environ["AMENT_PREFIX_PATH"], old = str(tmp_path / "prefix"), os.environ.get("AMENT_PREFIX_PATH")
+        try:
+            Launcher(lf.load(_write(tmp_path, "launch:\n- node: {pkg: fake, exec: nope}\n")))
+        finally:
+            if old is None:
+                os.environ.pop("AMENT_PREFIX_PATH")
+            else:
+                os.environ["AMENT_PREFIX_PATH"] = old

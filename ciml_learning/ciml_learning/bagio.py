@@ -5,7 +5,8 @@
 - Writing: messages are rclpy objects serialised by rclpy (byte-identical to what the
   live graph publishes) and stored with rosbags' MCAP writer; no DDS is involved.
 - Reading: samples are ordered by header.stamp, never by receive time (DESIGN §7);
-  truncated or incomplete bags become one-line BagErrors.
+  truncated or incomplete bags become one-line BagErrors. A robot log is read through
+  its robot profile (loginputs.load_log): MCAP, db3 and ROS 1 bags, any layout.
 """
 from __future__ import annotations
 
@@ -20,14 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from . import topics
-from .conversions import (
-    ConversionError,
-    contact_state_arrays,
-    joint_state_arrays,
-    odometry_arrays,
-    stamp_to_ns,
-    torque_command_arrays,
-)
+from .conversions import stamp_to_ns
 from .errors import CimlError
 from .robot import RobotDescription
 
@@ -238,9 +232,13 @@ def read_messages(path: str | os.PathLike, wanted: Iterable[str]) -> dict[str, l
 class SensorLog:
     """A robot log as arrays, one row per joint-state sample, in the robot's orders.
 
-    q: (N × nq) Pinocchio configuration (base from /base_state); v: (N × nv), base twist
-    in the base frame; tau: measured torques; u: total commanded torques (joint loop,
-    TorqueCommand.msg); contacts: (N × n_feet).
+    q: (N × nq) Pinocchio configuration; v: (N × nv), base twist in the base frame; tau:
+    measured torques; u: total commanded torques (joint loop, TorqueCommand.msg; equal to
+    tau when no command is logged, u_observed False); contacts: (N × n_feet).
+    rate_hz: measured from the joint-state stamps (median period); stamp_report: their
+    problems (stamps.StampReport, plus age-limit misses per role); sources: where each
+    role came from or how it was estimated; warnings: what the log cannot show (e.g. the
+    measured torque follows the command).
     """
 
     bag: str
@@ -251,87 +249,27 @@ class SensorLog:
     u: np.ndarray
     contacts: np.ndarray
     rejected: dict[str, int] = field(default_factory=dict)
+    rate_hz: float = float("nan")
+    stamp_report: dict = field(default_factory=dict)
+    u_observed: bool = True
+    sources: dict[str, str] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    torque_command_correlation: dict[str, float | None] | None = None
 
     def __len__(self) -> int:
         return len(self.t)
 
 
-def _hold_index(src_t: np.ndarray, t: np.ndarray, max_age_ns: int, strict: bool = False) -> np.ndarray:
-    """For each t, the latest src sample at or before t (strictly before with `strict`);
-    −1 if there is none or it is older than max_age."""
-    idx = np.searchsorted(src_t, t, side="left" if strict else "right") - 1
-    ok = idx >= 0
-    ok[ok] &= (t[ok] - src_t[idx[ok]]) <= max_age_ns
-    idx[~ok] = -1
-    return idx
+def load_sensor_log(robot: RobotDescription, path: str | os.PathLike, max_age_s: float = 0.02,
+                    profile=None) -> SensorLog:
+    """Read one bag into a SensorLog through a robot profile (no /sim/ topic is read).
 
-
-def load_sensor_log(robot: RobotDescription, path: str | os.PathLike, max_age_s: float = 0.02) -> SensorLog:
-    """Read the four sensor topics of a bag into a SensorLog (no /sim/ topic is read).
-
-    Samples are taken at the joint-state stamps; base state and contacts are the latest
-    at or before each stamp, the command the latest strictly before it (zero-order hold,
-    at most `max_age_s` old); u is the joint loop's total torque under that command at
-    the sample's stamp (position target advanced along the velocity target by the time
-    since the command's stamp, TorqueCommand.msg).
-    Non-finite or malformed messages are dropped and counted in `rejected`; a missing
-    topic, an empty log, or decreasing stamps raise BagError.
+    profile: a profile.RobotProfile (its input map: topics, types, field paths); None reads
+    CIML's own topics (the shipped HyQ profile's input map). See loginputs.load_log.
     """
-    data = read_messages(path, topics.SENSOR_TOPICS)
-    for t in topics.SENSOR_TOPICS:
-        if not data[t]:
-            raise BagError(f"bag {path} has no messages on {t}; a robot log needs {list(topics.SENSOR_TOPICS)}")
-    rejected: dict[str, int] = {}
+    from .loginputs import load_log
 
-    def convert(topic, fn):
-        stamps, rows = [], []
-        for stamp, msg in data[topic]:
-            try:
-                rows.append(fn(msg))
-                stamps.append(stamp)
-            except ConversionError as err:
-                if "do not match the robot" in str(err):
-                    raise BagError(f"bag {path}, {topic}: {err}") from err
-                rejected[topic] = rejected.get(topic, 0) + 1
-        return np.asarray(stamps, dtype=np.int64), rows
-
-    tj, joints = convert(topics.JOINT_STATES, lambda m: joint_state_arrays(robot, m))
-    tb, base = convert(topics.BASE_STATE, odometry_arrays)
-    tc, contacts = convert(topics.CONTACT_STATE, lambda m: contact_state_arrays(robot, m))
-    tu, cmds = convert(topics.TORQUE_COMMAND, lambda m: torque_command_arrays(robot, m))
-    if len(tj) == 0:
-        raise BagError(f"bag {path}: no valid joint-state sample")
-    # duplicated stamps: keep the last one of each
-    keep = np.append(tj[1:] != tj[:-1], True)
-    tj, joints = tj[keep], [j for j, k in zip(joints, keep) if k]
-    max_age = int(max_age_s * 1e9)
-    ib, ic = (_hold_index(ts, tj, max_age) for ts in (tb, tc))
-    # The torque in /joint_states at t was produced under the command in force before t:
-    # a command stamped t was computed from that very sample and acts after it.
-    iu = _hold_index(tu, tj, max_age, strict=True)
-    ok = (ib >= 0) & (ic >= 0) & (iu >= 0)
-    if (~ok).any():
-        rejected["stale_or_missing"] = int((~ok).sum())
-    if not ok.any():
-        raise BagError(f"bag {path}: no joint-state sample has a base state, contact state and command within {max_age_s} s")
-    n = int(ok.sum())
-    nq, nv, nj = robot.nq, robot.nv, robot.n_joints
-    q = np.empty((n, nq))
-    v = np.empty((n, nv))
-    tau = np.empty((n, nj))
-    u = np.empty((n, nj))
-    con = np.empty((n, robot.n_feet), dtype=bool)
-    for k, i in enumerate(np.flatnonzero(ok)):
-        qj, qdj, tj_ = joints[i]
-        pos, quat, twist = base[ib[i]]
-        q[k, :3], q[k, 3:7], q[k, 7:] = pos, quat, qj
-        v[k, :6], v[k, 6:] = twist, qdj
-        tau[k] = tj_
-        cmd = cmds[iu[i]]
-        # the joint loop's target moves along the velocity target from the command's stamp
-        u[k] = cmd.total(qj, qdj, robot.torque_limits, elapsed=(tj[i] - tu[iu[i]]) * 1e-9)
-        con[k] = contacts[ic[i]]
-    return SensorLog(bag=str(path), t=tj[ok] * 1e-9, q=q, v=v, tau=tau, u=u, contacts=con, rejected=rejected)
+    return load_log(robot, path, profile, max_age_s=max_age_s)
 
 
 def iter_bag_messages(path: str | os.PathLike) -> Iterator[tuple[str, int, bytes, str]]:

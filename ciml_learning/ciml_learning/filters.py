@@ -1,15 +1,19 @@
-"""Signal conditioning of the paper (§III-C): a 31-tap linear-phase FIR low-pass for
-q, q̇, τ, u, and the same low-pass convolved with a central difference for q̈.
+"""Signal conditioning of the paper (§III-C): a linear-phase FIR low-pass for q, q̇, τ, u,
+and the same low-pass convolved with a central difference for q̈.
 
-Both filters are linear-phase with the same delay, (31 − 1)/2 = 15 samples (60 ms at
-250 Hz), so every filtered signal refers to the same instant. Offline the filters are
-applied centred (zero phase) over a whole log; online the same taps run causally and
-the output belongs to the instant `delay` samples ago — identical numbers.
+The filters are specified in hertz and seconds and designed for the log's measured rate
+(ciml_learning.stamps.measure_rate), never for an assumed one: a window of WINDOW_S
+(0.124 s, the paper's ~0.12 s) holds n = taps_for_rate(fs) samples (odd), e.g. 31 at
+250 Hz, 55 at 448 Hz, 61 at 500 Hz, 125 at 1 kHz. Both filters are linear-phase with the
+same delay, (n − 1)/2 samples (≈ 60 ms at any rate), so every filtered signal refers to
+the same instant. Offline the filters are applied centred (zero phase) over a whole log;
+online the same taps run causally and the output belongs to the instant `delay` samples
+ago — identical numbers.
 
 Design (scipy.signal.firls, least squares): passband 0–5 Hz (gain within 1 %),
 stopband from 20 Hz (≥ 20 dB attenuation), −2 dB at 10 Hz: the paper's 10 Hz low-pass
-with a flat passband for gait harmonics. The derivative filter is the 29-tap version of
-the low-pass convolved with [1, 0, −1]/(2Δt): 31 taps, antisymmetric.
+with a flat passband for gait harmonics. The derivative filter is the (n − 2)-tap
+version of the low-pass convolved with [1, 0, −1]/(2Δt): n taps, antisymmetric.
 """
 from __future__ import annotations
 
@@ -20,14 +24,30 @@ import numpy as np
 import scipy.ndimage
 import scipy.signal
 
+WINDOW_S = 0.124
+"""Filter window [s]: the paper's ~0.12 s (31 taps at 250 Hz)."""
 N_TAPS = 31
+"""Taps at 250 Hz (taps_for_rate(250.0)); other rates get their own count."""
 PASSBAND_HZ = 5.0
 STOPBAND_HZ = 20.0
 PASSBAND_WEIGHT = 20.0
 
 
-def lowpass_taps(fs: float, n_taps: int = N_TAPS, passband: float = PASSBAND_HZ, stopband: float = STOPBAND_HZ) -> np.ndarray:
-    """Linear-phase low-pass FIR taps (odd length), unit DC gain."""
+def taps_for_rate(fs: float, window_s: float = WINDOW_S) -> int:
+    """Odd tap count whose window (n − 1)/fs + 1/fs spans `window_s` seconds at `fs` Hz."""
+    if not (np.isfinite(fs) and fs > 0):
+        raise ValueError(f"sample rate must be a positive number of hertz, got {fs}")
+    half = int(round((window_s * fs - 1.0) / 2.0))
+    return 2 * max(half, 2) + 1
+
+
+def lowpass_taps(fs: float, n_taps: int | None = None, passband: float = PASSBAND_HZ,
+                 stopband: float = STOPBAND_HZ) -> np.ndarray:
+    """Linear-phase low-pass FIR taps (odd length, taps_for_rate(fs) by default), unit DC gain."""
+    if n_taps is None:
+        n_taps = taps_for_rate(fs)
+    if stopband >= fs / 2:
+        raise ValueError(f"sample rate {fs:.1f} Hz is too low for a {stopband:g} Hz stopband")
     if n_taps % 2 == 0:
         raise ValueError("n_taps must be odd for a linear-phase filter with an integer delay")
     taps = scipy.signal.firls(n_taps, [0, passband, stopband, fs / 2], [1, 1, 0, 0], fs=fs,
@@ -35,13 +55,21 @@ def lowpass_taps(fs: float, n_taps: int = N_TAPS, passband: float = PASSBAND_HZ,
     return taps / taps.sum()
 
 
-def derivative_taps(fs: float, n_taps: int = N_TAPS) -> np.ndarray:
+def derivative_taps(fs: float, n_taps: int | None = None) -> np.ndarray:
     """Low-pass differentiator: (n_taps − 2)-tap low-pass ⊛ central difference, [1/s]."""
+    if n_taps is None:
+        n_taps = taps_for_rate(fs)
     return np.convolve(lowpass_taps(fs, n_taps - 2), [1.0, 0.0, -1.0]) * fs / 2.0
 
 
 def delay_samples(n_taps: int = N_TAPS) -> int:
+    """Delay of an n_taps linear-phase filter [samples] (15 for the 250 Hz default)."""
     return (n_taps - 1) // 2
+
+
+def delay_for_rate(fs: float) -> int:
+    """Delay of the filters designed for `fs` [samples] (≈ WINDOW_S / 2 in seconds)."""
+    return delay_samples(taps_for_rate(fs))
 
 
 def filter_offline(x: np.ndarray, taps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -202,6 +230,10 @@ class FilteredLog:
     valid: np.ndarray
     invalid_counts: dict[str, int]
     segment: np.ndarray | None = None
+    rate_hz: float | None = None
+    """Rate the filters were designed for [Hz] (the log's measured rate)."""
+    segment_rate_hz: np.ndarray | None = None
+    """Per segment id, its log's rate [Hz] (logs of different rates concatenated), else None."""
 
     def __len__(self) -> int:
         return len(self.t)
@@ -214,10 +246,13 @@ def filter_state_log(
     tau: np.ndarray,
     u: np.ndarray,
     contacts: np.ndarray,
-    fs: float = 250.0,
+    fs: float | None = None,
     max_gap_factor: float = 1.5,
 ) -> FilteredLog:
     """Offline (zero-phase) conditioning of a whole log (paper §III-C).
+
+    fs [Hz]: the rate the filters are designed for; None measures it from t (median
+    period, ciml_learning.stamps.measure_rate) — never an assumed rate.
 
     The log is split into segments at time gaps > max_gap_factor/fs (and at non-finite
     samples); each segment is filtered separately and its edges are invalid. Samples near
@@ -230,6 +265,10 @@ def filter_state_log(
         raise ValueError("empty log")
     if np.any(np.diff(t) <= 0):
         raise ValueError("time stamps must increase strictly")
+    if fs is None:
+        from .stamps import measure_rate
+
+        fs = measure_rate(t).rate_hz
     raw = [np.asarray(x, dtype=float) for x in (q, v, tau, u)]
     t_in = t
     t, raw, contacts, filled = fill_short_gaps(t, raw, np.asarray(contacts, dtype=bool), fs, max_gap_factor)
@@ -268,10 +307,10 @@ def filter_state_log(
         out_u[seg], _ = filter_offline(raw[3][seg], lp)
         counts["filter_edges"] += int((~ok & valid[seg]).sum())
         valid[seg] &= ok
-    cmask = contact_change_mask(contacts)
+    d = delay_samples(len(lp))
+    cmask = contact_change_mask(contacts, half_window=d)
     counts["contact_change"] = int((~cmask & valid & ~filled).sum())
     valid &= cmask
-    d = delay_samples(len(lp))
     near_fill = np.convolve(filled.astype(float), np.ones(2 * d + 1), mode="same") > 0
     counts["bridged_gap_window"] = int((near_fill & valid & ~filled).sum())
     valid &= ~near_fill
@@ -279,7 +318,7 @@ def filter_state_log(
     counts["filled_samples"] = int(filled.sum())
     return FilteredLog(t=t_in, q=out_q[keep], v=out_v[keep], a=out_a[keep], tau=out_tau[keep],
                        tau_dot=out_tau_dot[keep], u=out_u[keep], contacts=contacts[keep], valid=valid[keep],
-                       invalid_counts=counts, segment=segment[keep])
+                       invalid_counts=counts, segment=segment[keep], rate_hz=float(fs))
 
 
 @dataclass
@@ -307,7 +346,8 @@ class OnlineStateFilter:
     non-finite sample restarts the warm-up.
     """
 
-    def __init__(self, fs: float = 250.0, max_gap_factor: float = 1.5) -> None:
+    def __init__(self, fs: float, max_gap_factor: float = 1.5) -> None:
+        """fs [Hz]: the rate of the incoming samples (the filters are designed for it)."""
         self.fs = fs
         self.max_gap_factor = max_gap_factor
         self._lp = lowpass_taps(fs)

@@ -83,13 +83,14 @@ def fit_dimensions(learner: str, params: Sequence[dict], jobs: Sequence[tuple[in
 
 # ------------------------------------------------------------------------------ bags → model set
 def train_from_bags(robot, bags: Sequence[str], learner: str, n_jobs: int = -1, progress: bool = True,
-                    params: dict | None = None) -> ModelSet:
-    """`ciml train`: read, filter and extract the bags (pipeline.load_dataset), then fit a
-    model set on the valid samples. Provenance goes to model_set.training_."""
+                    params: dict | None = None, profile=None) -> ModelSet:
+    """`ciml train`: read (through the robot profile), filter and extract the bags
+    (pipeline.load_dataset), then fit a model set on the valid samples. Provenance goes to
+    model_set.training_."""
     from .pipeline import load_dataset
 
     t0 = time.perf_counter()
-    ds = load_dataset(robot, bags, progress=progress)
+    ds = load_dataset(robot, bags, progress=progress, profile=profile)
     tg = ds.targets
     ms = ModelSet.for_robot(robot, learner, params)
     t1 = time.perf_counter()
@@ -100,6 +101,9 @@ def train_from_bags(robot, bags: Sequence[str], learner: str, n_jobs: int = -1, 
         "samples": int(len(tg.t)),
         "valid_samples": ds.n_valid,
         "rejected": ds.rejected,
+        "rate_hz": ds.rate_hz,
+        "actuation_observed": ds.u_observed,
+        "warnings": ds.warnings,
         "samples_per_dimension": {n: int(c) for n, c in zip(ms.output_names, ms.n_samples_)},
         "n_jobs": n_jobs,
         "load_seconds": round(t1 - t0, 3),
@@ -162,11 +166,13 @@ def evaluate(model_set: ModelSet, inputs: np.ndarray, rbd_error: np.ndarray, rbd
                         "note": "RMS over dimensions of per-dimension RMSE; rbd units N/Nm, actuation Nm"}}
 
 
-def evaluate_on_bags(robot, model_set: ModelSet, bags: Sequence[str], progress: bool = True) -> dict[str, Any]:
-    """`ciml evaluate`: evaluate() on the extraction of bags (pipeline.load_dataset)."""
+def evaluate_on_bags(robot, model_set: ModelSet, bags: Sequence[str], progress: bool = True,
+                     profile=None) -> dict[str, Any]:
+    """`ciml evaluate`: evaluate() on the extraction of bags (pipeline.load_dataset, through
+    the robot profile)."""
     from .pipeline import load_dataset
 
-    ds = load_dataset(robot, bags, progress=progress)
+    ds = load_dataset(robot, bags, progress=progress, profile=profile)
     tg = ds.targets
     metrics = evaluate(model_set, tg.inputs, tg.generalized_error, tg.generalized_observed, tg.actuation_error,
                        tg.valid, tg.leg_coupling)

@@ -155,3 +155,85 @@ def test_dropped_samples_are_bridged_alike_online_and_offline():
     k = int(np.flatnonzero(np.isclose(lin.t, 101 / FS))[0])
     np.testing.assert_allclose(lin.q[k, 7:], 101 / FS, atol=1e-12)
     np.testing.assert_allclose(lin.a[k], 0.0, atol=1e-9)
+
+
+# --- filters designed for the log's measured rate ---------------------------------------
+
+RATES = (250.0, 448.0, 500.0, 1000.0)
+
+
+def _signal(t):
+    """A gait-like signal with known first and second derivatives."""
+    f = np.array([0.6, 1.5, 2.7])
+    a = np.array([0.2, 0.1, 0.04])
+    w = 2 * np.pi * f
+    x = (a * np.sin(w * t[:, None] + 0.3)).sum(1)
+    xd = (a * w * np.cos(w * t[:, None] + 0.3)).sum(1)
+    xdd = -(a * w ** 2 * np.sin(w * t[:, None] + 0.3)).sum(1)
+    return x, xd, xdd
+
+
+def test_window_is_specified_in_seconds():
+    from ciml_learning.filters import WINDOW_S, taps_for_rate
+
+    assert taps_for_rate(250.0) == 31  # the paper's filter at its rate
+    for fs in RATES:
+        n = taps_for_rate(fs)
+        assert n % 2 == 1 and abs(n / fs - WINDOW_S) <= 1.0 / fs + 1e-9
+        f_stop = np.linspace(20, fs / 2, 300)
+        _, h = scipy.signal.freqz(lowpass_taps(fs), worN=f_stop, fs=fs)
+        assert np.max(20 * np.log10(np.abs(h))) <= -20.0, fs
+
+
+@pytest.mark.parametrize("fs", RATES)
+def test_derivatives_are_the_same_at_every_rate(fs):
+    """q̈ of a log at 250, 448, 500 or 1000 Hz matches the true derivative within 1 % of its
+    amplitude (a silent 250 Hz design would scale it by 250/fs)."""
+    t = np.arange(int(8 * fs)) / fs
+    x, xd, xdd = _signal(t)
+    for target, true in ((x, xd), (xd, xdd)):
+        y, valid = filter_offline(target, derivative_taps(fs))
+        assert np.max(np.abs(y[valid] - true[valid])) <= 0.01 * np.max(np.abs(true)), fs
+
+
+def test_448_hz_log_equals_its_250_hz_resampling():
+    from ciml_learning.stamps import resample
+
+    t = np.arange(int(8 * 448)) / 448.0
+    x, xd, _ = _signal(t)
+    n = len(t)
+    q = np.zeros((n, 19))
+    q[:, 6] = 1.0
+    q[:, 7] = x
+    v = np.zeros((n, 18))
+    v[:, 6] = xd
+    tau = np.tile(x[:, None], (1, 12))
+    c = np.ones((n, 4), bool)
+    fast = filter_state_log(t, q, v, tau, tau, c)  # rate measured from the stamps
+    assert fast.rate_hz == pytest.approx(448.0)
+    t2, qs = resample(t, q, 250.0)
+    _, vs = resample(t, v, 250.0)
+    _, ts = resample(t, tau, 250.0)
+    slow = filter_state_log(t2, qs, vs, ts, ts, np.ones((len(t2), 4), bool), fs=250.0)
+    ok = slow.valid & (t2 > t[0] + 0.2) & (t2 < t[-1] - 0.2)
+    a_fast = np.interp(t2[ok], t[fast.valid], fast.a[fast.valid, 6])
+    tdot_fast = np.interp(t2[ok], t[fast.valid], fast.tau_dot[fast.valid, 0])
+    scale = np.max(np.abs(slow.a[ok, 6]))
+    assert np.max(np.abs(a_fast - slow.a[ok, 6])) <= 0.01 * scale
+    assert np.max(np.abs(tdot_fast - slow.tau_dot[ok, 0])) <= 0.01 * np.max(np.abs(slow.tau_dot[ok, 0]))
+
+
+def test_stamp_problems_are_counted():
+    from ciml_learning.stamps import measure_rate
+
+    t = np.arange(1000) / 448.0 + 5.0
+    t = np.delete(t, [100, 101, 102])       # a gap of 4 periods
+    t = np.insert(t, 500, t[500])            # a duplicate
+    t[700] = t[699] + 0.1 / 448.0            # a burst
+    t[800] = 0.0                             # a zero stamp (also going backwards)
+    rep = measure_rate(t)
+    assert rep.rate_hz == pytest.approx(448.0, rel=1e-6)
+    # gaps: the deleted samples, the step after the burst (1.9 periods), the step back up from 0
+    assert (rep.gaps, rep.duplicates, rep.zero_stamps) == (3, 1, 1) and rep.bursts >= 1 and rep.non_monotonic == 1
+    assert any("gap" in p for p in rep.problems())
+    assert measure_rate(np.arange(10) / 250.0).problems() == []  # a clock starting at 0 is fine

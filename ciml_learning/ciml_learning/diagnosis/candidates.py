@@ -283,7 +283,7 @@ class FeatureLayout:
         return A
 
 
-def coulomb_regressor(v_joints: np.ndarray, segment: np.ndarray | None, fs: float = 250.0,
+def coulomb_regressor(v_joints: np.ndarray, segment: np.ndarray | None, fs: "float | np.ndarray" = 250.0,
                       smoothing: float = COULOMB_SMOOTHING) -> np.ndarray:
     """LP(tanh(q̇/v_s)) per joint: the Coulomb friction torque per unit f_c as it appears after
     the same 10 Hz low-pass as the log (the friction torque switches at velocity reversals;
@@ -291,16 +291,20 @@ def coulomb_regressor(v_joints: np.ndarray, segment: np.ndarray | None, fs: floa
     s = np.tanh(np.asarray(v_joints, float) / smoothing)
     if segment is None:
         segment = np.zeros(len(s), dtype=int)
-    taps = lowpass_taps(fs)
     out = np.empty_like(s)
     for seg in np.unique(segment):
         idx = np.flatnonzero(segment == seg)
-        out[idx], _ = filter_offline(s[idx], taps)
+        out[idx], _ = filter_offline(s[idx], lowpass_taps(_segment_rate(fs, seg)))
     return out
 
 
+def _segment_rate(fs: "float | np.ndarray", seg: int) -> float:
+    """The rate [Hz] of a segment: fs, or fs[seg] for logs of different rates (FilteredLog.segment_rate_hz)."""
+    return float(fs[seg]) if np.ndim(fs) else float(fs)
+
+
 def generic_joint_basis(q_joints: np.ndarray, layout: "FeatureLayout", segment: np.ndarray | None,
-                        fs: float = 250.0) -> np.ndarray:
+                        fs: "float | np.ndarray" = 250.0) -> np.ndarray:
     """(N × n_j × N_GENERIC) the out-of-catalogue probe's basis of a joint torque f_j(q_j): 1, z, z², z³
     with z = (q_j − q̄_j)/s_j — a spring, a cable, any torque set by where the joint is. No
     velocity terms on purpose: the catalogue's Coulomb and viscous friction cover those, and a
@@ -311,11 +315,10 @@ def generic_joint_basis(q_joints: np.ndarray, layout: "FeatureLayout", segment: 
     z = (q - layout.q_center) / layout.q_scale
     if segment is None:
         segment = np.zeros(len(q), dtype=int)
-    taps = lowpass_taps(fs)
     powers = np.stack([z ** 2, z ** 3], axis=-1).reshape(len(q), -1)
     for seg in np.unique(segment):
         idx = np.flatnonzero(segment == seg)
-        powers[idx], _ = filter_offline(powers[idx], taps)
+        powers[idx], _ = filter_offline(powers[idx], lowpass_taps(_segment_rate(fs, seg)))
     return np.concatenate([np.ones_like(z)[..., None], z[..., None], powers.reshape(z.shape + (2,))], axis=-1)
 
 

@@ -68,8 +68,10 @@ def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples:
     log, targets = dataset.log, dataset.targets
     samples = np.asarray(samples, dtype=int)
     samples = samples[targets.valid[samples]]
-    coulomb = coulomb_regressor(log.v[:, 6:], log.segment)
-    generic = generic_joint_basis(log.q[:, 7:], layout, log.segment)
+    # the regressors pass through the same low-pass as the log: designed for each log's rate
+    fs = log.segment_rate_hz if log.segment_rate_hz is not None else (log.rate_hz or 250.0)
+    coulomb = coulomb_regressor(log.v[:, 6:], log.segment, fs=fs)
+    generic = generic_joint_basis(log.q[:, 7:], layout, log.segment, fs=fs)
     u_dot = command_rate(log)
     ev = RegressorEvaluator(robot, layout)
     Xr, yr, dr, sr, gr = [], [], [], [], []

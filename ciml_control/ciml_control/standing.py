@@ -15,7 +15,7 @@ from ciml_learning.dynamics import RigidBodyDynamics
 from ciml_learning.projection import contact_jacobian
 from ciml_learning.robot import RobotDescription
 
-DEFAULT_KP = 300.0  # [Nm/rad] HyQ-like joint stiffness
+DEFAULT_KP = 300.0  # [Nm/rad] HyQ-like joint stiffness; other robots: scaled (feedback.joint_gain_scale)
 DEFAULT_KD = 8.0    # [Nm s/rad]
 
 
@@ -43,7 +43,13 @@ def gravity_compensation(dyn: RigidBodyDynamics, q: np.ndarray, contacts: np.nda
 
 
 class StandingController:
-    def __init__(self, robot: RobotDescription, kp: float = DEFAULT_KP, kd: float = DEFAULT_KD) -> None:
+    def __init__(self, robot: RobotDescription, kp: float | None = None, kd: float | None = None) -> None:
+        from .feedback import joint_gain_scale
+
+        if kp is None or kd is None:
+            s_kp, s_kd = joint_gain_scale(robot)
+            kp = DEFAULT_KP * s_kp if kp is None else kp
+            kd = DEFAULT_KD * s_kd if kd is None else kd
         self.robot = robot
         self.dyn = RigidBodyDynamics(robot)
         self.kp = np.full(robot.n_joints, kp)

@@ -44,6 +44,7 @@ from ciml_learning import topics
 from ciml_learning.errors import CimlError
 from ciml_control.controller import IdController
 from ciml_control.references import MOTIONS, default_duration, make_reference
+from ciml_control.trust import TrustedEpsilonFunction
 from ciml_learning.robot import RobotDescription
 
 from . import joint_loop
@@ -56,8 +57,9 @@ PHYSICS_STEPS_PER_TICK = 4
 SETTLE_TIME = 0.5
 """[s] unrecorded pre-roll holding the reference's first point, so that the soft contacts
 and the actuators are loaded before t = 0."""
-FALL_HEIGHT = 0.3
-"""[m] a base below this height counts as a fall (HyQ stands at ~0.6 m)."""
+FALL_HEIGHT_FRACTION = 0.5
+"""A base below this fraction of the robot's standing height counts as a fall (HyQ: 0.3 m of
+~0.6 m); relative, so that a smaller robot (e.g. go1, ~0.33 m) is judged on its own size."""
 FALL_TILT = np.radians(60.0)
 
 
@@ -87,6 +89,7 @@ class RunResult:
     controller: str = ""
     wall_time: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)          # wall seconds per stage
+    epsilon_trust: dict[str, int] = field(default_factory=dict)      # ticks with ε gated / clipped (trust law)
 
     def metrics(self) -> dict:
         """The paper's closed-loop metrics (Tables I–II) of this run."""
@@ -140,7 +143,7 @@ def run_headless(
     writer=None,
     ground_truth: bool = True,
     progress: bool = True,
-    min_base_height: float = FALL_HEIGHT,
+    min_base_height: float | None = None,
     settle_time: float = SETTLE_TIME,
 ) -> RunResult:
     """Run `motion` for `duration` seconds of simulation time on the plant with the controller.
@@ -149,7 +152,8 @@ def run_headless(
     (None: the nominal model). With a `writer` (ciml_learning.bagio.BagWriter) the live
     graph's topics are written (/joint_states, /base_state, /contact_state,
     /torque_command, /clock) and, if `ground_truth`, the /sim/ topics. The run stops
-    early if the robot falls (base below `min_base_height`, tilted over 60°, or a
+    early if the robot falls (base below `min_base_height` [m], default FALL_HEIGHT_FRACTION
+    of the standing height, tilted over 60°, or a
     non-finite state); RunResult.fell says so.
     """
     if not (np.isfinite(duration) and duration > 0):
@@ -158,15 +162,19 @@ def run_headless(
     wall0 = time.perf_counter()
     plant = Plant(robot, scenario, seed=seed)
     q_stand = plant.standing_configuration()
+    if min_base_height is None:
+        min_base_height = FALL_HEIGHT_FRACTION * float(q_stand[2])
     controller, reference, name = make_controller(robot, motion, q_stand)
     grid = reference_grid(robot, motion, q_stand, reference)
     result = RunResult(controller=name)
     nv = robot.nv
     timing = {"plant_s": 0.0, "reference_s": 0.0, "controller_s": 0.0, "writer_s": 0.0, "compiled_s": 0.0}
     zeros = np.zeros(nv)  # ε of the nominal model (the controller only reads it)
+    # the id_controller node's trust law (ciml_control.trust): gate ε by its variance, clip it to physics
+    trusted = None if epsilon_fn is None else TrustedEpsilonFunction(robot, epsilon_fn)
 
     def eps(ref) -> np.ndarray:
-        return zeros if epsilon_fn is None else np.asarray(epsilon_fn(ref), dtype=float)
+        return zeros if trusted is None else trusted(ref)
 
     n_ticks = int(round(duration * CONTROL_RATE))
     n_settle = int(round(settle_time * CONTROL_RATE))
@@ -274,6 +282,8 @@ def run_headless(
             bar.close()
     result.fell, result.fall_time = fall_time is not None, fall_time
     result.qp_failures = controller.qp_failures - qp_failures_before
+    if trusted is not None:
+        result.epsilon_trust = dict(trusted.counts)
     _metrics_from_arrays(result, t_meas[:n], effort[:n], qpos[:n], q_ref[:n])
     result.wall_time = time.perf_counter() - wall0
     result.timings = {k: round(v, 4) for k, v in timing.items()}

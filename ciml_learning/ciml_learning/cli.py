@@ -26,17 +26,90 @@ def _run(module: str, function: str) -> Callable[[argparse.Namespace], int]:
     return call
 
 
+_LOG = ("A log is a bag (rosbag2 MCAP or sqlite3 directory, or a ROS 1 .bag) holding what the robot "
+        "profile's input map names: joint states (positions, velocities, efforts), the base (odometry, "
+        "pose + twist, or an IMU to estimate it), contacts (a contact topic, foot forces, or estimated) "
+        "and, optionally, the joint command (without it the actuation error is not observable). "
+        "Default profile: HyQ with CIML's topics /joint_states, /base_state, /contact_state, "
+        "/torque_command. See docs/ROBOT_PROFILE.md; 'ciml inspect --bag BAG' drafts a profile.")
+
+EPILOGS: dict[str, str] = {
+    "record": "Writes what a robot logs (CIML's own topics) plus /sim/ ground truth unless --no-ground-truth.\n"
+              "example: ciml record --scenario default_gap --motion trot_35 --duration 20 --seed 1 --out bags/t1",
+    "extract": f"{_LOG}\nexample: ciml --robot go1.yaml extract --bag run1 run2 --out targets.npz",
+    "train": f"{_LOG}\nexample: ciml train --robot go1.yaml --bag run1 run2 --learner sgpr --out model/",
+    "evaluate": f"MODEL_DIR as written by 'ciml train'. {_LOG}\n"
+                "example: ciml evaluate --model model/ --bag run3 --out metrics.json",
+    "closed-loop": "Simulates the robot (MuJoCo) with the scenario's effects under the controller.\n"
+                   "example: ciml closed-loop --scenario default_gap --motion trot_35 --model model/ --out r.json",
+    "diagnose": f"{_LOG} The logs should excite the joints (walking/trotting, ≥ 20 s in total).\n"
+                "example: ciml diagnose --robot go1.yaml --bag run1 run2 --heldout run3 --out diag/",
+    "gap-bench": "Simulates scenarios with withheld effects and scores the diagnosis on them.\n"
+                 "example: ciml gap-bench --out out/gap_bench --cases 1 2 --jobs 2",
+    "play": "Publishes every topic of the bag (any layout) with its recorded timing.\n"
+            "example: ciml play --bag bags/default_gap_base --rate 1.0",
+    "bench": "example: ciml bench --out bench.json --only extraction_throughput",
+    "launch": "example: ciml launch ciml_sim closed_loop.launch.yaml motion:=trot_35",
+    "inspect": "Any bag: rosbag2 MCAP or sqlite3 directory, or a ROS 1 .bag. Lists topics, types, counts, "
+               "measured rates and stamp problems, says which roles (joint_state, base, imu, contacts, "
+               "command) CIML can fill from which topic, and with --out writes a draft profile to edit.\n"
+               "example: ciml inspect --bag my_robot_run.bag --out my_robot.yaml",
+}
+
+
+def _feet(value: str) -> list[str]:
+    """--feet 'A,B,C,D' (or A B C D, joined by _join_feet) → names."""
+    names = [f.strip() for f in value.split(",") if f.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError("--feet needs foot frame names, e.g. --feet lf_foot,lh_foot,rf_foot,rh_foot")
+    return names
+
+
+def _global_options(parser: argparse.ArgumentParser, suppress: bool) -> None:
+    """--robot, --urdf, --feet: accepted before and after the verb (after the verb they
+    default to SUPPRESS so they do not overwrite what was given before it)."""
+    d = {"default": argparse.SUPPRESS} if suppress else {"default": None}
+    g = parser.add_argument_group("robot (before or after the verb)")
+    g.add_argument("--robot", metavar="PROFILE.yaml", help="robot profile: URDF, feet, joint map, input map "
+                   "(default: HyQ with CIML's own topics; docs/ROBOT_PROFILE.md)", **d)
+    g.add_argument("--urdf", help="robot URDF (shortcut: overrides the profile's urdf)", **d)
+    g.add_argument("--feet", type=_feet, metavar="A,B,C,D",
+                   help="foot frame names of the URDF, comma-separated or space-separated "
+                   "(overrides the profile's feet)", **d)
+
+
+def _join_feet(argv: list[str], verbs: set[str]) -> list[str]:
+    """`--feet A B C D` → `--feet=A,B,C,D`, so the names never swallow the verb."""
+    out, i = [], 0
+    while i < len(argv):
+        if argv[i] == "--feet":
+            j = i + 1
+            while j < len(argv) and not argv[j].startswith("-") and argv[j] not in verbs:
+                j += 1
+            out.append("--feet=" + ",".join(argv[i + 1:j]) if j > i + 1 else argv[i])
+            i = j
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="ciml",
         description="Contact-invariant model learning for legged robots: learn a robot's model "
         "error from sensor logs, control with it, and diagnose the sim-to-real gap.",
     )
-    p.add_argument("--urdf", help="robot URDF (default: HyQ from example-robot-data)")
-    p.add_argument("--feet", nargs="+", help="foot frame names of the URDF (default: HyQ's)")
+    _global_options(p, suppress=False)
     sub = p.add_subparsers(dest="verb", metavar="VERB", required=True)
+    parent = argparse.ArgumentParser(add_help=False)
+    _global_options(parent, suppress=True)
 
-    s = sub.add_parser("record", help="simulate a motion headless and write an MCAP bag")
+    def verb(name: str, **kw) -> argparse.ArgumentParser:
+        return sub.add_parser(name, parents=[parent], epilog=EPILOGS.get(name),
+                              formatter_class=argparse.RawDescriptionHelpFormatter, **kw)
+
+    s = verb("record", help="simulate a motion headless and write an MCAP bag")
     s.add_argument("--scenario", required=True, help="scenario YAML (unmodelled effects)")
     s.add_argument("--motion", required=True)
     s.add_argument("--duration", type=float, default=20.0, help="[s]")
@@ -45,25 +118,25 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-ground-truth", action="store_true", help="leave the /sim/ topics out")
     s.set_defaults(func=_run("ciml_sim.commands", "record"))
 
-    s = sub.add_parser("extract", help="filter logs and extract contact-invariant model errors")
+    s = verb("extract", help="filter logs and extract contact-invariant model errors")
     s.add_argument("--bag", nargs="+", required=True)
     s.add_argument("--out", required=True, help="targets .npz")
     s.set_defaults(func=_run("ciml_learning.commands", "extract"))
 
-    s = sub.add_parser("train", help="learn the model error from bags")
+    s = verb("train", help="learn the model error from bags")
     s.add_argument("--bag", nargs="+", required=True)
     s.add_argument("--learner", choices=("lwpr", "sgpr"), required=True)
     s.add_argument("--out", required=True, help="model directory")
     s.add_argument("--jobs", type=int, default=-1, help="parallel jobs (joblib; -1: all cores)")
     s.set_defaults(func=_run("ciml_learning.learning_commands", "train"))
 
-    s = sub.add_parser("evaluate", help="prediction RMSE of a model on bags, nominal vs learned")
+    s = verb("evaluate", help="prediction RMSE of a model on bags, nominal vs learned")
     s.add_argument("--model", required=True)
     s.add_argument("--bag", nargs="+", required=True)
     s.add_argument("--out", required=True, help="metrics .json")
     s.set_defaults(func=_run("ciml_learning.learning_commands", "evaluate"))
 
-    s = sub.add_parser("closed-loop", help="run a motion in simulation with a model and report tracking metrics")
+    s = verb("closed-loop", help="run a motion in simulation with a model and report tracking metrics")
     s.add_argument("--scenario", required=True)
     s.add_argument("--motion", required=True)
     s.add_argument("--model", required=True, help="MODEL_DIR, a diagnosis DIR, or 'nominal'")
@@ -74,30 +147,30 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also add the result to the closed-loop comparison of this diagnosis report")
     s.set_defaults(func=_run("ciml_sim.commands", "closed_loop"))
 
-    s = sub.add_parser("diagnose", help="where the sim-to-real gap lies, which effect causes it, how far it shrinks")
+    s = verb("diagnose", help="where the sim-to-real gap lies, which effect causes it, how far it shrinks")
     s.add_argument("--bag", nargs="+", required=True)
     s.add_argument("--heldout", nargs="+")
     s.add_argument("--out", required=True, help="output directory (diagnosis.json, report.html)")
     s.set_defaults(func=_run("ciml_learning.diagnosis.commands", "diagnose"))
 
-    s = sub.add_parser("gap-bench", help="score the diagnosis on scenarios with withheld effects")
+    s = verb("gap-bench", help="score the diagnosis on scenarios with withheld effects")
     s.add_argument("--out", required=True)
     s.add_argument("--cases", nargs="+", type=int, help="run only these case numbers (1-based)")
     s.add_argument("--jobs", type=int, default=1, help="cases run in parallel (joblib)")
     s.add_argument("--scale", type=float, default=1.0, help="scale every recording's duration")
     s.set_defaults(func=_run("ciml_sim.gapbench", "gap_bench_command"))
 
-    s = sub.add_parser("play", help="publish a bag onto the live ROS graph with its recorded timing")
+    s = verb("play", help="publish a bag onto the live ROS graph with its recorded timing")
     s.add_argument("--bag", required=True)
     s.add_argument("--rate", type=float, default=1.0)
     s.set_defaults(func=_run("ciml_learning.commands", "play"))
 
-    s = sub.add_parser("bench", help="speed and memory benchmarks (JSON)")
+    s = verb("bench", help="speed and memory benchmarks (JSON)")
     s.add_argument("--out", required=True, help="bench .json")
     s.add_argument("--only", nargs="+", help="run only these benchmarks")
     s.set_defaults(func=_run("ciml_learning.commands", "bench"))
 
-    s = sub.add_parser("launch", help="start the nodes of a YAML launch file (the file ros2 launch reads)")
+    s = verb("launch", help="start the nodes of a YAML launch file (the file ros2 launch reads)")
     s.add_argument("file", help="launch file, or a package name followed by a file of its share/PKG/launch")
     s.add_argument("arguments", nargs="*", metavar="name:=value", help="launch arguments")
     s.add_argument("-s", "--show-args", action="store_true", help="list the file's arguments and exit")
@@ -105,6 +178,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--log-dir", help="also write each node's output to LOG_DIR/<node>.log")
     s.add_argument("--stop-timeout", type=float, default=10.0, help="[s] after SIGINT before SIGTERM")
     s.set_defaults(func=_run("ciml_learning.launcher", "launch_command"))
+
+    s = verb("inspect", help="what a bag holds and which roles CIML can read from it; drafts a robot profile")
+    s.add_argument("--bag", required=True, help="bag directory (MCAP/db3) or ROS 1 .bag file")
+    s.add_argument("--out", metavar="PROFILE.yaml", help="write a draft robot profile here (atomically)")
+    s.set_defaults(func=_run("ciml_learning.inspect_log", "inspect_command"))
     return p
 
 
@@ -112,7 +190,8 @@ def main(argv: list[str] | None = None) -> int:
     # DDS stays on this machine unless the user explicitly widens it (e.g. SUBNET).
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     parser = build_parser()
-    args = parser.parse_args(argv)
+    verbs = set(next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices)
+    args = parser.parse_args(_join_feet(list(sys.argv[1:] if argv is None else argv), verbs))
     try:
         return int(args.func(args) or 0)
     except CimlError as err:
@@ -123,10 +202,26 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-def robot_from_args(args: argparse.Namespace):
-    from .robot import load_robot
+def profile_from_args(args: argparse.Namespace):
+    """The robot profile of --robot (default: HyQ) with the --urdf/--feet shortcuts applied."""
+    cached = getattr(args, "_profile", None)
+    if cached is not None:
+        return cached
+    from .profile import load_profile, with_overrides
 
-    return load_robot(getattr(args, "urdf", None), getattr(args, "feet", None))
+    prof = with_overrides(load_profile(getattr(args, "robot", None)), getattr(args, "urdf", None),
+                          getattr(args, "feet", None))
+    args._profile = prof
+    return prof
+
+
+def robot_from_args(args: argparse.Namespace):
+    """The RobotDescription of --robot / --urdf / --feet (profile's torque limits applied)."""
+    cached = getattr(args, "_robot", None)
+    if cached is None:
+        cached = profile_from_args(args).robot()
+        args._robot = cached
+    return cached
 
 
 if __name__ == "__main__":

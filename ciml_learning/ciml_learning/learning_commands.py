@@ -10,14 +10,15 @@ from .errors import CimlError
 
 def train(args: argparse.Namespace) -> int:
     """`ciml train --bag BAG... --learner lwpr|sgpr --out MODEL_DIR [--jobs N]`."""
-    from .cli import robot_from_args
+    from .cli import profile_from_args, robot_from_args
     from .training import train_from_bags
 
     if args.jobs == 0 or args.jobs < -1:
         raise CimlError(f"--jobs must be a positive number of processes or -1 (all cores), got {args.jobs}")
     robot = robot_from_args(args)
     t0 = time.perf_counter()
-    model_set = train_from_bags(robot, args.bag, args.learner, n_jobs=args.jobs, progress=True)
+    model_set = train_from_bags(robot, args.bag, args.learner, n_jobs=args.jobs, progress=True,
+                                profile=profile_from_args(args))
     meta = model_set.save(args.out)
     learned = [d["name"] for d in meta["dimensions"] if d["learned"]]
     print(json.dumps({"out": args.out, "learner": args.learner, "samples": meta["training"]["samples"],
@@ -29,14 +30,14 @@ def train(args: argparse.Namespace) -> int:
 
 def evaluate(args: argparse.Namespace) -> int:
     """`ciml evaluate --model MODEL_DIR --bag BAG... --out metrics.json`."""
-    from .cli import robot_from_args
+    from .cli import profile_from_args, robot_from_args
     from .fileio import atomic_write_json
     from .models import ModelSet
     from .training import evaluate_on_bags
 
     robot = robot_from_args(args)
     model_set = ModelSet.load(args.model, robot)
-    metrics = evaluate_on_bags(robot, model_set, args.bag, progress=True)
+    metrics = evaluate_on_bags(robot, model_set, args.bag, progress=True, profile=profile_from_args(args))
     metrics["model"] = args.model
     atomic_write_json(args.out, metrics)
     print(json.dumps({"out": args.out, **{k: v for k, v in metrics["summary"].items() if k != "note"}}))

@@ -6,14 +6,16 @@ import os
 
 
 def diagnose(args: argparse.Namespace) -> int:
-    from ..cli import robot_from_args
+    from ..cli import profile_from_args, robot_from_args
     from .report import answers
     from .run import diagnose as run
 
     robot = robot_from_args(args)
-    result = run(robot, args.bag, args.heldout, args.out, progress=True)
+    result = run(robot, args.bag, args.heldout, args.out, progress=True, profile=profile_from_args(args))
     print(f"diagnosis: {os.path.join(args.out, 'diagnosis.json')}")
     print(f"report:    {os.path.join(args.out, 'report.html')}")
     for line in answers(result):
         print(line)
+    for w in result["data"].get("warnings", []):
+        print(f"warning: {w}")
     return 0

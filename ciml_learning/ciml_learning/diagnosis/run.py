@@ -47,7 +47,7 @@ def _say(progress: bool, msg: str) -> None:
 
 def split_heldout(dataset, fraction: float = HELDOUT_FRACTION) -> tuple[np.ndarray, np.ndarray, str]:
     """(identification samples, held-out samples, description) of one dataset without --heldout."""
-    from ..filters import delay_samples
+    from ..filters import delay_for_rate
 
     n_bags = len(dataset.bags)
     idx = np.arange(len(dataset.targets.t))
@@ -59,7 +59,7 @@ def split_heldout(dataset, fraction: float = HELDOUT_FRACTION) -> tuple[np.ndarr
         return idx[~mask], idx[mask], f"whole bags held out: {', '.join(names)}"
     t = dataset.targets.t
     cut = int(np.searchsorted(t, t[0] + (1 - fraction) * (t[-1] - t[0])))
-    guard = delay_samples()
+    guard = delay_for_rate(dataset.rate_hz)  # the filter's half window at the log's rate
     return (idx[: max(0, cut - guard)], idx[cut + guard:],
             f"last {fraction:.0%} of time held out of {dataset.bags[0]} (t ≥ {t[cut] - t[0]:.2f} s from its start)")
 
@@ -149,8 +149,10 @@ def _unmodelled_entry(layout: FeatureLayout, dataset, samples: np.ndarray, cand,
 
 
 def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str] | None = None,
-             out_dir: str | None = None, progress: bool = True, report: bool = True) -> dict:
-    """Run the diagnosis; write DIR/diagnosis.json (atomically) and DIR/report.html if out_dir."""
+             out_dir: str | None = None, progress: bool = True, report: bool = True, profile=None) -> dict:
+    """Run the diagnosis; write DIR/diagnosis.json (atomically) and DIR/report.html if out_dir.
+
+    profile: the robot profile the bags are read through (None: CIML's own topics)."""
     t_start = time.perf_counter()
     bags = [str(b) for b in bags]
     if not bags:
@@ -161,10 +163,10 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
         if not os.path.exists(b):
             raise DiagnosisError(f"bag not found: {b}")
     _say(progress, f"reading {len(bags)} bag(s)")
-    ds_id = load_dataset(robot, bags, progress=progress)
+    ds_id = load_dataset(robot, bags, progress=progress, profile=profile)
     if heldout:
         _say(progress, f"reading {len(heldout)} held-out bag(s)")
-        ds_ho = load_dataset(robot, [str(b) for b in heldout], progress=progress)
+        ds_ho = load_dataset(robot, [str(b) for b in heldout], progress=progress, profile=profile)
         id_idx = np.arange(len(ds_id.targets.t))
         ho_idx = np.arange(len(ds_ho.targets.t))
         how = "held-out bags given with --heldout"
@@ -179,7 +181,8 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     for name, rows in (("identification", rows_id), ("held-out", rows_ho)):
         if len(rows.samples) < MIN_SAMPLES:
             raise DiagnosisError(f"only {len(rows.samples)} valid {name} samples (need ≥ {MIN_SAMPLES}, "
-                                 f"{MIN_SAMPLES / 250:.0f} s at 250 Hz); give longer or more bags")
+                                 f"{MIN_SAMPLES / ds_id.rate_hz:.1f} s at the log's {ds_id.rate_hz:.0f} Hz); "
+                                 "give longer or more bags")
     g_id, g_ho = grams(rows_id), grams(rows_ho)
     _say(progress, "selecting effects on held-out data")
     sel = select(layout, g_id, g_ho, subsets=consistency_subsets(robot, ds_id, rows_id),
@@ -236,6 +239,12 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
             "samples": int(len(rows_id.samples)),
             "heldout_samples": int(len(rows_ho.samples)),
             "rejected": {k: int(v) for k, v in ds_id.rejected.items()},
+            "rate_hz": ds_id.rate_hz,
+            "actuation_observed": bool(ds_id.u_observed and ds_ho.u_observed),
+            "warnings": ds_id.warnings + [w for w in ds_ho.warnings if w not in ds_id.warnings],
+            "inputs": [{k: i[k] for k in ("bag", "rate_hz", "u_observed", "sources")}
+                       | {"stamp_problems": i["stamp_report"].get("problems", [])}
+                       for i in ds_id.inputs + (ds_ho.inputs if heldout else [])],
         },
         "selection": {
             "steps": [{"accepted": s.accepted, "gain_share": s.gain_share, "runner_up": s.runner_up,

@@ -1,0 +1,63 @@
+"""`ciml inspect`: topics, rates, stamp problems, role guesses; the draft profile reads the bag."""
+import os
+import sys
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, os.path.dirname(__file__))
+
+from foreign_bags import FEET, UNITREE_ORDER, go1_messages, store, write_bag  # noqa: E402
+
+from ciml_learning.cli import main  # noqa: E402
+from ciml_learning.inspect_log import inspect_bag  # noqa: E402
+from ciml_learning.loginputs import load_log  # noqa: E402
+from ciml_learning.profile import load_profile, shipped_profile  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def go1_bag(tmp_path_factory):
+    robot = load_profile(shipped_profile("go1")).robot()
+    return robot, write_bag(tmp_path_factory.mktemp("i") / "go1", go1_messages(robot, store(), 448.0, 1.0))
+
+
+def test_inspect_reports_topics_rates_and_roles(go1_bag):
+    robot, bag = go1_bag
+    rep = inspect_bag(str(bag), robot.joint_names, robot.foot_frames)
+    by = {d["topic"]: d for d in rep["topics"]}
+    assert by["/joint_states"]["rate_hz"] == pytest.approx(448.0, rel=1e-3)
+    assert by["/low_cmd"]["stamps"] == "recording time (no header)"
+    roles = rep["roles"]
+    assert roles["joint_state"]["spec"]["topic"] == "/joint_states"
+    assert roles["base"]["spec"] == {"topic": "/odom", "type": "nav_msgs/msg/Odometry", "twist_frame": "world"}
+    assert roles["contacts"]["spec"]["names"] == FEET and 0 < roles["contacts"]["spec"]["threshold"] < 100
+    assert roles["command"]["spec"]["fields"]["kp"] == "motor_cmd[*].kp"
+    assert rep["extra_joint_entries"] == FEET
+
+
+def test_draft_profile_loads_the_bag(go1_bag, tmp_path, capsys):
+    robot, bag = go1_bag
+    out = tmp_path / "draft.yaml"
+    assert main(["inspect", "--bag", str(bag), "--out", str(out), "--robot", shipped_profile("go1")]) == 0
+    text = capsys.readouterr().out
+    assert "/joint_states" in text and "448.0" in text and "draft profile" in text
+    prof = load_profile(out)
+    assert list(prof.inputs["command"]["joints"]) == UNITREE_ORDER  # taken from the given profile
+    log = load_log(prof.robot(), bag, prof)
+    assert log.rate_hz == pytest.approx(448.0, rel=1e-3) and len(log) > 400
+    # forces 0/100 N: the drafted threshold separates them; the drafted command is the PD law
+    assert log.contacts[:, 0].any() and not log.contacts[:, 0].all() and log.contacts[:, 1:].all()
+    assert log.u_observed and not any("follows the command" in w for w in log.warnings)
+
+
+def test_inspect_without_a_robot_and_stamp_problems(tmp_path, capsys):
+    robot = load_profile(shipped_profile("go1")).robot()
+    msgs = go1_messages(robot, store(), 250.0, 0.4)
+    msgs = [m for i, m in enumerate(msgs) if not (m[0] == "/joint_states" and 40 <= i // 4 < 45)]
+    bag = write_bag(tmp_path / "gappy", msgs, fmt="sqlite3")
+    assert main(["inspect", "--bag", str(bag)]) == 0
+    out = capsys.readouterr().out
+    assert "1 gaps" in out and "imu" in out
+    rep = inspect_bag(str(bag))
+    assert rep["roles"]["contacts"]["spec"]["names"] == FEET  # foot-like entries by name
+    assert np.isclose(rep["topics"][1]["rate_hz"], 250.0)

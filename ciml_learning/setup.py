@@ -27,6 +27,7 @@ setup(
             "error_extractor = ciml_learning.nodes.error_extractor:main",
             "online_learner = ciml_learning.nodes.online_learner:main",
             "model_server = ciml_learning.nodes.model_server:main",
+            "state_publisher = ciml_learning.nodes.state_publisher:main",
         ],
     },
 )

@@ -59,3 +59,245 @@ def test_health_condition_raised_then_cleared_returns_to_ok(node_in_private_cont
     assert health.status().level == bytes([WARN])
     health.set(OK, "torque control")
     assert health.status().level == bytes([OK])
+
+
+def start(exe: str, module: str, *ros_args: str) -> subprocess.Popen:
+    """A node by its console script, or by its module before the venv was re-installed."""
+    if os.path.exists(os.path.join(BIN, exe)):
+        return start_node(exe, *ros_args)
+    cmd = [sys.executable, "-m", module] + (["--ros-args", *ros_args] if ros_args else [])
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+# --- /tf and /robot_description ------------------------------------------------------------------
+
+
+def _compose(chain):
+    import pinocchio as pin
+
+    T = pin.SE3.Identity()
+    for tf in chain:
+        t, r = tf.transform.translation, tf.transform.rotation
+        T = T * pin.XYZQUATToSE3([t.x, t.y, t.z, r.x, r.y, r.z, r.w])
+    return T
+
+
+@pytest.mark.ros
+def test_state_publisher_tf_matches_pinocchio_fk():
+    import numpy as np
+    import pinocchio as pin
+    from nav_msgs.msg import Odometry
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+    from tf2_msgs.msg import TFMessage
+
+    from ciml_learning import conversions as cv
+    from ciml_learning.robot import load_robot
+
+    robot = load_robot()
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    listener = Listener({"/tf": TFMessage, "/tf_static": TFMessage, "/robot_description": String},
+                        qos={"/tf_static": latched, "/robot_description": latched})
+    pub_j = listener.node.create_publisher(JointState, "/joint_states", 10)
+    pub_b = listener.node.create_publisher(Odometry, "/base_state", 10)
+    rng = np.random.default_rng(3)
+    q_j = robot.standing_joints + rng.uniform(-0.3, 0.3, robot.n_joints)
+    position, quat = np.array([0.4, -0.2, 0.6]), rng.normal(size=4)
+    quat /= np.linalg.norm(quat)
+    node = start("state_publisher", "ciml_learning.nodes.state_publisher")
+    try:
+        def sent_and_received():
+            ns = time.time_ns()
+            pub_j.publish(cv.joint_state_msg(robot, ns, q_j, np.zeros(robot.n_joints), np.zeros(robot.n_joints)))
+            pub_b.publish(cv.odometry_msg(ns, position, quat, np.zeros(3), np.zeros(3)))
+            frames = {tf.child_frame_id for m in listener.messages["/tf"] for tf in m.transforms}
+            return "base_link" in frames and "lf_lowerleg" in frames and listener.messages["/tf_static"]
+        assert listener.wait_for(sent_and_received, timeout=30), stop(node)
+        assert listener.wait_for(lambda: listener.messages["/robot_description"], 5)
+    finally:
+        log = stop(node)
+        listener.close()
+    assert "Traceback" not in log, log
+    urdf = listener.messages["/robot_description"][-1].data
+    assert urdf.startswith("<?xml") or "<robot" in urdf
+    latest = {}
+    for m in listener.messages["/tf"] + listener.messages["/tf_static"]:
+        for tf in m.transforms:
+            latest[tf.child_frame_id] = tf
+    assert latest["base_link"].header.frame_id == "world"  # the bridge's odometry frame
+    # walk lf_foot → root through the parents, then compose root → lf_foot
+    chain, frame = [], "lf_foot"
+    while frame in latest:
+        chain.append(latest[frame])
+        frame = latest[frame].header.frame_id
+    assert frame == "world"
+    T = _compose(reversed(chain))
+    q = np.concatenate([position, quat, q_j])
+    data = robot.model.createData()
+    pin.framesForwardKinematics(robot.model, data, q)
+    expected = data.oMf[robot.model.getFrameId("lf_foot")]
+    assert np.allclose(T.translation, expected.translation, atol=1e-6), (T.translation, expected.translation)
+    assert np.allclose(T.rotation, expected.rotation, atol=1e-6)
+
+
+# --- QoS: a default-QoS reader (a dashboard) receives every topic; clean exits on signals ----------
+
+NODES = {  # executable -> (module, ros args of a small live graph)
+    "mujoco_bridge": ("ciml_sim.bridge_node", ()),
+    "reference_generator": ("ciml_control.nodes.reference_generator", ("-p", "motion:=stand")),
+    "id_controller": ("ciml_control.nodes.id_controller", ()),
+    "state_filter": ("ciml_learning.nodes.state_filter", ()),
+    "error_extractor": ("ciml_learning.nodes.error_extractor", ()),
+    "model_server": ("ciml_learning.nodes.model_server", ()),
+    "online_learner": ("ciml_learning.nodes.online_learner", ()),
+    "state_publisher": ("ciml_learning.nodes.state_publisher", ()),
+}
+
+
+def _start_graph(tmp_path, names=tuple(NODES)) -> dict[str, subprocess.Popen]:
+    procs = {}
+    for exe in names:
+        module, args = NODES[exe]
+        if exe == "online_learner":  # snapshots into the test's folder
+            args = (*args, "-p", f"model_dir:={tmp_path / 'online'}")
+        procs[exe] = start(exe, module, *args)
+    return procs
+
+
+def _signal_all(procs: dict[str, subprocess.Popen], sig: int) -> dict[str, tuple[int, str]]:
+    for p in procs.values():
+        if p.poll() is None:
+            p.send_signal(sig)
+    out = {}
+    for exe, p in procs.items():
+        try:
+            log, _ = p.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            log, _ = p.communicate()
+            log += "\n[test] killed after 20 s"
+        out[exe] = (p.returncode, log or "")
+    return out
+
+
+def _assert_clean(results: dict[str, tuple[int, str]], what: str) -> None:
+    bad = {exe: (rc, log[-1500:]) for exe, (rc, log) in results.items() if rc != 0 or "Traceback" in log}
+    assert not bad, f"{what}: {bad}"
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_default_qos_reader_receives_every_topic_and_nodes_exit_cleanly(tmp_path):
+    from ciml_msgs.msg import ContactState, ModelError, RobotReference, RobotState, TorqueCommand
+    from diagnostic_msgs.msg import DiagnosticArray
+    from nav_msgs.msg import Odometry
+    from rclpy.qos import QoSProfile
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+    from tf2_msgs.msg import TFMessage
+
+    from ciml_learning import topics
+
+    wanted = {topics.JOINT_STATES: JointState, topics.BASE_STATE: Odometry, topics.CONTACT_STATE: ContactState,
+              topics.CLOCK: Clock, topics.TORQUE_COMMAND: TorqueCommand, topics.REFERENCE: RobotReference,
+              topics.FILTERED_STATE: RobotState, topics.MODEL_ERROR_MEASURED: ModelError,
+              topics.MODEL_ERROR_PREDICTED: ModelError, topics.DIAGNOSTICS: DiagnosticArray, topics.TF: TFMessage}
+    default = QoSProfile(depth=10)  # what `ros2 topic echo`, Foxglove and PlotJuggler use
+    assert default.reliability.name == "RELIABLE" and default.durability.name == "VOLATILE"
+    listener = Listener(wanted, qos={t: default for t in wanted})
+    procs = _start_graph(tmp_path)
+    try:
+        ok = listener.wait_for(lambda: all(len(listener.messages[t]) >= 5 for t in wanted), timeout=90)
+        missing = {t: len(listener.messages[t]) for t in wanted if len(listener.messages[t]) < 5}
+    finally:
+        results = _signal_all(procs, signal.SIGINT)
+        listener.close()
+    assert ok, f"topics a default-QoS reader did not receive: {missing}; logs: " + str(
+        {k: v[1][-800:] for k, v in results.items()})
+    _assert_clean(results, "SIGINT of the running graph")
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.parametrize("sig,after", [(signal.SIGINT, 0.0), (signal.SIGTERM, 0.0), (signal.SIGTERM, 3.0)],
+                         ids=["sigint-starting", "sigterm-starting", "sigterm-running"])
+def test_every_node_exits_cleanly_on_signals(tmp_path, sig, after):
+    """The mechanism (ros_common.run_node), three times per node: as soon as the node is on the
+    graph (the signal races its construction and first spin) and while the graph runs.
+    (Before rclpy.init, i.e. while Python imports the node's modules, a signal has its default
+    effect; that is not covered here.)"""
+    listener = Listener({})
+    procs = _start_graph(tmp_path)
+    try:
+        up = listener.wait_for(lambda: set(NODES) <= set(listener.node.get_node_names()), timeout=90)
+        names = listener.node.get_node_names()
+    finally:
+        listener.close()
+    time.sleep(after)
+    results = _signal_all(procs, sig)
+    assert up, f"nodes not on the graph after 90 s: {set(NODES) - set(names)}"
+    _assert_clean(results, f"{signal.Signals(sig).name} {after} s after all nodes were up")
+
+
+# --- bad parameters: one logged line, non-zero exit ------------------------------------------------
+
+BAD = {  # executable -> a numeric parameter
+    "mujoco_bridge": "publish_rate", "reference_generator": "rate", "id_controller": "rate",
+    "state_filter": "rate", "error_extractor": "gamma", "model_server": "swap_check_period",
+    "online_learner": "snapshot_period", "state_publisher": "publish_rate",
+}
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("value", ["abc", "-5.0"], ids=["wrong-type", "out-of-range"])
+def test_bad_parameter_is_one_line_and_exit_1(value):
+    procs = {exe: start(exe, NODES[exe][0], "-p", f"{param}:={value}") for exe, param in BAD.items()}
+    results = {}
+    for exe, p in procs.items():
+        try:
+            log, _ = p.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            log, _ = p.communicate()
+        results[exe] = (p.returncode, [line for line in (log or "").splitlines() if line.strip()])
+    for exe, (rc, lines) in results.items():
+        assert rc == 1 and len(lines) == 1 and "Traceback" not in lines[0], (exe, rc, lines)
+        assert BAD[exe] in lines[0], (exe, lines)
+
+
+# --- the venv as an ament prefix ---------------------------------------------------------------
+
+
+def test_sourcing_setup_bash_makes_the_venv_an_ament_prefix():
+    setup = os.path.join(sys.prefix, "setup.bash")
+    assert os.path.isfile(setup), "run `make install` (tools/ament_layout.py writes .venv/setup.bash)"
+    probe = (
+        "import json, os\n"
+        "from importlib.metadata import distribution\n"
+        "from ament_index_python.packages import get_package_prefix, get_package_share_directory\n"
+        "out = {}\n"
+        "for pkg in ('ciml_learning', 'ciml_control', 'ciml_sim'):\n"
+        "    prefix = get_package_prefix(pkg)\n"
+        "    exes = sorted(e.name for e in distribution(pkg).entry_points if e.group == 'console_scripts')\n"
+        "    runnable = [e for e in exes if os.access(os.path.join(prefix, 'lib', pkg, e), os.X_OK)]\n"
+        "    out[pkg] = dict(prefix=prefix, exes=exes, runnable=runnable,\n"
+        "                    share=os.path.isfile(os.path.join(get_package_share_directory(pkg), 'package.xml')))\n"
+        "print(json.dumps(out))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("AMENT_PREFIX_PATH", "CMAKE_PREFIX_PATH")}
+    env["PATH"] = "/usr/bin:/bin"  # the venv's python must come from setup.bash
+    res = subprocess.run(["bash", "-c", f'source "{setup}" && python -c "$PROBE"'], env={**env, "PROBE": probe},
+                         capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr[-2000:]
+    import json
+
+    found = json.loads(res.stdout.strip().splitlines()[-1])
+    for pkg, info in found.items():
+        assert os.path.realpath(info["prefix"]) == os.path.realpath(sys.prefix), (pkg, info)
+        assert info["share"] and info["exes"] and info["runnable"] == info["exes"], (pkg, info)
+    assert "mujoco_bridge" in found["ciml_sim"]["runnable"] and "id_controller" in found["ciml_control"]["runnable"]
+    # without it, the lookup fails (the test above is not vacuous)
+    res = subprocess.run([sys.executable, "-c", "from ament_index_python.packages import get_package_prefix as g; "
+                          "g('ciml_sim')"], env=env, capture_output=True, text=True, timeout=60)
+    assert res.returncode != 0

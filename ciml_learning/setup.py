@@ -13,6 +13,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/config/layouts", glob("config/layouts/*")),  # Foxglove, PlotJuggler
     ],
     install_requires=["setuptools"],
     zip_safe=False,
@@ -27,6 +28,7 @@ setup(
             "error_extractor = ciml_learning.nodes.error_extractor:main",
             "online_learner = ciml_learning.nodes.online_learner:main",
             "model_server = ciml_learning.nodes.model_server:main",
+            "state_publisher = ciml_learning.nodes.state_publisher:main",
             "state_publisher = ciml_learning.nodes.state_publisher:main",
         ],
     },

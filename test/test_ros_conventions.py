@@ -301,3 +301,79 @@ def test_sourcing_setup_bash_makes_the_venv_an_ament_prefix():
     res = subprocess.run([sys.executable, "-c", "from ament_index_python.packages import get_package_prefix as g; "
                           "g('ciml_sim')"], env=env, capture_output=True, text=True, timeout=60)
     assert res.returncode != 0
+
+
+# --- shipped layouts and the diagnostic aggregator -------------------------------------------------
+
+CONFIG = os.path.join(ROOT, "ciml_learning", "config")
+
+
+def test_foxglove_layout_parses_and_plots_named_fields_of_existing_topics():
+    import json
+    import re
+
+    from ciml_learning import topics
+    from ciml_learning.robot import load_robot
+
+    robot = load_robot()
+    with open(os.path.join(CONFIG, "layouts", "ciml_foxglove.json"), encoding="utf-8") as f:
+        layout = json.load(f)
+    panels = layout["configById"]
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    assert sorted(leaves(layout["layout"])) == sorted(panels)  # every panel placed, none dangling
+    three_d = next(v for k, v in panels.items() if k.startswith("3D!"))
+    urdf = [layer for layer in three_d["layers"].values() if layer["layerId"] == "foxglove.Urdf"]
+    assert urdf and urdf[0]["topic"] == topics.ROBOT_DESCRIPTION and topics.TF in three_d["topics"]
+    names = {"rbd_error": robot.rbd_error_names, "actuation_error": robot.joint_names}
+    plotted = set()
+    for key, panel in panels.items():
+        if key.startswith("Plot!"):
+            for path in panel["paths"]:
+                m = re.fullmatch(r"(/[\w/]+)\.(\w+)\[(\d+)\]", path["value"])
+                assert m, path
+                topic, field, index = m.group(1), m.group(2), int(m.group(3))
+                assert topic in (topics.MODEL_ERROR_MEASURED, topics.MODEL_ERROR_PREDICTED)
+                assert path["label"].split()[0] == names[field][index], path  # the label names the field
+                plotted.add(topic)
+        if key.startswith("Diagnostic"):
+            assert panel["topicToRender"] == topics.DIAGNOSTICS
+    assert plotted == {topics.MODEL_ERROR_MEASURED, topics.MODEL_ERROR_PREDICTED}
+
+
+def test_plotjuggler_layout_parses_and_references_existing_topics():
+    import re
+    from xml.etree import ElementTree
+
+    from ciml_learning import topics
+    from ciml_learning.robot import load_robot
+
+    robot = load_robot()
+    root = ElementTree.parse(os.path.join(CONFIG, "layouts", "ciml_plotjuggler.xml")).getroot()
+    selected = {t.get("name") for t in root.iter("topic")}
+    assert selected and selected <= set(topics.TYPES)
+    curves = [c.get("name") for c in root.iter("curve")]
+    assert len(curves) >= 4
+    sizes = {"rbd_error": len(robot.rbd_error_names), "actuation_error": robot.n_joints}
+    for name in curves:
+        m = re.fullmatch(r"(/[\w/]+)/(rbd_error|actuation_error)\[(\d+)\]", name)
+        assert m and m.group(1) in selected and int(m.group(3)) < sizes[m.group(2)], name
+
+
+def test_diagnostic_aggregator_covers_every_node_once():
+    import yaml
+    from importlib.metadata import distribution
+
+    with open(os.path.join(CONFIG, "diagnostic_aggregator.yaml"), encoding="utf-8") as f:
+        params = yaml.safe_load(f)["analyzers"]["ros__parameters"]
+    analyzers = {k: v for k, v in params.items() if isinstance(v, dict)}
+    assert all(a["type"] == "diagnostic_aggregator/GenericAnalyzer" and a["path"] for a in analyzers.values())
+    nodes = {name for name in NODES}
+    for node in nodes:
+        owners = [k for k, a in analyzers.items() if node in a["contains"]]
+        assert len(owners) == 1, (node, owners)
+    for pkg in ("ciml_learning", "ciml_control", "ciml_sim"):  # every installed node executable is in NODES
+        exes = {e.name for e in distribution(pkg).entry_points if e.group == "console_scripts"} - {"ciml"}
+        assert exes <= nodes, exes - nodes

@@ -61,6 +61,9 @@ FALL_HEIGHT_FRACTION = 0.5
 """A base below this fraction of the robot's standing height counts as a fall (HyQ: 0.3 m of
 ~0.6 m); relative, so that a smaller robot (e.g. go1, ~0.33 m) is judged on its own size."""
 FALL_TILT = np.radians(60.0)
+SENSOR_RATES: tuple[float, ...] = (250.0, 500.0, 1000.0)
+"""Rates [Hz] the sensor topics can be written at: the control rate or a divisor of the
+1 kHz physics that splits a tick into whole physics steps."""
 
 
 class RecordError(CimlError):
@@ -145,6 +148,7 @@ def run_headless(
     progress: bool = True,
     min_base_height: float | None = None,
     settle_time: float = SETTLE_TIME,
+    sensor_rate: float = CONTROL_RATE,
 ) -> RunResult:
     """Run `motion` for `duration` seconds of simulation time on the plant with the controller.
 
@@ -155,7 +159,15 @@ def run_headless(
     early if the robot falls (base below `min_base_height` [m], default FALL_HEIGHT_FRACTION
     of the standing height, tilted over 60°, or a
     non-finite state); RunResult.fell says so.
+
+    sensor_rate [Hz]: the rate of the written sensor topics (/joint_states, /base_state,
+    /contact_state, /clock and the /sim/ ground truth), one of SENSOR_RATES; the controller
+    still runs at CONTROL_RATE (one /torque_command per tick, applied by the 1 kHz joint loop
+    in between), as a robot whose state estimator publishes faster than its controller.
     """
+    if sensor_rate not in SENSOR_RATES:
+        raise RecordError(f"sensor rate {sensor_rate} Hz is not supported; valid: "
+                          f"{', '.join(f'{r:g}' for r in SENSOR_RATES)}")
     if not (np.isfinite(duration) and duration > 0):
         raise RecordError(f"duration must be a positive number of seconds, got {duration}")
     check_motion(motion)
@@ -177,6 +189,7 @@ def run_headless(
         return zeros if trusted is None else trusted(ref)
 
     n_ticks = int(round(duration * CONTROL_RATE))
+    sub_samples = int(round(sensor_rate / CONTROL_RATE))
     n_settle = int(round(settle_time * CONTROL_RATE))
     sample_writer = _SampleWriter(writer, robot, plant, ground_truth) if writer is not None else None
     # logs of the run (paper metrics from arrays at the end) and scratch logs of the pre-roll
@@ -220,7 +233,14 @@ def run_headless(
             return True
         plant.set_command(out.feedforward + out.feedback_linearization, out.q_target, out.qd_target, out.kp, out.kd,
                           stamp=m.time)  # computed for this sample (its /torque_command stamp)
-        plant.step(PHYSICS_STEPS_PER_TICK)
+        if writer is not None and sub_samples > 1:
+            # sensor samples between two control ticks (no command: the controller runs at 250 Hz)
+            for _ in range(sub_samples - 1):
+                plant.step(PHYSICS_STEPS_PER_TICK // sub_samples)
+                writer.write_sensors(plant.measure())
+            plant.step(PHYSICS_STEPS_PER_TICK // sub_samples)
+        else:
+            plant.step(PHYSICS_STEPS_PER_TICK)
         t5 = time.perf_counter()
         timing["plant_s"] += (t1 - t0) + (t5 - t4)
         timing["reference_s"] += t2 - t1
@@ -396,6 +416,23 @@ class _SampleWriter:
         self.writer, self.robot, self.plant, self.ground_truth = writer, robot, plant, ground_truth
         self.serializer = _sample_serializer(robot) if hasattr(writer, "write_serialized") else None
 
+    def write_sensors(self, m: Measurement) -> None:
+        """The sensor topics (and the ground truth) of a sample between two control ticks."""
+        truth = self.plant.ground_truth() if self.ground_truth else None
+        ns = int(round(m.time * 1e9))
+        if self.serializer is None:
+            _write_sample(self.writer, self.robot, m, None, truth)
+            return
+        write, ser = self.writer.write_serialized, self.serializer
+        write(topics.CLOCK, ns, ser.clock.serialize(ns))
+        write(topics.JOINT_STATES, ns, ser.joint_states.serialize(ns, m.q, m.qd, m.tau_measured))
+        write(topics.BASE_STATE, ns, ser.base_state.serialize(ns, m.base_position, m.base_orientation,
+                                                             m.base_linear_velocity, m.base_angular_velocity))
+        write(topics.CONTACT_STATE, ns, ser.contact_state.serialize(ns, m.contacts))
+        if truth is not None:
+            for topic, data in ser.ground_truth(ns, truth):
+                write(topic, ns, data)
+
     def write(self, m: Measurement, out) -> None:
         truth = self.plant.ground_truth() if self.ground_truth else None
         ser = self.serializer
@@ -412,20 +449,22 @@ class _SampleWriter:
 
 
 def _write_sample(writer, robot: RobotDescription, m: Measurement, out, truth: GroundTruth | None) -> None:
+    """One sample's live topics (the command only with a controller output `out`) and ground truth."""
     from rosgraph_msgs.msg import Clock
 
     ns = int(round(m.time * 1e9))
-    cmd = cv.TorqueCommandArrays(mode=0, feedforward=np.asarray(out.feedforward, float),
-                                 feedback_linearization=np.asarray(out.feedback_linearization, float),
-                                 position_target=np.asarray(out.q_target, float),
-                                 velocity_target=np.asarray(out.qd_target, float),
-                                 stiffness=np.asarray(out.kp, float), damping=np.asarray(out.kd, float))
     writer.write(topics.CLOCK, ns, Clock(clock=cv.stamp_msg(ns)))
     writer.write(topics.JOINT_STATES, ns, cv.joint_state_msg(robot, ns, m.q, m.qd, m.tau_measured))
     writer.write(topics.BASE_STATE, ns, cv.odometry_msg(ns, m.base_position, m.base_orientation,
                                                         m.base_linear_velocity, m.base_angular_velocity))
     writer.write(topics.CONTACT_STATE, ns, cv.contact_state_msg(robot, ns, m.contacts))
-    writer.write(topics.TORQUE_COMMAND, ns, cv.torque_command_msg(robot, ns, cmd))
+    if out is not None:
+        cmd = cv.TorqueCommandArrays(mode=0, feedforward=np.asarray(out.feedforward, float),
+                                     feedback_linearization=np.asarray(out.feedback_linearization, float),
+                                     position_target=np.asarray(out.q_target, float),
+                                     velocity_target=np.asarray(out.qd_target, float),
+                                     stiffness=np.asarray(out.kp, float), damping=np.asarray(out.kd, float))
+        writer.write(topics.TORQUE_COMMAND, ns, cv.torque_command_msg(robot, ns, cmd))
     if truth is not None:
         write_ground_truth(writer, robot, ns, truth)
 

@@ -29,7 +29,6 @@ setup(
             "online_learner = ciml_learning.nodes.online_learner:main",
             "model_server = ciml_learning.nodes.model_server:main",
             "state_publisher = ciml_learning.nodes.state_publisher:main",
-            "state_publisher = ciml_learning.nodes.state_publisher:main",
         ],
     },
 )

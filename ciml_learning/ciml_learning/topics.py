@@ -22,12 +22,6 @@ ROBOT_DESCRIPTION = "/robot_description"
 """The URDF text (std_msgs/String, transient local), as robot_state_publisher publishes it."""
 GAP_DIAGNOSIS = "/gap_diagnosis"
 """`ciml diagnose --publish`: the diagnosis summary, once, transient local."""
-TF = "/tf"
-TF_STATIC = "/tf_static"
-ROBOT_DESCRIPTION = "/robot_description"
-"""The URDF text (std_msgs/String, transient local), as robot_state_publisher publishes it."""
-GAP_DIAGNOSIS = "/gap_diagnosis"
-"""`ciml diagnose --publish`: the diagnosis summary, once, transient local."""
 
 SIM_PREFIX = "/sim/"
 """Simulation-only ground truth. Never read by learning or diagnosis code."""
@@ -47,10 +41,6 @@ TYPES: dict[str, str] = {
     MODEL_UPDATE: "ciml_msgs/msg/ModelUpdate",
     REFERENCE: "ciml_msgs/msg/RobotReference",
     DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
-    TF: "tf2_msgs/msg/TFMessage",
-    TF_STATIC: "tf2_msgs/msg/TFMessage",
-    ROBOT_DESCRIPTION: "std_msgs/msg/String",
-    GAP_DIAGNOSIS: "ciml_msgs/msg/GapDiagnosis",
     TF: "tf2_msgs/msg/TFMessage",
     TF_STATIC: "tf2_msgs/msg/TFMessage",
     ROBOT_DESCRIPTION: "std_msgs/msg/String",

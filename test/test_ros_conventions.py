@@ -377,3 +377,46 @@ def test_diagnostic_aggregator_covers_every_node_once():
     for pkg in ("ciml_learning", "ciml_control", "ciml_sim"):  # every installed node executable is in NODES
         exes = {e.name for e in distribution(pkg).entry_points if e.group == "console_scripts"} - {"ciml"}
         assert exes <= nodes, exes - nodes
+
+
+# --- GapDiagnosis published ----------------------------------------------------------------------
+
+
+@pytest.mark.ros
+def test_gap_diagnosis_published_once_and_received_by_a_late_subscriber():
+    import threading
+
+    from ciml_msgs.msg import GapDiagnosis
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    from ciml_learning.cli import build_parser
+    from ciml_learning.gap_publisher import gap_diagnosis_fields, publish_gap_diagnosis
+
+    args = build_parser().parse_args(["diagnose", "--bag", "b", "--out", "d", "--publish"])
+    assert args.publish == 5.0
+    result = {  # the diagnosis.json fields the summary reads
+        "localization": [{"dimension": "lf_kfe_joint", "rms_error": 3.2, "share": 0.6},
+                         {"dimension": "base_fz", "rms_error": 12.0, "share": 0.3}],
+        "effects": [{"type": "joint_coulomb_friction", "joint": "lf_kfe_joint", "share": 0.55},
+                    {"type": "payload", "link": "trunk", "share": 0.25}],
+        "unexplained_share": 0.2,
+        "shrink": {"heldout_rms_nominal": 2.5, "heldout_rms_with_effects": 1.0, "ratio": 0.6},
+    }
+    fields = gap_diagnosis_fields(result)
+    assert fields["effect_locations"] == ["lf_kfe_joint", "trunk"] and fields["shrink_ratio"] == 0.6
+    thread = threading.Thread(target=publish_gap_diagnosis, args=(result, 8.0), daemon=True)
+    thread.start()
+    time.sleep(2.0)  # the subscriber joins after the message was published: transient local delivers it
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    listener = Listener({"/gap_diagnosis": GapDiagnosis}, qos={"/gap_diagnosis": latched})
+    try:
+        assert listener.wait_for(lambda: listener.messages["/gap_diagnosis"], timeout=5)
+    finally:
+        listener.close()
+        thread.join(timeout=10)
+    msgs = listener.messages["/gap_diagnosis"]
+    assert len(msgs) == 1
+    m = msgs[0]
+    assert list(m.dimension_names) == ["lf_kfe_joint", "base_fz"] and list(m.dimension_share) == [0.6, 0.3]
+    assert list(m.effect_types) == ["joint_coulomb_friction", "payload"] and list(m.effect_share) == [0.55, 0.25]
+    assert (m.unexplained_share, m.heldout_rms_nominal, m.heldout_rms_with_effects) == (0.2, 2.5, 1.0)

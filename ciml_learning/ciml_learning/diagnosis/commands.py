@@ -18,4 +18,9 @@ def diagnose(args: argparse.Namespace) -> int:
         print(line)
     for w in result["data"].get("warnings", []):
         print(f"warning: {w}")
+    if getattr(args, "publish", None) is not None:  # after diagnosis.json is written
+        from ..gap_publisher import publish_gap_diagnosis
+
+        matched = publish_gap_diagnosis(result, linger=args.publish)
+        print(f"published on /gap_diagnosis ({matched} subscriber(s) matched)")
     return 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ciml_learning.diagnosis.candidates import N_GENERIC, FeatureLayout, link_inertias, point_mass_rotational
+from ciml_learning.diagnosis.candidates import N_ACT, N_GENERIC, FeatureLayout, link_inertias, point_mass_rotational
 from ciml_learning.diagnosis.effects import DiagnosisError, EffectModel, feature_coefficients
 from ciml_learning.diagnosis.features import Grams, Rows, grams
 from ciml_learning.diagnosis.identification import (
@@ -77,12 +77,13 @@ def test_point_mass_rotational_inertia():
 def _synthetic_rows(rng, theta_true: dict[int, float], n: int = 3000, noise: float = 0.05) -> Rows:
     """Rows with random features and Γ = Σ features·θ + noise on the actuation part only."""
     nj = ROBOT.n_joints
-    X_act = rng.normal(size=(n, nj, 3))
+    X_act = np.zeros((n, nj, N_ACT))
+    X_act[:, :, :2] = rng.normal(size=(n, nj, 2))
     X_act[:, :, 2] = 1.0
     theta = np.zeros(LAYOUT.n_features)
     for f, v in theta_true.items():
         theta[f] = v
-    act_theta = theta[LAYOUT.act0:].reshape(nj, 3)
+    act_theta = theta[LAYOUT.act0:].reshape(nj, N_ACT)
     y_act = np.einsum("njk,jk->nj", X_act, act_theta) + noise * rng.normal(size=(n, nj))
     nr = LAYOUT.n_rbd
     return Rows(LAYOUT, np.arange(n), np.zeros((0, nr), np.float32), np.zeros(0), np.zeros(0, int),
@@ -107,7 +108,9 @@ def test_selection_names_nothing_on_pure_noise():
     rng = np.random.default_rng(2)
     tr, ho = _synthetic_rows(rng, {}), _synthetic_rows(rng, {})
     sel = select(LAYOUT, grams(tr), grams(ho))
-    assert sel.effects == [] and sel.unexplained_share == pytest.approx(1.0)
+    # noise is not an unexplained effect: the gap is at the noise floor (all of the residual is noise)
+    assert sel.effects == [] and sel.gap_at_noise_floor and sel.unexplained_share == 0.0
+    assert sel.unexplained_share_with_noise == pytest.approx(1.0)
 
 
 def _joint_torque_rows(rng, truth: str, n: int = 3000, noise: float = 0.05) -> Rows:
@@ -125,7 +128,7 @@ def _joint_torque_rows(rng, truth: str, n: int = 3000, noise: float = 0.05) -> R
     y = 3.0 * (qd if truth == "viscous" else z) + noise * rng.normal(size=n)
     nj = ROBOT.n_joints
     return Rows(LAYOUT, np.arange(n), X.astype(np.float32), y, rng.integers(0, 6, n), np.arange(n),
-                np.zeros((n, nj, 3)), noise * rng.normal(size=(n, nj)), np.zeros(n))
+                np.zeros((n, nj, N_ACT)), noise * rng.normal(size=(n, nj)), np.zeros(n))
 
 
 def test_out_of_catalogue_probe_takes_a_spring_but_not_a_catalogue_effect():

@@ -18,6 +18,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 from diag_data import read_ground_truth, record_plant_bag  # noqa: E402
 
 from ciml_learning.diagnosis.candidates import (  # noqa: E402
+    N_ACT,
     FeatureLayout,
     RegressorEvaluator,
     actuation_features,
@@ -123,7 +124,7 @@ def test_force_effect_regressors_match_sim_ground_truth(bags):
         if cand.kind == "rbd":
             f_pred = -np.einsum("nif,f->ni", E, th[:lay.n_rbd])  # force on the robot = −Φ̃
         else:
-            gamma = np.einsum("njk,jk->nj", A, th[lay.act0:].reshape(nj, 3))
+            gamma = np.einsum("njk,jk->nj", A, th[lay.act0:].reshape(nj, N_ACT))
             f_pred = np.hstack([np.zeros((len(idx), 6)), gamma])  # Sᵀ Γ
         active = np.flatnonzero(np.abs(f_true).max(axis=0) > 1e-9)
         err = rel_rms(f_pred[:, active], f_true[:, active])
@@ -191,3 +192,57 @@ def test_link_inertias_sum_to_the_joint_inertias():
         by_joint.setdefault(link.joint, []).append(link.params)
     for j, params in by_joint.items():
         assert np.allclose(np.sum(params, axis=0), ROBOT.model.inertias[j].toDynamicParameters(), atol=1e-4)
+
+
+def _nonzero_cols(x: np.ndarray) -> set[int]:
+    return set(np.flatnonzero(np.abs(x).max(axis=0) > 1e-12).tolist())
+
+
+def test_torque_sensor_regressors_match_the_simulators_model_error():
+    """Torque-sensor gain and offset (the reading, not the actuator): at simulated samples the
+    regressors with the scenario's values predict Φ̃ = Sᵀτ_m + Σ J_footᵀ f_foot − RNEA(q, v, v̇) (true
+    state, v̇ and contact forces from the simulator) and Γ = τ_m − u, on the joints they act on only."""
+    from ciml_sim.plant import Plant
+    from ciml_sim.scenario import parse_scenario
+
+    effects = [{"type": "torque_sensor_gain", "joint": "lh_kfe_joint", "value": 0.8},
+               {"type": "torque_sensor_offset", "joint": "rf_haa_joint", "value": -3.0}]
+    plant = Plant(ROBOT, parse_scenario({"name": "test", "effects": effects}, ROBOT))
+    plant.reset()
+    q0 = plant.standing_configuration()
+    nj, nv = ROBOT.n_joints, ROBOT.nv
+    rng = np.random.default_rng(0)
+    model, data = ROBOT.model, ROBOT.model.createData()
+    Q, V, Vd, TAU, U, PHI = [], [], [], [], [], []
+    for k in range(120):
+        if k % 10 == 0:  # a new posture target now and then: the joints move and carry load
+            plant.set_command(np.zeros(nj), q0[7:] + rng.normal(scale=0.05, size=nj), np.zeros(nj),
+                              np.full(nj, 300.0), np.full(nj, 8.0))
+        plant.step(4)
+        m, g = plant.measure(), plant.ground_truth()
+        phi = np.zeros(nv)
+        phi[6:] = m.tau_measured
+        pin.computeJointJacobians(model, data, g.q)
+        pin.updateFramePlacements(model, data)
+        for i, f in enumerate(ROBOT.foot_frame_ids):
+            phi += pin.getFrameJacobian(model, data, f, pin.LOCAL_WORLD_ALIGNED)[:3].T @ g.contact_forces[i]
+        phi -= pin.rnea(model, data, g.q, g.v, g.vdot)
+        Q.append(g.q), V.append(g.v), Vd.append(g.vdot), TAU.append(m.tau_measured), U.append(m.u_commanded)
+        PHI.append(phi)
+    Q, V, Vd, TAU, U, PHI = map(np.asarray, (Q, V, Vd, TAU, U, PHI))
+    lay = FeatureLayout(ROBOT, link_inertias(ROBOT))
+    n = len(Q)
+    E, _ = RegressorEvaluator(ROBOT, lay).chunk(Q, V, Vd, np.zeros((n, ROBOT.n_feet), bool), np.zeros((n, nv)),
+                                                np.zeros((n, nj)), tau=TAU)
+    theta, cands = feature_coefficients(lay, [as_diagnosis_effect(e) for e in effects])
+    assert [c.type for c in cands] == ["torque_sensor_gain", "torque_sensor_offset"]
+    pred = np.einsum("nif,f->ni", E, theta[:lay.n_rbd])
+    active = [6 + ROBOT.joint_names.index("lh_kfe_joint"), 6 + ROBOT.joint_names.index("rf_haa_joint")]
+    assert np.sqrt(np.mean(PHI[:, active] ** 2, axis=0)).min() > 1.0  # the model error is there, and large
+    assert rel_rms(pred[:, active], PHI[:, active]) < 0.02
+    # elsewhere the prediction is zero and the simulator's model error is at the level of its contact
+    # softness (this closure's own floor, ~0.1 Nm), far below the sensor effects'
+    assert _nonzero_cols(pred) == set(active)
+    assert rel_rms(pred, PHI) < 0.05
+    gamma = np.einsum("njk,jk->nj", actuation_features(TAU, np.zeros_like(TAU)), theta[lay.act0:].reshape(nj, N_ACT))
+    np.testing.assert_allclose(gamma, TAU - U, atol=1e-9)

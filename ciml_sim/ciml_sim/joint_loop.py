@@ -172,13 +172,16 @@ def sense(mj_forward: int, mj_rne_post_constraint: int, model: int, data: int, q
           xmat_base: np.ndarray, cfrc_ext: np.ndarray, foot_bodies: np.ndarray, imu_tilt: np.ndarray,
           noise_std: np.ndarray, z: np.ndarray, tau: np.ndarray, contact_threshold: float,
           quat_xyzw: np.ndarray, pos: np.ndarray, lin: np.ndarray, ang: np.ndarray, tau_meas: np.ndarray,
-          forces: np.ndarray, contacts: np.ndarray) -> None:
+          forces: np.ndarray, contacts: np.ndarray, sensor: np.ndarray) -> None:
     """MuJoCo's forward pass at the current state under the applied torque, then the
     sensors of ciml_sim.plant.Plant.measure into the output arrays: base orientation
     (IMU tilt imu_tilt (w, x, y, z; empty for none), orientation noise), position, base-frame
     twist and torque with their noise (noise_std: orientation, torque, position, twist;
     z: this sample's standard-normal draws of the enabled ones, in that order), each foot's
     contact force (world frame) and contact flag (normal force above contact_threshold).
+    The torque sensor of joint j reads sensor[j, 0]·τ_j + sensor[j, 1] + sensor[j, 2]·sin(2π q_j / sensor[j, 3])
+    (+ noise): its gain, offset and a position-dependent ripple (q_j the true joint position); an
+    empty `sensor` (0 rows) reads τ_j.
     A foot's contact force is the external force on its body (cfrc_ext after
     mj_rnePostConstraint, linear part): its sphere is the body's only colliding geom (mjcf.py)."""
     _call_model_data(mj_forward, model, data)
@@ -204,6 +207,11 @@ def sense(mj_forward: int, mj_rne_post_constraint: int, model: int, data: int, q
     nj = tau.shape[0]
     for j in range(nj):
         tau_meas[j] = tau[j]
+    if sensor.shape[0] == nj:
+        for j in range(nj):
+            tau_meas[j] = sensor[j, 0] * tau[j] + sensor[j, 1]
+            if sensor[j, 2] != 0.0:
+                tau_meas[j] += sensor[j, 2] * math.sin(2.0 * math.pi * qpos[7 + j] / sensor[j, 3])
     if noise_std[1] > 0:
         for j in range(nj):
             tau_meas[j] += noise_std[1] * z[o + j]
@@ -258,7 +266,8 @@ def closed_loop(plant, control, kp, kd, ref_q, ref_v, ref_a, ref_contacts, k0, k
     command's stamp and rate flag (Plant.compiled_done takes them back)."""
     (mj_step, mj_step2, mj_forward, mj_rne, model, data, qpos, qvel, qj, vj, ctrl, xmat_base, cfrc_ext, foot_bodies,
      imu_tilt, noise_std, noisy, enc_q, enc_qd, enc_i, meas_noise, meas_i, encoder_offset, limits, has_lag, alpha,
-     lag, has_gain, gain, offset, c, c_rate, has_rate, stamp, kp_cmd, kd_cmd, u, tau, dt, contact_threshold) = plant
+     lag, has_gain, gain, offset, c, c_rate, has_rate, stamp, kp_cmd, kd_cmd, u, tau, dt, contact_threshold,
+     sensor) = plant
     nj = qj.shape[0]
     nf = foot_bodies.shape[0]
     nv = nj + 6
@@ -280,7 +289,7 @@ def closed_loop(plant, control, kp, kd, ref_q, ref_v, ref_a, ref_contacts, k0, k
         ctrl[:] = tau_now
         sense(mj_forward, mj_rne, model, data, qpos, qvel, xmat_base, cfrc_ext, foot_bodies, imu_tilt, noise_std,
               meas_noise[meas_i] if meas_noise.shape[1] > 0 else no_noise, tau_now, contact_threshold, quat, pos,
-              lin, ang, tau_meas, forces, contacts)
+              lin, ang, tau_meas, forces, contacts, sensor)
         q[:3] = pos  # the measured configuration (recorder.measured_configuration)
         q[3:7] = quat
         q[7:] = q_m

@@ -9,7 +9,11 @@ Where each effect acts (DESIGN §5), from command to motion:
           u = clip(u_ff + K_p (q_t + q̇_t (s − t_c) − q_meas) + K_d (q̇_t − q̇_meas), ±limits)
     → actuator:  τ = g · L(u) + o            actuator_lag (L: first-order lag, backward
                                               Euler), torque_gain (g), torque_offset (o)
-    → torque sensor reads τ (+ noise)         so these effects show in Γ = τ − u (eq. 14)
+    → torque sensor reads τ_m = g_s τ + o_s + a_s sin(2π q/p_s) (+ noise)   so the actuator effects
+                                              show in Γ = τ_m − u (eq. 14); torque_sensor_gain (g_s),
+                                              torque_sensor_offset (o_s), torque_sensor_ripple (a_s, p_s)
+                                              change only the reading: in Γ and, as the nominal model
+                                              takes τ_m for the torque, in Φ̃
     → joint: τ + friction + other joint torques
                                               joint_coulomb_friction (MuJoCo frictionloss, an
                                               implicit constraint: true stiction, no chatter),
@@ -198,6 +202,9 @@ class Plant:
         self.offset = np.zeros(nj)
         self.lag_time_constant = np.zeros(nj)
         self.encoder_offset = np.zeros(nj)
+        self.sensor = np.zeros((nj, 4))  # torque sensor per joint: gain, offset, ripple amplitude, period
+        self.sensor[:, 0] = 1.0
+        self.sensor[:, 3] = 1.0
         self.coulomb = np.zeros(nj)
         self.viscous = np.zeros(nj)
         self._stribeck: list[tuple[Effect, np.ndarray]] = []
@@ -220,6 +227,14 @@ class Plant:
                 self.offset[j] += p["value"]
             elif e.type == "encoder_offset":
                 self.encoder_offset[j] += p["value"]
+            elif e.type == "torque_sensor_gain":
+                self.sensor[j, 0] += p["value"] - 1.0
+            elif e.type == "torque_sensor_offset":
+                self.sensor[j, 1] += p["value"]
+            elif e.type == "torque_sensor_ripple":
+                if np.any(self.sensor[j, 2] != 0.0):
+                    raise CimlError("one torque_sensor_ripple per joint")
+                self.sensor[j, 2], self.sensor[j, 3] = p["amplitude"], p["period"]
             elif e.type == "base_imu_tilt":
                 roll, pitch = roll + p["roll"], pitch + p["pitch"]
             elif e.type == "joint_stribeck_friction":
@@ -242,6 +257,8 @@ class Plant:
         self._alpha = DT / (self.lag_time_constant + DT)  # backward-Euler lag: τ_k = τ_{k−1} + α (u_k − τ_{k−1})
         self._has_lag = bool(np.any(self.lag_time_constant > 0))
         self._has_gain = bool(np.any(self.gain != 1.0) or np.any(self.offset != 0.0))
+        identity = np.all(self.sensor[:, 0] == 1.0) and not np.any(self.sensor[:, 1:3])
+        self._sensor = np.empty((0, 4)) if identity else self.sensor  # empty: the sensor reads τ
         self._has_side = bool(self._springs or self._ripples)
         self._extra = bool(self._stribeck) or self._has_side  # effects evaluated in Python between steps
         self._mj_step = joint_loop.mj_function("mj_step")
@@ -469,7 +486,7 @@ class Plant:
                 self._foot_bodies, self._imu_tilt, self._noise_std, self._encoder_noisy, enc_q, enc_qd, i, meas,
                 meas_i, self.encoder_offset, self.limits, self._has_lag, self._alpha, self._lag, self._has_gain,
                 self.gain, self.offset, self._c, self._c_rate, self._has_rate, self._stamp, self._kp, self._kd,
-                self.u, self.tau, float(m.opt.timestep), CONTACT_THRESHOLD)
+                self.u, self.tau, float(m.opt.timestep), CONTACT_THRESHOLD, self._sensor)
 
     def compiled_done(self, physics_steps: int, meas_i: int, stamp: float, has_rate: bool) -> None:
         """After joint_loop.closed_loop: the steps it ran, the measurement-noise position,
@@ -511,7 +528,7 @@ class Plant:
         joint_loop.sense(self._mj_forward, self._mj_rne_post_constraint, self.model._address, d._address, d.qpos,
                          d.qvel, self._xmat_base, d.cfrc_ext, self._foot_bodies, self._imu_tilt, self._noise_std,
                          self._no_sample_noise if z is None else z, tau, CONTACT_THRESHOLD, quat, pos, lin, ang,
-                         tau_meas, forces, contacts)
+                         tau_meas, forces, contacts, self._sensor)
         self._forward_state = d.qpos.tobytes() + d.qvel.tobytes()
         meas = Measurement(time=float(d.time), q=q_m, qd=qd_m, tau_measured=tau_meas, u_commanded=u.copy(),
                            base_position=pos, base_orientation=quat, base_linear_velocity=lin,

@@ -20,6 +20,8 @@ from typing import Any
 
 import yaml
 
+from ciml_learning.diagnosis.candidates import EFFECT_TYPES as DIAGNOSIS_EFFECT_TYPES
+from ciml_learning.diagnosis.candidates import MEASUREMENT_TYPES as DIAGNOSIS_MEASUREMENT_TYPES
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import RobotDescription
 
@@ -39,18 +41,26 @@ _CATALOGUE: dict[str, dict[str, tuple]] = {
     "link_mass_scale": {"link": ("link",), "value": ("float", 0.1, 5.0)},
     "encoder_offset": {"joint": ("joints",), "value": ("float", -0.2, 0.2)},
     "base_imu_tilt": {"roll": ("float", -0.2, 0.2), "pitch": ("float", -0.2, 0.2)},
+    # the torque *sensor* (measured τ_m = value·τ, τ + value), the torque the joint receives unchanged
+    "torque_sensor_gain": {"joint": ("joints",), "value": ("float", 0.1, 2.0)},
+    "torque_sensor_offset": {"joint": ("joints",), "value": ("float", -50.0, 50.0)},
     # outside the diagnosis' catalogue (used to check that it says "unexplained"):
     "joint_stribeck_friction": {"joint": ("joints",), "breakaway": ("float", 0.0, 100.0),
                                 "coulomb": ("float", 0.0, 100.0), "velocity": ("float", 1e-3, 5.0)},
     "joint_spring": {"joint": ("joints",), "stiffness": ("float", 0.0, 1000.0), "rest": ("float", -3.2, 3.2)},
     "torque_ripple": {"joint": ("joints",), "amplitude": ("float", 0.0, 50.0), "period": ("float", 0.01, 6.3)},
+    # a torque-sensor reading error amplitude·sin(2π q/period) (the joint's true torque unchanged)
+    "torque_sensor_ripple": {"joint": ("joints",), "amplitude": ("float", 0.0, 50.0), "period": ("float", 0.01, 6.3)},
 }
 EFFECT_TYPES: tuple[str, ...] = tuple(_CATALOGUE)
-CATALOGUE_TYPES: tuple[str, ...] = EFFECT_TYPES[:9]
-"""The effect types of DESIGN §5 (the diagnosis' candidates)."""
-OUT_OF_CATALOGUE_TYPES: tuple[str, ...] = EFFECT_TYPES[9:]
-MEASUREMENT_ONLY_TYPES: tuple[str, ...] = ("encoder_offset", "base_imu_tilt")
+CATALOGUE_TYPES: tuple[str, ...] = tuple(t for t in EFFECT_TYPES if t in DIAGNOSIS_EFFECT_TYPES)
+"""The effect types the diagnosis has candidates for (defined once: ciml_learning.diagnosis.candidates)."""
+OUT_OF_CATALOGUE_TYPES: tuple[str, ...] = tuple(t for t in EFFECT_TYPES if t not in DIAGNOSIS_EFFECT_TYPES)
+MEASUREMENT_ONLY_TYPES: tuple[str, ...] = DIAGNOSIS_MEASUREMENT_TYPES + ("torque_sensor_ripple",)
 """Effects that bias a measurement and exert no force."""
+if set(CATALOGUE_TYPES) != set(DIAGNOSIS_EFFECT_TYPES):  # pragma: no cover - a programming error
+    raise ImportError(f"scenario effects and the diagnosis' catalogue differ: "
+                      f"{sorted(set(DIAGNOSIS_EFFECT_TYPES) ^ set(CATALOGUE_TYPES))}")
 NOISE_FIELDS: tuple[str, ...] = ("q", "qd", "tau", "base_orientation", "base_position", "base_velocity")
 """Sensor-noise standard deviations: q [rad], qd [rad/s], tau [Nm], base_orientation [rad],
 base_position [m], base_velocity [m/s and rad/s]."""

@@ -258,6 +258,46 @@ def test_link_mass_scale_acts_on_the_base_and_that_legs_joints_only(scale):
 # --- measurement only -------------------------------------------------------------------------------
 
 
+# --- the torque sensor: the reading changes, the torque the joint receives does not --------------
+
+
+@pytest.mark.parametrize("effect, expected", [
+    ({"type": "torque_sensor_gain", "joint": "lf_kfe_joint", "value": 0.8}, lambda tau, q: -0.2 * tau),
+    ({"type": "torque_sensor_offset", "joint": "lf_kfe_joint", "value": -4.0}, lambda tau, q: -4.0),
+    ({"type": "torque_sensor_ripple", "joint": "lf_kfe_joint", "amplitude": 6.0, "period": 2 * np.pi / 10},
+     lambda tau, q: 6.0 * np.sin(10.0 * q)),
+])
+def test_torque_sensor_effects_change_only_the_measured_torque(effect, expected):
+    """Unlike torque_gain/torque_offset (the actuator), a sensor effect exerts no force (no ground-truth
+    entry, the same motion) and changes the reading by exactly its law at that joint."""
+    m0, m1, g0, g1, df = _compare(effect)
+    j = J["lf_kfe_joint"]
+    dtau = m1.tau_measured - m0.tau_measured
+    assert _nonzero(dtau) == {j}
+    assert dtau[j] == pytest.approx(expected(g1.tau[j], g1.q[7 + j]), rel=1e-9)
+    np.testing.assert_array_equal(g1.tau, g0.tau)  # the actuator's torque is the same
+    np.testing.assert_array_equal(m1.u_commanded, m0.u_commanded)
+    assert _nonzero(df) == set() and g1.effect_forces == {}
+    _same_measurements(m0, m1, tau=False)
+
+
+def test_torque_sensor_effects_in_the_compiled_closed_loop_match_the_step_by_step_sample():
+    """The compiled closed loop's sensor (joint_loop.closed_loop → sense) reads like Plant.measure."""
+    effects = [{"type": "torque_sensor_gain", "joint": "rh_hfe_joint", "value": 1.2},
+               {"type": "torque_sensor_offset", "joint": "lf_haa_joint", "value": 2.5}]
+    plant = Plant(ROBOT, _scenario(*effects))
+    q, v, cmd = _airborne_state(2)
+    plant.reset(q, v)
+    plant.set_command(*cmd)
+    m = plant.measure()
+    g = plant.ground_truth()
+    expected = g.tau.copy()
+    expected[J["rh_hfe_joint"]] *= 1.2
+    expected[J["lf_haa_joint"]] += 2.5
+    np.testing.assert_allclose(m.tau_measured, expected, rtol=1e-12, atol=1e-12)
+    assert plant.compiled_state()[-1].shape == (NJ, 4)
+
+
 def test_encoder_offset_changes_only_the_measured_position():
     kp0 = {3: np.zeros(NJ)}  # no position feedback: the offset cannot move anything
     m0, m1, g0, g1, df = _compare({"type": "encoder_offset", "joint": "rf_hfe_joint", "value": 0.02}, cmd_override=kp0)

@@ -28,6 +28,9 @@ VALID = {
     "joint_stribeck_friction": {"joint": "rf_kfe_joint", "breakaway": 8.0, "coulomb": 4.0, "velocity": 0.1},
     "joint_spring": {"joint": "lf_kfe_joint", "stiffness": 20.0, "rest": -1.4},
     "torque_ripple": {"joint": "rh_hfe_joint", "amplitude": 2.0, "period": 0.5},
+    "torque_sensor_gain": {"joint": "lh_kfe_joint", "value": 0.9},
+    "torque_sensor_offset": {"joint": "lh_haa_joint", "value": 2.0},
+    "torque_sensor_ripple": {"joint": "lf_kfe_joint", "amplitude": 6.0, "period": 0.628},
 }
 
 
@@ -44,7 +47,7 @@ def _one(effect: dict) -> dict:
 
 
 def test_every_effect_type_parses_and_design_example_loads(tmp_path):
-    assert set(VALID) == set(EFFECT_TYPES) and len(CATALOGUE_TYPES) == 9
+    assert set(VALID) == set(EFFECT_TYPES) and len(CATALOGUE_TYPES) == 11
     scen = parse_scenario({"name": "all", "seed": 3, "sensor_noise": {"q": 0.0005, "tau": 0.5},
                            "effects": [{"type": t, **p} for t, p in VALID.items()]}, ROBOT)
     assert [e.type for e in scen.effects] == list(VALID)

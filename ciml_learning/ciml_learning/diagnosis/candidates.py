@@ -33,6 +33,17 @@ So e_j = θ₁ q̇_j + θ₂ q̈_j + θ₃ u̇_j on every joint, with θ₃ ≈ 
 θ₂ ≈ −K_d Δt/2 — three numbers for the whole robot, fitted with every candidate set.
     actuation, joint j         Γ_j = a τ_j + b − c τ̇_j                 a = 1 − 1/g, b = o/g, c = T/g
 
+Torque-sensor effects (the sensor, not the actuator): the measured τ_m = g_s τ + o_s while the
+joint receives the true τ. The nominal model then sees Φ̃ = Sᵀ(τ_m − τ) on top of Γ, and both
+are a_s τ_m + b_s at joint j (a_s = 1 − 1/g_s, b_s = o_s/g_s), one parameter set on both kinds
+of rows — an actuator gain or offset shows in Γ only:
+    torque sensor gain j       e_{6+j} = τ_m,j and Γ_j: τ_m,j          θ = a_s
+    torque sensor offset j     e_{6+j} = 1 and Γ_j: 1                  θ = b_s
+    unmodelled sensor torque j e_{6+j} = f_j(q_j) and Γ_j: f_j(q_j)   (the probe at sensor level:
+                               a position-dependent torque reading error, e.g. a ripple)
+
+Bounds of every parameter: bounds.py.
+
 The actuation line is exact for τ = g·ℓ + o, T ℓ̇ + ℓ = u (a first-order lag ℓ of the command,
 then gain and offset): Γ = τ − u = (1 − 1/g)(τ − o) + o − (T/g) τ̇. λ in the encoder term is
 the contact force estimated from the measured residual, λ̂ = −(J_cᵀ)⁺ r. Y is Pinocchio's
@@ -50,6 +61,7 @@ import pinocchio as pin
 
 from ..filters import filter_offline, lowpass_taps
 from ..robot import RobotDescription
+from .bounds import parameter_bounds
 
 COULOMB_SMOOTHING = 0.03
 """Velocity [rad/s] of the tanh that smooths sign(q̇) for the Coulomb regressor."""
@@ -59,14 +71,22 @@ MIN_LINK_MASS = 0.05
 RBD_TYPES = ("joint_coulomb_friction", "joint_viscous_friction", "payload", "link_mass_scale",
              "encoder_offset", "base_imu_tilt")
 ACTUATION_TYPES = ("actuator_lag", "torque_gain", "torque_offset")
-MEASUREMENT_TYPES = ("encoder_offset", "base_imu_tilt")
+SENSOR_TYPES = ("torque_sensor_gain", "torque_sensor_offset")
+"""Torque-sensor effects: they act on Φ̃ and Γ through the measured τ (module docstring)."""
+MEASUREMENT_TYPES = ("encoder_offset", "base_imu_tilt") + SENSOR_TYPES
 """Effects that change only what is measured: they exert no force on the robot."""
-EFFECT_TYPES = RBD_TYPES + ACTUATION_TYPES
+EFFECT_TYPES = RBD_TYPES + ACTUATION_TYPES + SENSOR_TYPES
 UNMODELLED_TYPE = "unmodelled_joint_torque"
 """The out-of-catalogue probe: a free position-dependent joint torque f_j(q_j) (generic_joint_basis)."""
+UNMODELLED_SENSOR_TYPE = "unmodelled_sensor_torque"
+"""The probe at sensor level: a position-dependent torque *reading* error f_j(q_j), in Φ̃ and Γ."""
+PROBE_TYPES = (UNMODELLED_TYPE, UNMODELLED_SENSOR_TYPE)
 GENERIC_NAMES = ("1", "z", "z2", "z3")
 """Columns of generic_joint_basis: a cubic in z = (q_j − q̄_j)/s_j."""
 N_GENERIC = len(GENERIC_NAMES)
+ACTUATION_NAMES = ("lag", "gain", "offset") + tuple(f"generic_{g}" for g in GENERIC_NAMES)
+"""Actuation features per joint: −τ̇, τ, 1 and the sensor probe's basis (actuation_features)."""
+N_ACT = len(ACTUATION_NAMES)
 
 
 @dataclass(frozen=True)
@@ -155,8 +175,8 @@ class Candidate:
 
     @property
     def in_catalogue(self) -> bool:
-        """A physical effect of DESIGN §5 (False for the out-of-catalogue probe)."""
-        return self.type != UNMODELLED_TYPE
+        """A physical effect of the catalogue (False for the out-of-catalogue probes)."""
+        return self.type not in PROBE_TYPES
 
     def location(self) -> dict:
         if self.link is not None:
@@ -190,6 +210,7 @@ class FeatureLayout:
             + [f"root:{k}" for k in range(10)]
             + [f"link:{link.name}" for link in self.links]
             + [f"joint_torque:{j}" for j in jn]
+            + [f"sensor_gain:{j}" for j in jn]
             + [f"generic:{j}:{g}" for j in jn for g in GENERIC_NAMES]
             + ["baseline:qd", "baseline:qdd", "baseline:udot"]
         )
@@ -197,13 +218,14 @@ class FeatureLayout:
         self.q_scale = np.ones(nj) if self.q_scale is None else np.maximum(np.asarray(self.q_scale, float), 1e-3)
         self.n_rbd = len(self.names)
         for j in jn:
-            self.names += [f"lag:{j}", f"gain:{j}", f"offset:{j}"]
+            self.names += [f"{a}:{j}" for a in ACTUATION_NAMES]
         self.coulomb0, self.viscous0, self.encoder0 = 0, nj, 2 * nj
         self.imu0 = 3 * nj
         self.root0 = self.imu0 + 2
         self.link0 = self.root0 + 10
         self.torque0 = self.link0 + len(self.links)
-        self.generic0 = self.torque0 + nj
+        self.sensor_gain0 = self.torque0 + nj
+        self.generic0 = self.sensor_gain0 + nj
         self.baseline0 = self.generic0 + N_GENERIC * nj
         self.act0 = self.n_rbd
 
@@ -212,13 +234,18 @@ class FeatureLayout:
         return len(self.names)
 
     def actuation_feature(self, joint: int, what: str) -> int:
-        return self.act0 + 3 * joint + {"lag": 0, "gain": 1, "offset": 2}[what]
+        return self.act0 + N_ACT * joint + ACTUATION_NAMES.index(what)
+
+    def actuation_block(self, joint: int) -> np.ndarray:
+        """The feature indices of joint `joint`'s Γ (N_ACT consecutive columns)."""
+        return self.act0 + N_ACT * joint + np.arange(N_ACT)
 
     @cached_property
     def baseline(self) -> Candidate:
         """The command-update sampling term (module docstring): part of every model, never an effect."""
         b = self.baseline0
-        return Candidate("command_update_sampling", "rbd", ("qd", "qdd", "udot"), (-np.inf,) * 3, (np.inf,) * 3,
+        lo, hi = parameter_bounds(self.robot, "command_update_sampling")
+        return Candidate("command_update_sampling", "rbd", ("qd", "qdd", "udot"), lo, hi,
                          (b, b + 1, b + 2), joints=tuple(self.robot.joint_names))
 
     @cached_property
@@ -226,33 +253,44 @@ class FeatureLayout:
         r = self.robot
         inf = np.inf
         out: list[Candidate] = []
+
+        def cand(typ, kind, names, features, joint=None, **kw):
+            lo, hi = parameter_bounds(r, typ, joint)
+            return Candidate(typ, kind, names, lo, hi, tuple(features), joint=joint, **kw)
+
         for j, name in enumerate(r.joint_names):
-            out.append(Candidate("joint_coulomb_friction", "rbd", ("value",), (0.0,), (inf,),
-                                 (self.coulomb0 + j,), joint=name))
-            out.append(Candidate("joint_viscous_friction", "rbd", ("value",), (0.0,), (inf,),
-                                 (self.viscous0 + j,), joint=name))
-            out.append(Candidate("encoder_offset", "rbd", ("value",), (-0.3,), (0.3,), (self.encoder0 + j,), joint=name))
-        out.append(Candidate("base_imu_tilt", "rbd", ("roll", "pitch"), (-0.3, -0.3), (0.3, 0.3),
-                             (self.imu0, self.imu0 + 1)))
-        out.append(Candidate("payload", "rbd", ("mass", "mass_com_x", "mass_com_y", "mass_com_z"),
-                             (0.0, -inf, -inf, -inf), (inf, inf, inf, inf), tuple(range(self.root0, self.root0 + 10))))
+            out.append(cand("joint_coulomb_friction", "rbd", ("value",), (self.coulomb0 + j,), name))
+            out.append(cand("joint_viscous_friction", "rbd", ("value",), (self.viscous0 + j,), name))
+            out.append(cand("encoder_offset", "rbd", ("value",), (self.encoder0 + j,), name))
+        out.append(cand("base_imu_tilt", "rbd", ("roll", "pitch"), (self.imu0, self.imu0 + 1)))
+        out.append(cand("payload", "rbd", ("mass", "mass_com_x", "mass_com_y", "mass_com_z"),
+                        range(self.root0, self.root0 + 10)))
         for k, link in enumerate(self.links):
-            out.append(Candidate("link_mass_scale", "rbd", ("scale_minus_one",), (-0.95,), (inf,),
-                                 (self.link0 + k,), link=link.name))
+            out.append(cand("link_mass_scale", "rbd", ("scale_minus_one",), (self.link0 + k,), link=link.name))
         for j, name in enumerate(r.joint_names):
-            out.append(Candidate("actuator_lag", "actuation", ("lag_over_gain",), (0.0,), (0.5,),
-                                 (self.actuation_feature(j, "lag"),), joint=name))
-            out.append(Candidate("torque_gain", "actuation", ("one_minus_inverse_gain",), (-9.0,), (0.9,),
-                                 (self.actuation_feature(j, "gain"),), joint=name))
-            out.append(Candidate("torque_offset", "actuation", ("offset_over_gain",), (-inf,), (inf,),
-                                 (self.actuation_feature(j, "offset"),), joint=name))
-        out.append(Candidate("actuator_lag", "actuation", ("lag_over_gain",), (0.0,), (0.5,),
-                             tuple(self.actuation_feature(j, "lag") for j in range(r.n_joints)),
-                             joints=tuple(r.joint_names)))
+            out.append(cand("actuator_lag", "actuation", ("lag_over_gain",), (self.actuation_feature(j, "lag"),), name))
+            out.append(cand("torque_gain", "actuation", ("one_minus_inverse_gain",),
+                            (self.actuation_feature(j, "gain"),), name))
+            out.append(cand("torque_offset", "actuation", ("offset_over_gain",),
+                            (self.actuation_feature(j, "offset"),), name))
+        out.append(cand("actuator_lag", "actuation", ("lag_over_gain",),
+                        tuple(self.actuation_feature(j, "lag") for j in range(r.n_joints)),
+                        joints=tuple(r.joint_names)))
+        for j, name in enumerate(r.joint_names):
+            out.append(cand("torque_sensor_gain", "sensor", ("one_minus_inverse_gain",),
+                            (self.sensor_gain0 + j, self.actuation_feature(j, "gain")), name))
+            out.append(cand("torque_sensor_offset", "sensor", ("offset_over_gain",),
+                            (self.torque0 + j, self.actuation_feature(j, "offset")), name))
         for j, name in enumerate(r.joint_names):
             g0 = self.generic0 + N_GENERIC * j
             out.append(Candidate(UNMODELLED_TYPE, "rbd", GENERIC_NAMES, (-inf,) * N_GENERIC, (inf,) * N_GENERIC,
                                  tuple(range(g0, g0 + N_GENERIC)), joint=name))
+        for j, name in enumerate(r.joint_names):
+            g0 = self.generic0 + N_GENERIC * j
+            a0 = self.actuation_feature(j, "generic_1")
+            out.append(Candidate(UNMODELLED_SENSOR_TYPE, "sensor", GENERIC_NAMES, (-inf,) * N_GENERIC,
+                                 (inf,) * N_GENERIC, tuple(range(g0, g0 + N_GENERIC)) + tuple(range(a0, a0 + N_GENERIC)),
+                                 joint=name))
         return out
 
     def matrix(self, cand: Candidate, payload_com: np.ndarray | None = None,
@@ -275,7 +313,11 @@ class FeatureLayout:
         elif cand.type in ("base_imu_tilt", "command_update_sampling", UNMODELLED_TYPE):
             for k, f in enumerate(cand.features):
                 A[f, k] = 1.0
-        else:  # one parameter; several features only for the all-joint lag (one joint per row)
+        elif cand.type == UNMODELLED_SENSOR_TYPE:  # the same coefficients on Φ̃ (rbd) and Γ columns
+            for k in range(N_GENERIC):
+                A[cand.features[k], k] = 1.0
+                A[cand.features[N_GENERIC + k], k] = 1.0
+        else:  # one parameter; several features for the all-joint lag (one joint per row) and the sensor effects
             A[list(cand.features), 0] = 1.0
             if len(cand.joints) > 1 and lag_scale:
                 for name, scale in lag_scale.items():
@@ -334,12 +376,13 @@ class RegressorEvaluator:
 
     def chunk(self, q: np.ndarray, v: np.ndarray, a: np.ndarray, contacts: np.ndarray, residual: np.ndarray,
               coulomb: np.ndarray, u_dot: np.ndarray | None = None,
-              generic: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+              generic: np.ndarray | None = None, tau: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Generalized-force features E (n × nv × n_rbd) and foot Jacobians (n × n_feet × 3 × nv).
 
         residual: measured r = Sᵀτ − M q̈ − h (for the contact-force estimate of the encoder term);
         u_dot: derivative of the commanded torque (for the command-update sampling term);
-        generic: generic_joint_basis of these samples (the out-of-catalogue probe; None: zeros).
+        generic: generic_joint_basis of these samples (the out-of-catalogue probe; None: zeros);
+        tau: the measured joint torques (the torque-sensor gain's Φ̃ part; None: zeros).
         """
         r, lay, model, data = self.robot, self.layout, self.model, self.data
         n, nv, nj = len(q), r.nv, r.n_joints
@@ -353,6 +396,8 @@ class RegressorEvaluator:
         E[:, 6:, lay.baseline0 + 1] = a[:, 6:]
         if u_dot is not None:
             E[:, 6:, lay.baseline0 + 2] = u_dot
+        if tau is not None:
+            E[:, 6 + jidx, lay.sensor_gain0 + jidx] = tau
         if generic is not None:
             for j in range(nj):
                 E[:, 6 + j, lay.generic0 + N_GENERIC * j:lay.generic0 + N_GENERIC * (j + 1)] = generic[:, j]
@@ -386,6 +431,10 @@ class RegressorEvaluator:
         return E, jac
 
 
-def actuation_features(tau: np.ndarray, tau_dot: np.ndarray) -> np.ndarray:
-    """Features of Γ_j per joint: (n × n_joints × 3) = [−τ̇_j, τ_j, 1] (lag, gain, offset)."""
-    return np.stack([-tau_dot, tau, np.ones_like(tau)], axis=-1)
+def actuation_features(tau: np.ndarray, tau_dot: np.ndarray, generic: np.ndarray | None = None) -> np.ndarray:
+    """Features of Γ_j per joint: (n × n_joints × N_ACT) = [−τ̇_j, τ_j, 1, f(q_j) basis] (lag, gain,
+    offset, the sensor probe's generic_joint_basis; zeros without `generic`)."""
+    base = np.stack([-tau_dot, tau, np.ones_like(tau)], axis=-1)
+    if generic is None:
+        generic = np.zeros(tau.shape + (N_GENERIC,))
+    return np.concatenate([base, generic], axis=-1)

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..errors import CimlError
 from ..robot import RobotDescription
-from .candidates import FeatureLayout, RegressorEvaluator, link_inertias
+from .candidates import N_ACT, SENSOR_TYPES, FeatureLayout, RegressorEvaluator, link_inertias
 
 
 class DiagnosisError(CimlError):
@@ -71,6 +71,15 @@ def feature_coefficients(layout: FeatureLayout, effects: Sequence[dict]) -> tupl
                 theta += layout.matrix(cand)[:, 0] * (1.0 - 1.0 / gain[cand.joint])
             elif cand.type == "torque_offset":
                 theta += layout.matrix(cand)[:, 0] * float(p["value"]) / gain.get(cand.joint, 1.0)
+            elif cand.type == "torque_sensor_gain":
+                g_s = float(p["value"])
+                if not np.isfinite(g_s) or g_s <= 0:
+                    raise DiagnosisError(f"torque_sensor_gain of {e.get('joint')}: invalid value {g_s}")
+                theta += layout.matrix(cand)[:, 0] * (1.0 - 1.0 / g_s)
+            elif cand.type == "torque_sensor_offset":
+                g_s = next((float(x["params"]["value"]) for x in effects if x.get("type") == "torque_sensor_gain"
+                            and x.get("joint") == cand.joint), 1.0)
+                theta += layout.matrix(cand)[:, 0] * float(p["value"]) / g_s
             elif cand.type == "actuator_lag":
                 if cand.joint:
                     theta += layout.matrix(cand)[:, 0] * float(p["time_constant"]) / gain.get(cand.joint, 1.0)
@@ -97,7 +106,8 @@ class EffectModel:
         self.coulomb_smoothing = coulomb_smoothing or COULOMB_SMOOTHING
         self.evaluator = RegressorEvaluator(robot, self.layout)
         lay = self.layout
-        self.theta, _ = feature_coefficients(lay, effects)
+        # torque-sensor effects change what is measured, not the torque the joint receives: no force
+        self.theta, _ = feature_coefficients(lay, [e for e in effects if e.get("type") not in SENSOR_TYPES])
         self.has_rbd = bool(np.any(self.theta[:lay.n_rbd] != 0))
         self.has_actuation = bool(np.any(self.theta[lay.act0:] != 0))
 
@@ -117,7 +127,7 @@ class EffectModel:
     def actuation_error(self, tau: np.ndarray, tau_dot: np.ndarray) -> np.ndarray:
         """Γ (n_j) = a τ + b − c τ̇ per joint (candidates.py)."""
         nj = self.robot.n_joints
-        th = self.theta[self.layout.act0:].reshape(nj, 3)
+        th = self.theta[self.layout.act0:].reshape(nj, N_ACT)
         return -th[:, 0] * tau_dot + th[:, 1] * tau + th[:, 2]
 
 

@@ -15,7 +15,14 @@ import numpy as np
 from ..extraction import observation_operators
 from ..projection import contact_invariant_bases
 from ..robot import RobotDescription
-from .candidates import FeatureLayout, RegressorEvaluator, actuation_features, coulomb_regressor, generic_joint_basis
+from .candidates import (
+    N_ACT,
+    FeatureLayout,
+    RegressorEvaluator,
+    actuation_features,
+    coulomb_regressor,
+    generic_joint_basis,
+)
 
 CHUNK = 1000
 
@@ -30,7 +37,7 @@ class Rows:
     y_rbd: np.ndarray      # M_r measured Φ̃' entries
     dim_rbd: np.ndarray    # M_r Φ̃' dimension (0 … 17)
     sample_rbd: np.ndarray  # M_r position in `samples`
-    X_act: np.ndarray      # N × n_j × 3 actuation features (lag, gain, offset)
+    X_act: np.ndarray      # N × n_j × N_ACT actuation features (lag, gain, offset, sensor probe)
     y_act: np.ndarray      # N × n_j measured Γ
     signal_rbd: np.ndarray  # M_r the measured joint torques seen through eq. (11), O Sᵀτ (the "signal")
     raw_G: np.ndarray | None = None       # nv × n_rbd × n_rbd: Σ_k E_k[i]ᵀ E_k[i], features before eq. (11)
@@ -86,7 +93,7 @@ def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples:
         bar = tqdm(total=len(samples), desc=desc, unit="sample", leave=False, mininterval=0.5)
     for c_i, idx in enumerate(chunks):
         E, jac = ev.chunk(log.q[idx], log.v[idx], log.a[idx], log.contacts[idx], targets.residual[idx], coulomb[idx],
-                          u_dot[idx], generic[idx])
+                          u_dot[idx], generic[idx], log.tau[idx])
         basis = contact_invariant_bases(jac, robot.leg_joints)
         O, _ = observation_operators(jac, basis, log.contacts[idx])
         phi = O @ E  # batched matmul (BLAS), = einsum("nij,njf->nif")
@@ -115,7 +122,7 @@ def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples:
         y_rbd=cat(yr, (0,), float),
         dim_rbd=cat(dr, (0,), int),
         sample_rbd=cat(sr, (0,), int),
-        X_act=actuation_features(log.tau[samples], log.tau_dot[samples]),
+        X_act=actuation_features(log.tau[samples], log.tau_dot[samples], generic[samples]),
         y_act=targets.actuation_error[samples].copy(),
         signal_rbd=cat(gr, (0,), float),
         raw_G=raw_G,
@@ -165,7 +172,7 @@ def grams(rows: Rows) -> Grams:
     for j in range(nj):
         X = rows.X_act[:, j, :]
         y = rows.y_act[:, j]
-        f = lay.actuation_feature(j, "lag") + np.arange(3)
+        f = lay.actuation_block(j)
         G[n_rbd_dims + j][np.ix_(f, f)] = X.T @ X
         c[n_rbd_dims + j, f] = X.T @ y
         s[n_rbd_dims + j] = y @ y
@@ -178,6 +185,6 @@ def predict(rows: Rows, theta_f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     lay = rows.layout
     rbd = rows.X_rbd.astype(float) @ theta_f[:lay.n_rbd]
     nj = lay.robot.n_joints
-    act_theta = theta_f[lay.act0:].reshape(nj, 3)
+    act_theta = theta_f[lay.act0:].reshape(nj, N_ACT)
     act = np.einsum("njk,jk->nj", rows.X_act, act_theta)
     return rbd, act

@@ -48,7 +48,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .candidates import Candidate, FeatureLayout
+from .bounds import physical_violation
+from .candidates import N_ACT, Candidate, FeatureLayout
 from .features import Grams, Rows
 
 MIN_SHARE = 0.005
@@ -79,7 +80,9 @@ MIN_SUBSET_INFORMATION = 0.05
 """Subsets holding less than this fraction of an effect's information are left out of its spread."""
 BLOCK_SECONDS = 1.0
 BOOTSTRAP = 100
-MAX_EFFECTS = 12
+MAX_EFFECTS = 24
+GAP_AT_FLOOR = 0.02
+"""A held-out gap above the noise floor smaller than this fraction of the nominal residual is none."""
 BIG = 1e20
 
 
@@ -120,6 +123,7 @@ class Model:
     theta: np.ndarray
     payload_com: np.ndarray | None = None
     lag_scale: dict[str, float] | None = None
+    tick: float | None = None  # [s] the log's sample period (the lag's sampling correction, lag_time_constant)
 
     def matrix(self) -> np.ndarray:
         if not self.candidates:
@@ -142,7 +146,7 @@ class Model:
         sl = self.slices()
         theta = [self.theta[sl[self.candidates.index(c)]] for c in cands]
         return Model(self.layout, list(cands), np.concatenate(theta) if theta else np.zeros(0), self.payload_com,
-                     self.lag_scale)
+                     self.lag_scale, self.tick)
 
     def params_of(self, cand: Candidate) -> np.ndarray:
         i = self.candidates.index(cand)
@@ -156,13 +160,13 @@ def _bounds(cands: list[Candidate]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fit_model(layout: FeatureLayout, cands: list[Candidate], G: np.ndarray, c: np.ndarray,
-              refine_payload: int = 3) -> Model:
+              refine_payload: int = 3, tick: float | None = None) -> Model:
     """Fit the parameters of a candidate set on weighted Grams (G = Σ w_d G_d, c = Σ w_d c_d).
 
     Two terms are bilinear and refined by refitting (refine iterations): a payload's point-mass
     rotational inertia depends on its CoM; the all-joint lag's coefficient on a joint with an
     identified torque gain is T/g_j."""
-    model = Model(layout, list(cands), np.zeros(sum(k.n_params for k in cands)))
+    model = Model(layout, list(cands), np.zeros(sum(k.n_params for k in cands)), tick=tick)
     if not cands:
         return model
     lo, hi = _bounds(model.candidates)
@@ -196,7 +200,28 @@ def _at_bound(model: Model, cand: Candidate, rel: float = 1e-6) -> bool:
     if cand.type == "payload":
         return bool(on[0] or th[0] < MIN_PAYLOAD_MASS or (
             model.payload_com is not None and np.linalg.norm(model.payload_com) >= MAX_PAYLOAD_LEVER * (1 - 1e-9)))
-    return bool(on.any())
+    if on.any():
+        return True
+    # a converted parameter can leave its range while θ is inside its box (bounds.py)
+    return cand.type == "actuator_lag" and physical_violation(cand.type, _physical_of(model, cand)) is not None
+
+
+def _physical_of(model: Model, cand: Candidate) -> dict:
+    """physical_parameters of one candidate (with the torque gain of its joint, which its conversion needs)."""
+    part = [c for c in model.candidates if c is cand or (c.type == "torque_gain" and c.joint == cand.joint)]
+    return physical_parameters(model.part(part))[part.index(cand)]
+
+
+def _at_far_bound(model: Model, cand: Candidate) -> bool:
+    """On a bound that is not the parameter's null value (0: no effect): "at bound — not identified"."""
+    th = model.params_of(cand)
+    for t, lo, hi in zip(th, cand.lower, cand.upper):
+        for b in (lo, hi):
+            if b != 0.0 and _on(t, b):
+                return True
+    if cand.type == "payload":
+        return bool(model.payload_com is not None and np.linalg.norm(model.payload_com) >= MAX_PAYLOAD_LEVER * (1 - 1e-9))
+    return False
 
 
 def dimension_pools(layout: FeatureLayout) -> list[np.ndarray]:
@@ -257,20 +282,41 @@ class Selection:
     weights: np.ndarray
     nominal_ss: float            # held-out normalised SS, nominal model
     final_ss: float              # held-out normalised SS with the selected effects
-    shares: list[float]          # per selected candidate
+    shares: list[float]          # per selected candidate (of the gap above the noise floor)
     steps: list[Step] = field(default_factory=list)
     full_fit_rms: np.ndarray | None = None
     spread: list[float] = field(default_factory=list)           # consistency() of each selected effect
     raw_nominal_ss: float = 0.0                                  # held-out normalised SS without the baseline
     n_baseline: int = 0                                          # model.candidates[:n_baseline] = the baseline
     rejected: list[tuple[str, float]] = field(default_factory=list)  # (label, spread) rejected as inconsistent
+    floor_ss: float = 0.0        # held-out normalised SS of the noise floor (noise_floor)
+    noise_floor: np.ndarray | None = None  # per dimension [N or Nm] (noise_floor)
+    not_identified: list[dict] = field(default_factory=list)  # candidates whose estimate ends on a bound
 
     @property
     def effects(self) -> list[Candidate]:
         return self.model.candidates[self.n_baseline:]
 
     @property
+    def gap_ss(self) -> float:
+        """The held-out gap above the noise floor (normalised SS): what effects can explain."""
+        return max(self.nominal_ss - self.floor_ss, 0.0)
+
+    @property
+    def gap_at_noise_floor(self) -> bool:
+        """The nominal held-out error is (almost) all noise: nothing above the floor to explain."""
+        return self.gap_ss <= GAP_AT_FLOOR * self.nominal_ss
+
+    @property
     def unexplained_share(self) -> float:
+        """Share of the gap *above the noise floor* the selected effects leave (noise is not an effect)."""
+        if self.gap_at_noise_floor:
+            return 0.0
+        return float(np.clip((self.final_ss - self.floor_ss) / self.gap_ss, 0.0, 1.0))
+
+    @property
+    def unexplained_share_with_noise(self) -> float:
+        """final / nominal held-out residual, noise included (the earlier definition)."""
         return float(self.final_ss / self.nominal_ss) if self.nominal_ss > 0 else 0.0
 
 
@@ -282,7 +328,7 @@ def _heldout_ss(model: Model, Gh: np.ndarray, ch: np.ndarray, sh: float) -> floa
 def relevance_function(rows: Rows, train: Grams):
     """relevance(model, cand) → the effect's size relative to the robot's own forces: the largest,
     over generalized coordinates, RMS of its generalized force (before eq. 11; Γ for actuation
-    effects) divided by the RMS of the signal there (M q̈ + h on the base, τ on the joints)."""
+    and sensor effects) divided by the RMS of the signal there (M q̈ + h on the base, τ on the joints)."""
     lay = rows.layout
     n_rbd_dims = 6 + 3 * lay.robot.n_feet
     n = max(rows.n_raw, 1)
@@ -310,12 +356,14 @@ def relevance_function(rows: Rows, train: Grams):
 
 
 def kind_dimensions(layout: FeatureLayout) -> dict[str, np.ndarray]:
+    """Output dimensions each kind of candidate explains (a sensor effect: both Φ̃' and Γ)."""
     n_rbd = 6 + 3 * layout.robot.n_feet
-    return {"rbd": np.arange(n_rbd), "actuation": n_rbd + np.arange(layout.robot.n_joints)}
+    rbd, act = np.arange(n_rbd), n_rbd + np.arange(layout.robot.n_joints)
+    return {"rbd": rbd, "actuation": act, "sensor": np.concatenate([rbd, act])}
 
 
 class _Problem:
-    """Weighted Grams of one kind of output (rbd or actuation): its candidates touch only its rows."""
+    """Weighted Grams of some output dimensions (all, or one kind's)."""
 
     def __init__(self, layout, train: Grams, heldout: Grams, w: np.ndarray, dims: np.ndarray):
         wk = np.zeros_like(w)
@@ -332,21 +380,33 @@ class _Problem:
         return _heldout_ss(model, self.Gh, self.ch, self.sh)
 
 
-def _select_kind(prob: _Problem, cands: list[Candidate], steps: list[Step], total_nominal: float,
-                 fixed: list[Candidate], progress=None, relevance=None) -> list[Candidate]:
-    """Forward selection, swaps and backward pruning within one kind (module docstring).
+def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total_nominal: float,
+                fixed: list[Candidate], thresholds: dict[str, float], progress=None, relevance=None,
+                limited: dict | None = None) -> list[Candidate]:
+    """Forward selection, swaps and backward pruning over every kind (module docstring).
 
-    `fixed` candidates (the baseline) are part of every fit and never selected or dropped."""
+    A candidate is accepted when its held-out gain reaches its kind's threshold. `fixed`
+    candidates (the baseline) are part of every fit and never selected or dropped. `limited`
+    collects candidates whose estimate ended on a non-null physical bound although they would
+    have reduced the held-out residual by their threshold: label → (candidate, model, gain)."""
     nominal = prob.ss(prob.fit(fixed))
-    threshold = max(MIN_SHARE * nominal, MIN_NOISE_GAIN * prob.rows)
     current: list[Candidate] = []
     current_ss = nominal
     diag = np.diag(prob.Gt)
     usable = [k for k in cands if np.any(diag[list(k.features)] > 0)]
 
-    def trial(cset: list[Candidate], k: Candidate | None) -> tuple[float, Model] | None:
+    def thr(k: Candidate) -> float:
+        return thresholds[k.kind]
+
+    def trial(cset: list[Candidate], k: Candidate | None, ss_now: float | None = None) -> tuple[float, Model] | None:
         m = prob.fit(fixed + cset)
-        if k is not None and (_at_bound(m, k) or (relevance is not None and relevance(m, k) < MIN_RELEVANCE)):
+        if k is not None and _at_bound(m, k):
+            if limited is not None and ss_now is not None and _at_far_bound(m, k):
+                gain = ss_now - prob.ss(m)
+                if gain >= thr(k):
+                    limited[k.label] = (k, m, gain)
+            return None
+        if k is not None and relevance is not None and relevance(m, k) < MIN_RELEVANCE:
             return None
         return prob.ss(m), m
 
@@ -355,19 +415,19 @@ def _select_kind(prob: _Problem, cands: list[Candidate], steps: list[Step], tota
         for k in usable:
             if k in current:
                 continue
-            t = trial(current + [k], k)
-            if t is not None:
+            t = trial(current + [k], k, current_ss)
+            if t is not None and current_ss - t[0] >= thr(k):
                 trials.append((current_ss - t[0], k))
         if progress is not None:
             progress()
         if not trials:
             break
-        # the out-of-catalogue probe competes with a discounted gain (module docstring)
+        # the out-of-catalogue probes compete with a discounted gain (module docstring); gains are
+        # compared relative to each kind's threshold so that a kind with a larger nominal residual
+        # does not outbid the others by size alone
         score = {id(k): g * (1.0 if k.in_catalogue else 1.0 - OUT_OF_CATALOGUE_MARGIN) for g, k in trials}
         trials.sort(key=lambda x: -score[id(x[1])])
         best_score = score[id(trials[0][1])]
-        if trials[0][0] < threshold:
-            break
         near = [t for t in trials if score[id(t[1])] >= (1 - PARSIMONY) * best_score]
         gain, k = min(near, key=lambda t: (t[1].n_params, -score[id(t[1])]))
         runner = next((t for t in trials if t[1] is not k), None)
@@ -379,14 +439,15 @@ def _select_kind(prob: _Problem, cands: list[Candidate], steps: list[Step], tota
         improved = True
         while improved:
             improved = False
-            best = (current_ss - SWAP_MARGIN * threshold, None, None)
+            best = (np.inf, None, None)
             for i in range(len(current)):
                 for k2 in usable:
                     if k2 in current or not k2.in_catalogue:
                         continue
                     cset = current[:i] + [k2] + current[i + 1:]
                     t = trial(cset, k2)
-                    if t is not None and t[0] < best[0]:
+                    margin = SWAP_MARGIN * min(thr(k2), thr(current[i]))
+                    if t is not None and t[0] < current_ss - margin and t[0] < best[0]:
                         best = (t[0], i, k2)
             if best[1] is not None:
                 steps.append(Step(f"{best[2].label} (replaces {current[best[1]].label})",
@@ -402,17 +463,20 @@ def _select_kind(prob: _Problem, cands: list[Candidate], steps: list[Step], tota
         if not stuck:
             break
         for k in stuck:
+            if limited is not None and _at_far_bound(m, k):
+                limited[k.label] = (k, m, 0.0)
             current.remove(k)
             steps.append(Step(f"dropped {k.label} (parameter on its physical bound or negligible)", 0.0, None, 0.0))
         current_ss = prob.ss(prob.fit(fixed + current))
-    # backward pruning: drop effects that no longer pay for themselves
+    # backward pruning: drop effects that no longer pay for themselves (e.g. an actuator gain once the
+    # torque sensor's gain at that joint explains both Φ̃ and Γ)
     while current:
         costs = []
         for k in current:
             m = prob.fit(fixed + [x for x in current if x is not k])
-            costs.append((prob.ss(m) - current_ss, k))
-        cost, k = min(costs, key=lambda x: x[0])
-        if cost >= threshold:
+            costs.append(((prob.ss(m) - current_ss) / thr(k), prob.ss(m) - current_ss, k))
+        rel, cost, k = min(costs, key=lambda x: x[0])
+        if rel >= 1.0:
             break
         current.remove(k)
         current_ss = prob.ss(prob.fit(fixed + current))
@@ -457,13 +521,31 @@ def consistency(model: Model, subsets: list[Grams], weights: np.ndarray, extra=N
     return out
 
 
+def noise_floor(layout: FeatureLayout, heldout: Grams, sigma: np.ndarray) -> np.ndarray:
+    """Per output dimension [N or Nm], the held-out error no model could remove: the RMS residual of
+    an in-sample fit of every catalogue feature *on the held-out data itself*, capped at the median of
+    its pool of dimensions of the same kind (an effect outside the catalogue at one joint or leg
+    raises that dimension's residual, not its pool's median: it stays above the floor, unexplained).
+    Dimensions without held-out rows get σ_d."""
+    _, rms = noise_levels(layout, heldout)
+    floor = np.asarray(sigma, float).copy()
+    for pool in dimension_pools(layout):
+        obs = pool[heldout.n[pool] > 0]
+        if len(obs) == 0:
+            continue
+        med = float(np.median(rms[obs]))
+        floor[obs] = np.minimum(rms[obs], med)
+    return floor
+
+
 def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
            candidates: list[Candidate] | None = None, subsets: list[Grams] | None = None,
            relevance=None, candidate_subsets=None) -> Selection:
     """Greedy forward selection with swaps and backward pruning (module docstring).
 
-    Rigid-body and actuation candidates explain disjoint rows (Φ̃' and Γ), so each kind is
-    selected separately with thresholds relative to its own nominal residual. The baseline
+    Every kind of candidate competes in one loop on all output dimensions (rigid-body and actuation
+    candidates explain disjoint rows, a torque-sensor effect both); each is accepted against the
+    threshold of its kind, relative to that kind's own nominal residual. The baseline
     (command-update sampling, candidates.py) is part of every model: the "nominal" residual is
     the one after it. With `subsets` (Grams of parts of the identification data), effects whose
     parameter is not consistent across them (consistency() > MAX_SPREAD) are rejected."""
@@ -474,13 +556,15 @@ def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
     Gt, ct, _ = train.weighted(w)
     Gh, ch, sh = heldout.weighted(w)
     nominal = _heldout_ss(fit_model(layout, base, Gt, ct), Gh, ch, sh)
-    steps: list[Step] = []
-    current: list[Candidate] = []
+    thresholds = {}
     for kind, dims in kind_dimensions(layout).items():
-        prob = _Problem(layout, train, heldout, w, dims)
-        fixed = [b for b in base if b.kind == kind]
-        current += _select_kind(prob, [k for k in cands if k.kind == kind], steps, nominal, fixed, progress,
-                                relevance)
+        pk = _Problem(layout, train, heldout, w, dims)
+        nom_k = pk.ss(pk.fit(base))
+        thresholds[kind] = max(MIN_SHARE * nom_k, MIN_NOISE_GAIN * pk.rows)
+    steps: list[Step] = []
+    limited: dict = {}
+    prob = _Problem(layout, train, heldout, w, np.arange(len(sigma)))
+    current = _select_all(prob, cands, steps, nominal, base, thresholds, progress, relevance, limited)
     model = fit_model(layout, base + current, Gt, ct)
     rejected: list[tuple[str, float]] = []
     if (subsets or candidate_subsets) and current:
@@ -491,9 +575,19 @@ def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
             steps.append(Step(f"rejected {k.label}: its parameter varies by {sp:.0%} across contact "
                               "configurations and bags", 0.0, None, 0.0))
         model = fit_model(layout, base + current, Gt, ct)
+    # after every refit: an estimate on a physical bound is not identified (bounds.py)
+    for k in [k for k in current if _at_bound(model, k)]:
+        if _at_far_bound(model, k):
+            limited[k.label] = (k, model, 0.0)
+        current.remove(k)
+        steps.append(Step(f"dropped {k.label} (parameter on its physical bound after the final refit)", 0.0, None, 0.0))
+    model = fit_model(layout, base + current, Gt, ct)
     current_ss = _heldout_ss(model, Gh, ch, sh)
-    # shares: explained part split by the drop-one cost of each effect
-    explained = max(0.0, 1.0 - current_ss / nominal) if nominal > 0 else 0.0
+    floor = noise_floor(layout, heldout, sigma)
+    floor_ss = float(np.sum(heldout.n * (floor / sigma) ** 2))
+    gap = max(nominal - floor_ss, 0.0)
+    # shares: the explained part of the gap above the noise floor, split by the drop-one cost of each effect
+    explained = (max(0.0, min(1.0, (nominal - current_ss) / gap)) if gap > GAP_AT_FLOOR * nominal else 0.0)
     drop = []
     for k in current:
         m = fit_model(layout, base + [x for x in current if x is not k], Gt, ct)
@@ -504,24 +598,76 @@ def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
     model = fit_model(layout, base + [current[i] for i in order], Gt, ct)
     spread = (consistency(model, subsets or [], w, candidate_subsets)[len(base):]
               if (subsets or candidate_subsets) else [0.0] * len(order))
+    not_identified = [_not_identified_entry(k, m, g / nominal if nominal > 0 else 0.0)
+                      for label, (k, m, g) in sorted(limited.items()) if k not in current and k.in_catalogue]
     return Selection(model=model, sigma=sigma, weights=w, nominal_ss=nominal, final_ss=current_ss,
                      shares=[shares[i] for i in order], steps=steps, full_fit_rms=full_rms,
-                     spread=spread, rejected=rejected, raw_nominal_ss=float(sh), n_baseline=len(base))
+                     spread=spread, rejected=rejected, raw_nominal_ss=float(sh), n_baseline=len(base),
+                     floor_ss=floor_ss, noise_floor=floor, not_identified=not_identified)
+
+
+def _not_identified_entry(cand: Candidate, model: Model, gain_share: float) -> dict:
+    """An effect whose estimate ends on a physical bound (bounds.py): reported with its bound, no confidence."""
+    th = model.params_of(cand)
+    lo, hi = np.asarray(cand.lower), np.asarray(cand.upper)
+    names = [n for n, t, a, b in zip(cand.param_names, th, lo, hi) if _on(t, a) or _on(t, b)]
+    e = {"type": cand.type}
+    e.update(cand.location())
+    e.update({"params": _physical_of(model, cand), "status": "at bound — not identified", "confidence": None,
+              "parameters_at_bound": names, "heldout_gain_share": float(gain_share),
+              "description": "the data push this parameter to the edge of its physical range (bounds.py); "
+                             "the effect does not explain them as a physical effect would"})
+    return e
+
+
+def _on(t: float, b: float, rel: float = 1e-6) -> bool:
+    return bool(np.isfinite(b) and abs(t - b) <= rel * max(abs(t), 1.0) + 1e-12)
 
 
 # --- physical parameters ---------------------------------------------------------------------
+
+def staircase_lag(c: float, tick: float) -> float:
+    """T of a first-order lag whose staircase command reads as Γ = −c τ̇ in a log sampled at the tick.
+
+    Why a raw c is ~20 % low (7.7 ms for a 10 ms lag at a 4 ms tick): the log samples, at each
+    tick, the command in force *before* it (the last step of a staircase) and the torque that has
+    followed that step for one tick only. For a first-order lag of a staircase command the
+    sampled relation is exactly τ_k = β τ_{k−1} + (1 − β) u_{k−1}, β = exp(−Δt/T), which the
+    regression reads as c = Δt β/(1 − β) ≈ T − Δt/2 (T ≫ Δt). Inverting: T = Δt / ln(1 + Δt/c)."""
+    if c <= 0:
+        return 0.0
+    return float(tick / np.log1p(tick / c))
+
+
+def lag_time_constant(c: float, tick: float | None) -> tuple[float, float]:
+    """(T, its conversion standard deviation) of a fitted lag coefficient c, corrected for
+    command-update sampling (staircase_lag). The command a joint loop follows is part staircase
+    (the feedforward held over a tick: T = staircase_lag(c)) and part continuous (the PD on the
+    measured state: T = c); a log does not tell the mix, so T is the middle of the two readings
+    and half their difference is its conversion uncertainty (both readings lie within 1 std).
+    Without a tick: (c, 0)."""
+    if tick is None or not tick > 0:
+        return float(c), 0.0
+    c = max(float(c), 0.0)
+    hi = staircase_lag(c, tick)
+    return 0.5 * (c + hi), 0.5 * (hi - c)
+
 
 def physical_parameters(model: Model) -> list[dict]:
     """Each candidate's parameters in the scenario's terms (DESIGN §5), e.g. {"value": 5.8}.
 
     Actuation parameters of one joint are converted together: with a = 1 − 1/g, b = o/g,
-    c = T/g (candidates.py), g = 1/(1 − a), o = b g, T = c g.
+    c = T/g (candidates.py), g = 1/(1 − a), o = b g, T = c g (c first corrected for
+    command-update sampling with the log's tick, lag_time_constant). Torque-sensor effects:
+    g_s = 1/(1 − a_s), o_s = b_s g_s.
     """
     gain = {}
     for cand in model.candidates:
         if cand.type == "torque_gain":
             a = float(model.params_of(cand)[0])
             gain[cand.joint] = 1.0 / (1.0 - a)
+    sensor_gain = {c.joint: 1.0 / (1.0 - float(model.params_of(c)[0])) for c in model.candidates
+                   if c.type == "torque_sensor_gain"}
     out = []
     for cand in model.candidates:
         th = model.params_of(cand)
@@ -541,7 +687,12 @@ def physical_parameters(model: Model) -> list[dict]:
             p = {"value": float(th[0]) * gain.get(cand.joint, 1.0)}
         elif cand.type == "actuator_lag":
             # a joint's own lag: c = T/g; the all-joint lag's column already carries 1/g_j (fit_model)
-            p = {"time_constant": float(th[0]) * (gain.get(cand.joint, 1.0) if cand.joint else 1.0)}
+            p = {"time_constant": lag_time_constant(float(th[0]), model.tick)[0]
+                 * (gain.get(cand.joint, 1.0) if cand.joint else 1.0)}
+        elif cand.type == "torque_sensor_gain":
+            p = {"value": sensor_gain[cand.joint]}
+        elif cand.type == "torque_sensor_offset":
+            p = {"value": float(th[0]) * sensor_gain.get(cand.joint, 1.0)}
         elif cand.type == "command_update_sampling":
             p = {"qd": float(th[0]), "qdd": float(th[1]), "udot": float(th[2])}
         elif not cand.in_catalogue:
@@ -572,19 +723,11 @@ def _unflatten(like: list[dict], flat: np.ndarray) -> list[dict]:
     return out
 
 
-def bootstrap_std(selection: Selection, rows: Rows, fs: float = 250.0, n_boot: int = BOOTSTRAP,
-                  seed: int = 0) -> list[dict]:
-    """Standard deviation of each effect's physical parameters: moving-block bootstrap over time
-    on the identification rows (blocks of BLOCK_SECONDS, resampled with replacement)."""
-    model = selection.model
-    if not model.candidates:
-        return []
-    layout = model.layout
-    feats = np.unique(np.concatenate([np.asarray(c.features) for c in model.candidates]))
+def _block_grams(selection: Selection, rows: Rows, feats: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per time block of the identification rows: weighted Gram matrices over the features `feats`."""
+    layout = selection.model.layout
     n_s = len(rows.samples)
-    block = max(1, int(round(BLOCK_SECONDS * fs)))
     n_blocks = max(1, int(np.ceil(n_s / block)))
-    nf = layout.n_features
     Gb = np.zeros((n_blocks, len(feats), len(feats)))
     cb = np.zeros((n_blocks, len(feats)))
     n_rbd_dims = 6 + 3 * layout.robot.n_feet
@@ -601,7 +744,7 @@ def bootstrap_std(selection: Selection, rows: Rows, fs: float = 250.0, n_boot: i
             Gb[b][np.ix_(pos_r, pos_r)] += Xm.T @ Xm
             cb[b, pos_r] += (X[m] * wr[m][:, None]).T @ rows.y_rbd[m]
     for j in range(layout.robot.n_joints):
-        fj = layout.actuation_feature(j, "lag") + np.arange(3)
+        fj = layout.actuation_block(j)
         sel = np.isin(fj, feats)
         if not sel.any():
             continue
@@ -613,16 +756,68 @@ def bootstrap_std(selection: Selection, rows: Rows, fs: float = 250.0, n_boot: i
             sl = slice(b * block, min(n_s, (b + 1) * block))
             Gb[b][np.ix_(pos, pos)] += wj * Xj[sl].T @ Xj[sl]
             cb[b, pos] += wj * Xj[sl].T @ yj[sl]
-    rng = np.random.default_rng(seed)
+    return Gb, cb
+
+
+def _residual_series(selection: Selection, rows: Rows) -> list[np.ndarray]:
+    """The identification residual after the selected model, one time series per output dimension."""
+    from .features import predict
+
+    pr, pa = predict(rows, selection.model.feature_theta())
+    out = [(rows.y_rbd - pr)[rows.dim_rbd == d] for d in np.unique(rows.dim_rbd)]
+    out += [(rows.y_act - pa)[:, j] for j in range(rows.y_act.shape[1])]
+    return [r for r in out if len(r) >= 4 and np.any(r)]
+
+
+def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | None = None, fs: float = 250.0,
+                          n_boot: int = BOOTSTRAP, seed: int = 0) -> tuple[list[dict], dict]:
+    """Standard deviation of each candidate's physical parameters (uncertainty.py: block bootstrap
+    with blocks from the residual's autocorrelation, held-out reproduction, the lag's conversion),
+    and a summary of how it was obtained (block length, components)."""
+    from . import uncertainty as unc
+
+    model = selection.model
+    if not model.candidates:
+        return [], {}
+    layout = model.layout
+    feats = np.unique(np.concatenate([np.asarray(c.features) for c in model.candidates]))
+    n_s = len(rows.samples)
+    block = unc.block_length(_residual_series(selection, rows), fs, n_s)
+    Gb, cb = _block_grams(selection, rows, feats, block)
+    nf = layout.n_features
     base = physical_parameters(model)
-    draws = []
-    for _ in range(n_boot):
-        pick = rng.integers(0, n_blocks, n_blocks)
+
+    def fit(Gs: np.ndarray, cs: np.ndarray) -> np.ndarray:
         G = np.zeros((nf, nf))
         c = np.zeros(nf)
-        G[np.ix_(feats, feats)] = Gb[pick].sum(axis=0)
-        c[feats] = cb[pick].sum(axis=0)
-        m = fit_model(layout, model.candidates, G, c)
-        draws.append(_flatten(physical_parameters(m)))
-    std = np.std(np.asarray(draws), axis=0, ddof=1) if n_boot > 1 else np.zeros_like(_flatten(base))
-    return _unflatten(base, std)
+        G[np.ix_(feats, feats)] = Gs
+        c[feats] = cs
+        return _flatten(physical_parameters(fit_model(layout, model.candidates, G, c, tick=model.tick)))
+
+    draws = unc.block_bootstrap(Gb, cb, fit, n_boot, seed)
+    sampling = unc.bootstrap_std(draws, len(Gb))
+    flat = _flatten(base)
+    reproduction = np.zeros_like(flat)
+    if heldout is not None and np.any(heldout.n > 0):
+        Gh, ch, _ = heldout.weighted(selection.weights)
+        m_ho = fit_model(layout, model.candidates, Gh, ch, tick=model.tick)
+        reproduction = np.abs(_flatten(physical_parameters(m_ho)) - flat) / np.sqrt(2.0)
+    conversion = np.zeros_like(flat)
+    k = 0
+    for cand, p in zip(model.candidates, base):
+        n = len(_flatten([p]))
+        if cand.type == "actuator_lag" and model.tick:
+            T, conv = lag_time_constant(float(model.params_of(cand)[0]), model.tick)
+            conversion[k] = conv * (p["time_constant"] / T if T > 0 else 1.0)  # × the joint's gain
+        k += n
+    std = unc.combine(sampling, reproduction, conversion)
+    info = {"method": "block bootstrap over time (blocks from the residual's autocorrelation), held-out "
+                      "reproduction and the lag's sampling conversion, in quadrature",
+            "block_seconds": block / fs, "blocks": int(len(Gb)), "draws": int(len(draws))}
+    return _unflatten(base, std), info
+
+
+def bootstrap_std(selection: Selection, rows: Rows, fs: float = 250.0, n_boot: int = BOOTSTRAP,
+                  seed: int = 0) -> list[dict]:
+    """Standard deviations only (parameter_uncertainty without held-out data)."""
+    return parameter_uncertainty(selection, rows, None, fs, n_boot, seed)[0]

@@ -27,10 +27,11 @@ import numpy as np
 from ..fileio import atomic_write_json, atomic_write_text
 from ..pipeline import load_dataset
 from ..robot import RobotDescription
+from .bounds import physical_ranges
 from .candidates import COULOMB_SMOOTHING, FeatureLayout, link_inertias
 from .effects import DiagnosisError
 from .features import build_rows, grams
-from .identification import bootstrap_std, physical_parameters, relevance_function, select
+from .identification import parameter_uncertainty, physical_parameters, relevance_function, select
 from .localization import dimension_names, leg_summary, localize
 from .shrink import residual_series, residuals, shrink
 
@@ -119,11 +120,44 @@ def friction_speed_subsets(robot: RobotDescription, dataset, rows):
     return subsets
 
 
+Z95, Z68 = 1.959964, 0.994458
+"""Normal quantiles of the reported two-sided 95 % and 68 % intervals (value ± z·std)."""
+
+
+def _interval(params: dict, std: dict, z: float) -> dict:
+    out = {}
+    for k, v in params.items():
+        s = std.get(k)
+        if isinstance(v, list):
+            out[k] = [[float(a - z * b), float(a + z * b)] for a, b in zip(v, s)]
+        else:
+            out[k] = [float(v - z * s), float(v + z * s)]
+    return out
+
+
+def _confidence(cand, params: dict, std: dict, spread: float) -> str:
+    """high / medium / low: consistent across data subsets (spread) and clear of zero (the main
+    parameter's deviation from "no effect" is at least 4 / 2 standard deviations)."""
+    key = next(iter(params))
+    v, s = params[key], std.get(key)
+    if isinstance(v, list):
+        return "medium" if spread <= 0.3 else "low"
+    null = 1.0 if cand.type in ("link_mass_scale", "torque_gain", "torque_sensor_gain") else 0.0
+    z = abs(v - null) / max(float(s), 1e-300) if isinstance(s, float) else np.inf
+    if spread <= 0.1 and z >= 4:
+        return "high"
+    if spread <= 0.3 and z >= 2:
+        return "medium"
+    return "low"
+
+
 def _effect_entry(cand, params: dict, std: dict, share: float, spread: float) -> dict:
     e = {"type": cand.type}
     e.update(cand.location())
-    e.update({"params": params, "std": std, "share": float(share), "consistency_spread": float(spread),
-              "confidence": "high" if spread <= 0.1 else "medium" if spread <= 0.3 else "low"})
+    e.update({"params": params, "std": std, "interval_95": _interval(params, std, Z95),
+              "interval_68": _interval(params, std, Z68), "share": float(share),
+              "consistency_spread": float(spread), "status": "identified",
+              "confidence": _confidence(cand, params, std, spread)})
     return e
 
 
@@ -189,7 +223,8 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
                  relevance=relevance_function(rows_id, g_id),
                  candidate_subsets=friction_speed_subsets(robot, ds_id, rows_id))
     _say(progress, "parameter uncertainty (block bootstrap)")
-    std_all = bootstrap_std(sel, rows_id)
+    sel.model.tick = 1.0 / ds_id.rate_hz  # the lag's command-update sampling correction (lag_time_constant)
+    std_all, uncertainty = parameter_uncertainty(sel, rows_id, g_ho, fs=ds_id.rate_hz)
     params_all = physical_parameters(sel.model)
     nb = sel.n_baseline
     baseline = sel.model.part(sel.model.candidates[:nb])
@@ -202,17 +237,19 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     for x in loc:
         x["rms_error_before_baseline"] = raw_loc[x["dimension"]]
     res = residuals(corr_ho, effects_model, sel.weights, ds_ho.log.v[rows_ho.samples, 6:])
-    shr = shrink(robot, corr_ho, res, sel.sigma)
+    shr = shrink(robot, corr_ho, res, sel.sigma, sel.noise_floor)
     raw = shrink(robot, rows_ho, residuals(rows_ho, baseline, sel.weights, ds_ho.log.v[rows_ho.samples, 6:]), sel.sigma)
     shr["baseline"] = {"heldout_rms_before_baseline": raw["heldout_rms_nominal"],
                        "heldout_rms_after_baseline": raw["heldout_rms_with_effects"]}
     # shares: drop-one costs of the selection plus what each friction's stiction estimate removes
-    shares = [sh + res.stiction_gain.get(c.label, 0.0) / sel.nominal_ss for c, sh in zip(sel.effects, sel.shares)]
+    # (shares are of the gap above the noise floor, identification.Selection.unexplained_share)
+    gap = sel.gap_ss if not sel.gap_at_noise_floor else np.inf
+    shares = [sh + res.stiction_gain.get(c.label, 0.0) / gap for c, sh in zip(sel.effects, sel.shares)]
     found = list(zip(sel.effects, params_all[nb:], std_all[nb:], shares, sel.spread))
     effects = [_effect_entry(c, p, s, sh, sp) for c, p, s, sh, sp in found if c.in_catalogue]
     effects.sort(key=lambda e: -e["share"])
     # what the out-of-catalogue probe explains stays unexplained, localised at its joint
-    unexplained = 1.0 - sum(e["share"] for e in effects)
+    unexplained = 0.0 if sel.gap_at_noise_floor else 1.0 - sum(e["share"] for e in effects)
     outside = [_unmodelled_entry(layout, ds_id, id_idx, c, sel.model.params_of(c), sh)
                for c, _, _, sh, _ in found if not c.in_catalogue]
     names = dimension_names(robot)
@@ -224,12 +261,27 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
         "baseline": {
             "type": "command_update_sampling",
             "params": params_all[0], "std": std_all[0],
+            "at_bound": [n for n, v, lo, hi in zip(sel.model.candidates[0].param_names, sel.model.theta[:3],
+                                                   sel.model.candidates[0].lower, sel.model.candidates[0].upper)
+                         if np.isclose(v, lo) or np.isclose(v, hi)],
             "description": "not an effect of the robot: the log samples the joint loop's torque just before "
                            "each new command acts; e_j = qd*q'_j + qdd*q''_j + udot*u'_j on every joint "
                            "(expected qd = -Kp*dt/2, qdd = -Kd*dt/2, udot = -dt/2, dt the tick). Fitted with "
                            "every model; the gap is what remains after it.",
         },
         "unexplained_share": float(max(0.0, unexplained)),
+        "unexplained_share_with_noise": sel.unexplained_share_with_noise,
+        "gap_at_noise_floor": bool(sel.gap_at_noise_floor),
+        "noise_floor": {
+            "description": "held-out error no model can remove (per dimension, N or Nm): an in-sample fit of "
+                           "every catalogue term on the held-out data, capped at its pool's median; "
+                           "unexplained_share and the effects' shares count only the gap above it",
+            "share_of_nominal": float(sel.floor_ss / sel.nominal_ss) if sel.nominal_ss > 0 else 0.0,
+            "per_dimension": {n: float(f) for n, f in zip(dimension_names(robot), sel.noise_floor)},
+        },
+        "not_identified": sel.not_identified,
+        "bounds": physical_ranges(robot),
+        "uncertainty": uncertainty,
         "unexplained_localised": outside,
         "shrink": shr,
         "data": {

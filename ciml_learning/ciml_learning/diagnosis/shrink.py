@@ -80,10 +80,24 @@ def _overall(rows: Rows, rbd_res: np.ndarray, act_res: np.ndarray, sigma: np.nda
     return float(np.sqrt(z / max(n, 1))), float(np.sqrt(phys / max(n, 1)))
 
 
-def shrink(robot, rows: Rows, res: Residuals, sigma: np.ndarray) -> dict:
-    """The `shrink` object of diagnosis.json (DESIGN §6) from held-out rows."""
+WORSE_TOLERANCE = 0.0
+"""A dimension is listed as made worse when its held-out RMS with the effects exceeds the nominal by more
+than this fraction (0: every increase is listed)."""
+
+
+def shrink(robot, rows: Rows, res: Residuals, sigma: np.ndarray, floor: np.ndarray | None = None) -> dict:
+    """The `shrink` object of diagnosis.json (DESIGN §6) from held-out rows.
+
+    Per dimension: the physical RMS [N or Nm] (rms_nominal, rms_with_effects, `unit`) next to the
+    noise-normalised one (÷ σ_d), and the noise floor [N or Nm] (identification.noise_floor)
+    with the share of the gap above it that the effects remove. `worsened_dimensions` lists every
+    dimension the effects make worse (physical RMS up), and the overall numbers are given both
+    noise-normalised (`ratio`, the contract) and in physical units, each dimension weighted alike
+    (`ratio_physical_per_dimension`: RMS over dimensions of their physical RMS)."""
     names = dimension_names(robot)
     n_rbd = len(sigma) - rows.y_act.shape[1]
+    units = {n: ("Nm" if (d >= n_rbd or n in ("base_roll", "base_pitch", "base_yaw")) else "N")
+             for d, n in enumerate(names)}
     per_dim = {}
     for d, name in enumerate(names):
         if d < n_rbd:
@@ -97,12 +111,33 @@ def shrink(robot, rows: Rows, res: Residuals, sigma: np.ndarray) -> dict:
                 continue
         nom = float(np.sqrt(np.mean(y ** 2)))
         wth = float(np.sqrt(np.mean(e ** 2)))
-        per_dim[name] = {"rms_nominal": nom, "rms_with_effects": wth,
-                         "ratio": float(1.0 - wth / nom) if nom > 0 else 0.0, "samples": int(len(y))}
+        entry = {"rms_nominal": nom, "rms_with_effects": wth, "unit": units[name],
+                 "ratio": float(1.0 - wth / nom) if nom > 0 else 0.0, "samples": int(len(y)),
+                 "rms_nominal_normalised": nom / float(sigma[d]), "rms_with_effects_normalised": wth / float(sigma[d])}
+        if floor is not None:
+            f = float(floor[d])
+            above = nom ** 2 - f ** 2
+            entry["noise_floor"] = f
+            entry["ratio_above_noise_floor"] = (float(np.clip((nom ** 2 - wth ** 2) / above, -np.inf, 1.0))
+                                                if above > 1e-12 * max(nom ** 2, 1e-300) else 0.0)
+        per_dim[name] = entry
     nom, nom_p = _overall(rows, rows.y_rbd, rows.y_act, sigma)
     wth, wth_p = _overall(rows, res.rbd, res.act, sigma)
     wns, _ = _overall(rows, res.rbd_no_stiction, res.act, sigma)
-    return {
+    worse = sorted(((n, e) for n, e in per_dim.items()
+                    if e["rms_with_effects"] > e["rms_nominal"] * (1 + WORSE_TOLERANCE)),
+                   key=lambda x: x[1]["ratio"])
+    pd_nom = float(np.sqrt(np.mean([e["rms_nominal"] ** 2 for e in per_dim.values()]))) if per_dim else 0.0
+    pd_wth = float(np.sqrt(np.mean([e["rms_with_effects"] ** 2 for e in per_dim.values()]))) if per_dim else 0.0
+    extra = {
+        "worsened_dimensions": [{"dimension": n, "rms_nominal": e["rms_nominal"], "rms_with_effects": e["rms_with_effects"],
+                                 "unit": e["unit"], "ratio": e["ratio"]} for n, e in worse],
+        "ratio_physical_per_dimension": float(1.0 - pd_wth / pd_nom) if pd_nom > 0 else 0.0,
+    }
+    if floor is not None:
+        extra["noise_floor_rms_physical"] = float(np.sqrt(np.mean([e["noise_floor"] ** 2 for e in per_dim.values()]))) \
+            if per_dim else 0.0
+    out = {
         "heldout_rms_nominal": nom,
         "heldout_rms_with_effects": wth,
         "ratio": float(1.0 - wth / nom) if nom > 0 else 0.0,
@@ -114,6 +149,8 @@ def shrink(robot, rows: Rows, res: Residuals, sigma: np.ndarray) -> dict:
         "ratio_physical": float(1.0 - wth_p / nom_p) if nom_p > 0 else 0.0,
         "per_dimension": per_dim,
     }
+    out.update(extra)
+    return out
 
 
 def residual_series(rows: Rows, res: Residuals, sigma: np.ndarray, t: np.ndarray) -> dict:

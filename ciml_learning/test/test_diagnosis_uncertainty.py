@@ -1,0 +1,136 @@
+"""Calibrated uncertainty and physical bounds of the diagnosis, on data with a known answer (no simulator).
+
+- intervals from the block bootstrap (the diagnosis' own functions) cover the truth as often as they
+  claim on linear regressions with autocorrelated (AR(1)) regressors and noise;
+- every catalogue parameter has its physical bound (bounds.py), and an estimate on a bound is
+  "at bound — not identified", never an effect;
+- the actuator lag's sampling correction inverts the staircase relation exactly.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ciml_learning.diagnosis import bounds
+from ciml_learning.diagnosis import uncertainty as unc
+from ciml_learning.diagnosis.candidates import N_ACT, FeatureLayout, link_inertias
+from ciml_learning.diagnosis.features import Rows, grams
+from ciml_learning.diagnosis.identification import (
+    fit_model,
+    lag_time_constant,
+    physical_parameters,
+    select,
+    staircase_lag,
+)
+from ciml_learning.robot import load_robot
+
+ROBOT = load_robot()
+LAYOUT = FeatureLayout(ROBOT, link_inertias(ROBOT))
+
+
+def _ar1(rng, n: int, phi: float) -> np.ndarray:
+    e = rng.normal(size=n) * np.sqrt(1 - phi ** 2)
+    x = np.empty(n)
+    x[0] = rng.normal()
+    for i in range(1, n):
+        x[i] = phi * x[i - 1] + e[i]
+    return x
+
+
+def _coverage_trial(rng, n: int = 5000, fs: float = 250.0) -> np.ndarray:
+    """|θ̂ − θ| / std of one synthetic regression: smooth regressors, AR(1) noise (φ = 0.95, ~0.16 s)."""
+    X = np.stack([_ar1(rng, n, 0.98), _ar1(rng, n, 0.9), np.ones(n)], axis=1)
+    theta = np.array([1.0, -0.5, 0.2])
+    y = X @ theta + _ar1(rng, n, 0.95)
+    est = np.linalg.lstsq(X, y, rcond=None)[0]
+    sub = unc.block_length([y - X @ est], fs, n)
+    nb = int(np.ceil(n / sub))
+    Gb = np.stack([X[b * sub:(b + 1) * sub].T @ X[b * sub:(b + 1) * sub] for b in range(nb)])
+    cb = np.stack([X[b * sub:(b + 1) * sub].T @ y[b * sub:(b + 1) * sub] for b in range(nb)])
+    draws = unc.block_bootstrap(Gb, cb, lambda G, c: np.linalg.solve(G, c), 100, int(rng.integers(1 << 30)))
+    return np.abs(est - theta) / unc.bootstrap_std(draws, nb)
+
+
+def test_intervals_cover_the_truth_under_autocorrelated_noise():
+    rng = np.random.default_rng(0)
+    z = np.array([_coverage_trial(rng) for _ in range(200)])
+    cov95, cov68 = (z <= 1.959964).mean(), (z <= 0.994458).mean()
+    assert cov95 >= 0.90 and (z <= 1.959964).mean(axis=0).min() >= 0.85, (z <= 1.959964).mean(axis=0)
+    assert cov68 >= 0.60
+    # the correlation the blocks are sized by: τ_int = (1 + φ)/(1 − φ) for AR(1), 1 for white noise
+    assert unc.integrated_autocorrelation_time(_ar1(rng, 20000, 0.95)) == pytest.approx(39.0, rel=0.25)
+    assert unc.integrated_autocorrelation_time(rng.normal(size=20000)) < 1.2
+
+
+def test_lag_sampling_correction_inverts_the_staircase_relation_and_covers_both_readings():
+    tick = 0.004
+    for T in (0.002, 0.01, 0.02, 0.05):
+        beta = np.exp(-tick / T)
+        c = tick * beta / (1 - beta)  # what Γ = −c τ̇ reads on a staircase command
+        assert staircase_lag(c, tick) == pytest.approx(T, rel=1e-9)
+        mid, std = lag_time_constant(c, tick)
+        # a staircase (T) and a continuous command (c) both lie within one conversion std
+        assert abs(mid - T) <= std * (1 + 1e-9) and abs(mid - c) <= std * (1 + 1e-9) and std > 0
+    assert lag_time_constant(0.0077, None) == (0.0077, 0.0)  # no tick known: the raw coefficient
+    assert lag_time_constant(-1e-4, tick) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("typ", ["joint_coulomb_friction", "joint_viscous_friction", "encoder_offset", "base_imu_tilt",
+                                 "payload", "link_mass_scale", "actuator_lag", "torque_gain", "torque_offset",
+                                 "torque_sensor_gain", "torque_sensor_offset"])
+def test_every_catalogue_parameter_has_its_physical_bound(typ):
+    cands = [c for c in LAYOUT.candidates if c.type == typ]
+    assert cands
+    for c in cands:
+        lo, hi = np.asarray(c.lower), np.asarray(c.upper)
+        assert np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= 0) and np.all(hi >= 0)
+        assert np.all(hi > lo)
+    c = cands[0]
+    lim = float(ROBOT.torque_limits[0])
+    if typ == "joint_coulomb_friction" or typ == "joint_viscous_friction":
+        assert c.lower == (0.0,) and c.upper[0] == pytest.approx(bounds.FRICTION_FRACTION * lim)
+    elif typ in ("encoder_offset", "base_imu_tilt"):
+        assert np.allclose(c.upper, np.radians(5.0)) and np.allclose(c.lower, -np.radians(5.0))
+    elif typ == "payload":
+        assert c.lower[0] == 0.0 and c.upper[0] == pytest.approx(ROBOT.total_mass * bounds.PAYLOAD_MASS_FRACTION)
+    elif typ == "link_mass_scale":
+        assert 1 + c.lower[0] == pytest.approx(0.2) and 1 + c.upper[0] == pytest.approx(5.0)
+    elif typ == "actuator_lag":
+        assert c.lower == (0.0,) and c.upper[0] == pytest.approx(bounds.MAX_LAG / bounds.TORQUE_GAIN[0])
+    elif typ in ("torque_gain", "torque_sensor_gain"):
+        assert 1 / (1 - c.lower[0]) == pytest.approx(0.5) and 1 / (1 - c.upper[0]) == pytest.approx(2.0)
+    else:
+        assert c.upper[0] == pytest.approx(bounds.OFFSET_FRACTION * lim / bounds.TORQUE_GAIN[0])
+    # the baseline keeps the signs its theory gives
+    b = LAYOUT.baseline
+    assert b.upper == (0.0, 0.0, 0.0) and b.lower[2] == -bounds.MAX_TICK / 2
+
+
+def test_fit_stays_inside_the_bounds_and_an_estimate_on_a_bound_is_not_identified():
+    """A joint's Γ is 4 τ (a 'gain' of 1/(1 − 4) < 0, outside every physical range): the torque gain
+    ends on its bound and is reported as not identified, never as an effect."""
+    rng = np.random.default_rng(5)
+    j = 3
+    n = 3000
+
+    def rows():
+        X_act = np.zeros((n, ROBOT.n_joints, N_ACT))
+        X_act[:, :, :2] = rng.normal(size=(n, ROBOT.n_joints, 2))
+        X_act[:, :, 2] = 1.0
+        y = 0.05 * rng.normal(size=(n, ROBOT.n_joints))
+        y[:, j] += 4.0 * X_act[:, j, 1]
+        nr = LAYOUT.n_rbd
+        return Rows(LAYOUT, np.arange(n), np.zeros((0, nr), np.float32), np.zeros(0), np.zeros(0, int),
+                    np.zeros(0, int), X_act, y, np.zeros(0))
+
+    tr, ho = grams(rows()), grams(rows())
+    gain = next(c for c in LAYOUT.candidates if c.type == "torque_gain" and c.joint == ROBOT.joint_names[j])
+    G, c, _ = tr.weighted(np.ones(len(tr.s)))
+    m = fit_model(LAYOUT, [gain], G, c)
+    assert m.theta[0] == pytest.approx(gain.upper[0])  # on the bound, not 4
+    assert physical_parameters(m)[0]["value"] == pytest.approx(bounds.TORQUE_GAIN[1])
+    sel = select(LAYOUT, tr, ho)
+    named = {(e.type, e.joint) for e in sel.effects}
+    assert ("torque_gain", ROBOT.joint_names[j]) not in named
+    flagged = [e for e in sel.not_identified if e["type"] == "torque_gain" and e["joint"] == ROBOT.joint_names[j]]
+    assert flagged and flagged[0]["status"] == "at bound — not identified" and flagged[0]["confidence"] is None

@@ -10,9 +10,12 @@ import os
 import sys
 from collections.abc import Callable
 
+from . import cliargs as ca
 from .errors import CimlError
 
 EXIT_ERROR = 1
+EXIT_INTERNAL = 70
+"""A bug, not bad input (sysexits EX_SOFTWARE): one line, the traceback with CIML_DEBUG=1."""
 
 
 def _run(module: str, function: str) -> Callable[[argparse.Namespace], int]:
@@ -95,7 +98,7 @@ def _join_feet(argv: list[str], verbs: set[str]) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = ca.OneLineParser(
         prog="ciml",
         description="Contact-invariant model learning for legged robots: learn a robot's model "
         "error from sensor logs, control with it, and diagnose the sim-to-real gap.",
@@ -110,63 +113,63 @@ def build_parser() -> argparse.ArgumentParser:
                               formatter_class=argparse.RawDescriptionHelpFormatter, **kw)
 
     s = verb("record", help="simulate a motion headless and write an MCAP bag")
-    s.add_argument("--scenario", required=True, help="scenario YAML (unmodelled effects)")
+    s.add_argument("--scenario", type=ca.path, required=True, help="scenario YAML (unmodelled effects)")
     s.add_argument("--motion", required=True)
-    s.add_argument("--duration", type=float, default=20.0, help="[s]")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--out", required=True, help="bag directory to create")
+    s.add_argument("--duration", type=ca.finite(0, 3600, " s"), default=20.0, help="[s]")
+    s.add_argument("--seed", type=ca.integer(0, 2**32 - 1), default=0)
+    s.add_argument("--out", type=ca.path, required=True, help="bag directory to create")
     s.add_argument("--no-ground-truth", action="store_true", help="leave the /sim/ topics out")
     s.set_defaults(func=_run("ciml_sim.commands", "record"))
 
     s = verb("extract", help="filter logs and extract contact-invariant model errors")
-    s.add_argument("--bag", nargs="+", required=True)
-    s.add_argument("--out", required=True, help="targets .npz")
+    s.add_argument("--bag", type=ca.path, nargs="+", required=True)
+    s.add_argument("--out", type=ca.path, required=True, help="targets .npz")
     s.set_defaults(func=_run("ciml_learning.commands", "extract"))
 
     s = verb("train", help="learn the model error from bags")
-    s.add_argument("--bag", nargs="+", required=True)
+    s.add_argument("--bag", type=ca.path, nargs="+", required=True)
     s.add_argument("--learner", choices=("lwpr", "sgpr"), required=True)
-    s.add_argument("--out", required=True, help="model directory")
-    s.add_argument("--jobs", type=int, default=-1, help="parallel jobs (joblib; -1: all cores)")
+    s.add_argument("--out", type=ca.path, required=True, help="model directory")
+    s.add_argument("--jobs", type=ca.jobs, default=-1, help="parallel jobs (joblib; -1: all cores; at most the cores available)")
     s.set_defaults(func=_run("ciml_learning.learning_commands", "train"))
 
     s = verb("evaluate", help="prediction RMSE of a model on bags, nominal vs learned")
-    s.add_argument("--model", required=True)
-    s.add_argument("--bag", nargs="+", required=True)
-    s.add_argument("--out", required=True, help="metrics .json")
+    s.add_argument("--model", type=ca.path, required=True)
+    s.add_argument("--bag", type=ca.path, nargs="+", required=True)
+    s.add_argument("--out", type=ca.path, required=True, help="metrics .json")
     s.set_defaults(func=_run("ciml_learning.learning_commands", "evaluate"))
 
     s = verb("closed-loop", help="run a motion in simulation with a model and report tracking metrics")
-    s.add_argument("--scenario", required=True)
+    s.add_argument("--scenario", type=ca.path, required=True)
     s.add_argument("--motion", required=True)
-    s.add_argument("--model", required=True, help="MODEL_DIR, a diagnosis DIR, or 'nominal'")
-    s.add_argument("--duration", type=float, default=None, help="[s] (default: 10 gait cycles)")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--out", required=True, help="result .json")
-    s.add_argument("--report", metavar="DIAG_DIR",
+    s.add_argument("--model", type=ca.path, required=True, help="MODEL_DIR, a diagnosis DIR, or 'nominal'")
+    s.add_argument("--duration", type=ca.finite(0, 3600, " s"), default=None, help="[s] (default: 10 gait cycles)")
+    s.add_argument("--seed", type=ca.integer(0, 2**32 - 1), default=0)
+    s.add_argument("--out", type=ca.path, required=True, help="result .json")
+    s.add_argument("--report", type=ca.path, metavar="DIAG_DIR",
                    help="also add the result to the closed-loop comparison of this diagnosis report")
     s.set_defaults(func=_run("ciml_sim.commands", "closed_loop"))
 
     s = verb("diagnose", help="where the sim-to-real gap lies, which effect causes it, how far it shrinks")
-    s.add_argument("--bag", nargs="+", required=True)
-    s.add_argument("--heldout", nargs="+")
-    s.add_argument("--out", required=True, help="output directory (diagnosis.json, report.html)")
+    s.add_argument("--bag", type=ca.path, nargs="+", required=True)
+    s.add_argument("--heldout", type=ca.path, nargs="+")
+    s.add_argument("--out", type=ca.path, required=True, help="output directory (diagnosis.json, report.html)")
     s.set_defaults(func=_run("ciml_learning.diagnosis.commands", "diagnose"))
 
     s = verb("gap-bench", help="score the diagnosis on scenarios with withheld effects")
-    s.add_argument("--out", required=True)
-    s.add_argument("--cases", nargs="+", type=int, help="run only these case numbers (1-based)")
-    s.add_argument("--jobs", type=int, default=1, help="cases run in parallel (joblib)")
-    s.add_argument("--scale", type=float, default=1.0, help="scale every recording's duration")
+    s.add_argument("--out", type=ca.path, required=True)
+    s.add_argument("--cases", nargs="+", type=ca.integer(1, 10_000), help="run only these case numbers (1-based)")
+    s.add_argument("--jobs", type=ca.jobs, default=1, help="cases run in parallel (joblib; at most the cores available)")
+    s.add_argument("--scale", type=ca.finite(0.01, 100), default=1.0, help="scale every recording's duration")
     s.set_defaults(func=_run("ciml_sim.gapbench", "gap_bench_command"))
 
     s = verb("play", help="publish a bag onto the live ROS graph with its recorded timing")
-    s.add_argument("--bag", required=True)
-    s.add_argument("--rate", type=float, default=1.0)
+    s.add_argument("--bag", type=ca.path, required=True)
+    s.add_argument("--rate", type=ca.finite(0.001, 1000), default=1.0)
     s.set_defaults(func=_run("ciml_learning.commands", "play"))
 
     s = verb("bench", help="speed and memory benchmarks (JSON)")
-    s.add_argument("--out", required=True, help="bench .json")
+    s.add_argument("--out", type=ca.path, required=True, help="bench .json")
     s.add_argument("--only", nargs="+", help="run only these benchmarks")
     s.set_defaults(func=_run("ciml_learning.commands", "bench"))
 
@@ -200,6 +203,18 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"ciml {args.verb}: interrupted", file=sys.stderr)
         return 130
+    except (OSError, MemoryError) as err:  # the system refused something no check foresaw: still one line
+        where = f" ({err.filename})" if isinstance(err, OSError) and err.filename else ""
+        what = (err.strerror if isinstance(err, OSError) else None) or str(err) or type(err).__name__
+        print(f"ciml {args.verb}: error: {' '.join(what.split())}{where}", file=sys.stderr)
+        return EXIT_ERROR
+    except Exception as err:  # a bug: one line here, the traceback with CIML_DEBUG=1
+        if os.environ.get("CIML_DEBUG"):
+            raise
+        msg = " ".join(str(err).split())[:300]
+        print(f"ciml {args.verb}: internal error: {type(err).__name__}: {msg} (run with CIML_DEBUG=1 for the "
+              "traceback)", file=sys.stderr)
+        return EXIT_INTERNAL
 
 
 def profile_from_args(args: argparse.Namespace):

@@ -16,15 +16,19 @@ def play(args: argparse.Namespace) -> int:
 
 def bench(args: argparse.Namespace) -> int:
     from .bench import run
+    from .fileio import check_out_file
 
+    check_out_file(args.out)
     run(args.only, args.out)
     return 0
 
 
 def extract(args: argparse.Namespace) -> int:
     from .cli import profile_from_args, robot_from_args
+    from .fileio import check_out_file
     from .pipeline import load_dataset
 
+    check_out_file(args.out)
     robot = robot_from_args(args)
     ds = load_dataset(robot, args.bag, profile=profile_from_args(args))
     inputs = {"rate_hz": ds.rate_hz, "actuation_observed": ds.u_observed, "warnings": ds.warnings,

@@ -157,7 +157,7 @@ def _describe(mode: int) -> str:
     return "a special file"
 
 
-def _check_parent(path: str, what: str) -> str:
+def check_out_parent(path: str, what: str) -> str:
     if not path or "\x00" in path:
         raise OutputError(f"{what}: empty or invalid path {path!r}")
     full = os.path.abspath(path)
@@ -181,7 +181,7 @@ def _makedirs(parent: str, what: str, path: str) -> None:
 
 def check_out_file(path: str, what: str = "--out") -> str:
     """`path` may be written as a file: absent or a regular file (never a device, link or folder)."""
-    full = _check_parent(path, what)
+    full = check_out_parent(path, what)
     try:
         st = os.lstat(full)
     except FileNotFoundError:
@@ -195,7 +195,7 @@ def check_out_file(path: str, what: str = "--out") -> str:
 
 def check_out_dir(path: str, is_ours: Callable[[str], bool], kind: str, what: str = "--out") -> str:
     """`path` may be (re)placed as a `kind` directory: absent, empty, or one `is_ours` recognises."""
-    full = _check_parent(path, what)
+    full = check_out_parent(path, what)
     try:
         st = os.lstat(full)
     except FileNotFoundError:

@@ -13,8 +13,14 @@ def train(args: argparse.Namespace) -> int:
     from .cli import profile_from_args, robot_from_args
     from .training import train_from_bags
 
+    from .cliargs import cap_jobs
+    from .fileio import check_out_dir
+    from .models import is_model_dir
+
     if args.jobs == 0 or args.jobs < -1:
         raise CimlError(f"--jobs must be a positive number of processes or -1 (all cores), got {args.jobs}")
+    args.jobs = cap_jobs(args.jobs)
+    check_out_dir(args.out, is_model_dir, "model")  # refused before the training, not after
     robot = robot_from_args(args)
     t0 = time.perf_counter()
     model_set = train_from_bags(robot, args.bag, args.learner, n_jobs=args.jobs, progress=True,
@@ -31,10 +37,11 @@ def train(args: argparse.Namespace) -> int:
 def evaluate(args: argparse.Namespace) -> int:
     """`ciml evaluate --model MODEL_DIR --bag BAG... --out metrics.json`."""
     from .cli import profile_from_args, robot_from_args
-    from .fileio import atomic_write_json
+    from .fileio import atomic_write_json, check_out_file
     from .models import ModelSet
     from .training import evaluate_on_bags
 
+    check_out_file(args.out)
     robot = robot_from_args(args)
     model_set = ModelSet.load(args.model, robot)
     metrics = evaluate_on_bags(robot, model_set, args.bag, progress=True, profile=profile_from_args(args))

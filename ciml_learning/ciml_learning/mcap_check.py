@@ -82,10 +82,10 @@ def _decompress(compression: str, data: bytes, size: int) -> bytes:
     raise ValueError(f"unknown chunk compression {compression!r}")
 
 
-def _layout(buf, name: str) -> Layout:
+def _layout(buf, name: str, file: str | None = None) -> Layout:
     """Frame every record of the data section and read the footer (BagCorruptError if broken)."""
     size = len(buf)
-    recover = f"`mcap recover {name}` may save the complete chunks"
+    recover = f"`mcap recover {file or name}` may save the complete chunks"
     if size < 2 * len(MAGIC) + FOOTER_SIZE or buf[:len(MAGIC)] != MAGIC:
         raise BagCorruptError(f"{name}: not an MCAP file (bad magic at byte 0)")
     if buf[size - len(MAGIC):] != MAGIC:
@@ -152,9 +152,9 @@ def _chunk_ok(buf, c: Chunk) -> str | None:
     return None
 
 
-def _bad_chunk(buf, lay: Layout, name: str, c: Chunk, why: str) -> BagCorruptError:
+def _bad_chunk(buf, lay: Layout, name: str, c: Chunk, why: str, file: str) -> BagCorruptError:
     others = len(lay.chunks) - 1
-    return BagCorruptError(f"{name}: chunk at byte {c.offset} {why}; `mcap recover {name}` can save the messages "
+    return BagCorruptError(f"{name}: chunk at byte {c.offset} {why}; `mcap recover {file}` can save the messages "
                            f"of the other {others} chunk{'s' if others != 1 else ''}")
 
 
@@ -179,26 +179,26 @@ def verify_mcap(path: str | os.PathLike, bag: str | None = None) -> None:
     except OSError as err:
         raise BagCorruptError(f"{name}: cannot read ({err.strerror or err})") from None
     try:
-        lay = _layout(buf, name)
+        lay = _layout(buf, name, str(path))
         if lay.data_end >= 0 and lay.data_crc:
             if _crc(buf, 0, lay.data_end) != lay.data_crc:
                 for c in lay.chunks:  # name the chunk if one is at fault
                     why = _chunk_ok(buf, c)
                     if why:
-                        raise _bad_chunk(buf, lay, name, c, why)
+                        raise _bad_chunk(buf, lay, name, c, why, str(path))
                 raise BagCorruptError(f"{name}: the data section (bytes 0–{lay.data_end}) fails its CRC outside the "
-                                      f"chunks (schemas, channels or message indexes); `mcap recover {name}` can "
+                                      f"chunks (schemas, channels or message indexes); `mcap recover {path}` can "
                                       "rebuild them from the chunks")
         else:
             for c in lay.chunks:
                 why = _chunk_ok(buf, c)
                 if why:
-                    raise _bad_chunk(buf, lay, name, c, why)
+                    raise _bad_chunk(buf, lay, name, c, why, str(path))
         if lay.summary_crc:
             a, b = _summary_crc_span(lay)
             if _crc(buf, a, b) != lay.summary_crc:
                 raise BagCorruptError(f"{name}: the summary section (bytes {a}–{b}) fails its CRC; `mcap recover "
-                                      f"{name}` can rebuild it from the {len(lay.chunks)} chunks")
+                                      f"{path}` can rebuild it from the {len(lay.chunks)} chunks")
     finally:
         buf.close()
         f.close()

@@ -62,6 +62,11 @@ def record(args: argparse.Namespace) -> int:
     from .scenario import resolve_scenario
 
     _duration(args.duration)
+    if os.path.lexists(args.out):  # refused before the simulation, not after
+        raise CimlError(f"{args.out} exists already; choose a new --out")
+    from ciml_learning.fileio import check_out_parent
+
+    check_out_parent(args.out, "--out")
     robot = robot_from_args(args)
     scenario = resolve_scenario(args.scenario, robot)
     check_motion(args.motion)
@@ -88,7 +93,13 @@ def closed_loop(args: argparse.Namespace) -> int:
     from .recorder import check_motion, default_duration, run_headless
     from .scenario import resolve_scenario
 
+    from ciml_learning.diagnosis.run import is_diagnosis_dir
+    from ciml_learning.fileio import check_out_dir, check_out_file
+
     _duration(args.duration)
+    check_out_file(args.out)
+    if args.report:
+        check_out_dir(args.report, is_diagnosis_dir, "diagnosis", "--report")
     robot = robot_from_args(args)
     scenario = resolve_scenario(args.scenario, robot)
     check_motion(args.motion)
@@ -112,10 +123,12 @@ def _model_label(model: str) -> str:
         return "nominal"
     if os.path.isfile(os.path.join(model, "diagnosis.json")):
         return "identified effects"
-    try:
-        with open(os.path.join(model, "model.json"), encoding="utf-8") as f:
-            return f"learned ({json.load(f).get('learner', '?').upper()})"
-    except (OSError, ValueError):
+    from ciml_learning.fileio import load_json_bounded
+
+    try:  # a label only: the model itself is verified when it is loaded
+        meta = load_json_bounded(os.path.join(model, "model.json"), "model description", 16 * 2**20)
+        return f"learned ({str(meta.get('learner', '?')).upper()})"
+    except (CimlError, AttributeError):
         return os.path.basename(os.path.normpath(model))
 
 
@@ -123,12 +136,14 @@ def _add_to_report(diagnosis_dir: str, label: str, metrics: dict) -> None:
     """Add one closed-loop result to DIAG_DIR's comparison (diagnosis.json and report.html)."""
     from ciml_learning.diagnosis.report import attach_closed_loop
 
-    path = os.path.join(diagnosis_dir, "diagnosis.json")
+    from ciml_learning.diagnosis.run import read_diagnosis_json
+
     try:
-        with open(path, encoding="utf-8") as f:
-            existing = json.load(f).get("closed_loop") or {}
-    except (OSError, ValueError) as err:
-        raise CimlError(f"--report {diagnosis_dir}: no readable diagnosis.json ({err})") from err
+        existing = read_diagnosis_json(diagnosis_dir).get("closed_loop") or {}
+    except CimlError as err:
+        raise CimlError(f"--report {diagnosis_dir}: no readable diagnosis.json ({err})") from None
+    if not isinstance(existing, dict):
+        existing = {}
     attach_closed_loop(diagnosis_dir, {**existing, label: metrics})
 
 

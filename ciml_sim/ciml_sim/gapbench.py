@@ -292,7 +292,17 @@ def gap_bench(out_dir: str, cases: Sequence[int] | None = None, jobs: int = 1, s
 
 def gap_bench_command(args) -> int:
     """`ciml gap-bench --out DIR [--cases N...] [--jobs J] [--scale S]`."""
-    doc = gap_bench(args.out, args.cases, args.jobs, args.scale)
+    from ciml_learning.cliargs import cap_jobs
+    from ciml_learning.errors import CimlError
+    from ciml_learning.fileio import check_out_dir
+
+    def is_gap_bench_dir(d: str) -> bool:  # a finished or an interrupted gap-bench
+        return any(n in ("gap_bench.json", "answers") or n.startswith("case_") for n in os.listdir(d))
+
+    check_out_dir(args.out, is_gap_bench_dir, "gap-bench output")
+    if args.cases and any(not 1 <= c <= len(SUITE) for c in args.cases):
+        raise CimlError(f"--cases: case numbers are 1 to {len(SUITE)}, got {args.cases}")
+    doc = gap_bench(args.out, args.cases, cap_jobs(args.jobs), args.scale)
     print(table(doc["cases"]))
     print(json.dumps(doc["summary"], indent=1))
     print(f"gap-bench: results in {os.path.join(args.out, 'gap_bench.json')} and gap_bench.md")

@@ -18,7 +18,6 @@ import sys
 from dataclasses import dataclass, field
 from typing import Any
 
-import yaml
 
 from ciml_learning.diagnosis.candidates import EFFECT_TYPES as DIAGNOSIS_EFFECT_TYPES
 from ciml_learning.diagnosis.candidates import MEASUREMENT_TYPES as DIAGNOSIS_MEASUREMENT_TYPES
@@ -204,16 +203,13 @@ def parse_scenario(data: Any, robot: RobotDescription) -> Scenario:
 
 
 def load_scenario(path: str | os.PathLike, robot: RobotDescription) -> Scenario:
-    """Load and validate a scenario YAML file."""
+    """Load and validate a scenario YAML file (size and alias-expansion limits: fileio.load_yaml_bounded)."""
+    from ciml_learning.fileio import InputFileError, load_yaml_bounded
+
     try:
-        with open(path, encoding="utf-8") as f:
-            data = yaml.safe_load(f)
-    except FileNotFoundError as err:
-        raise ScenarioError(f"scenario file not found: {path}") from err
-    except (OSError, UnicodeDecodeError) as err:
-        raise ScenarioError(f"cannot read scenario {path}: {err}") from err
-    except yaml.YAMLError as err:
-        raise ScenarioError(f"scenario {path}: invalid YAML ({' '.join(str(err).split())})") from err
+        data = load_yaml_bounded(str(path), "scenario file", max_bytes=256 * 1024, max_nodes=20_000)
+    except InputFileError as err:
+        raise ScenarioError(str(err)) from None
     try:
         return parse_scenario(data, robot)
     except ScenarioError as err:

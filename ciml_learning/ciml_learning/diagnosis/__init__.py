@@ -9,7 +9,6 @@ it shrinks. Pure modules (no rclpy):
 """
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Callable
 
@@ -31,13 +30,11 @@ def diagnose(*args, **kwargs):
 def load_effect_model(robot: RobotDescription, diagnosis_dir: str) -> EffectModel:
     """The identified effects of DIR/diagnosis.json as an EffectModel (checks the robot)."""
     path = os.path.join(diagnosis_dir, "diagnosis.json") if os.path.isdir(diagnosis_dir) else diagnosis_dir
-    try:
-        with open(path, encoding="utf-8") as f:
-            doc = json.load(f)
-    except FileNotFoundError as err:
-        raise DiagnosisError(f"no diagnosis.json in {diagnosis_dir}; run `ciml diagnose --out DIR` first") from err
-    except (OSError, json.JSONDecodeError) as err:
-        raise DiagnosisError(f"cannot read {path}: {err}") from err
+    if not os.path.exists(path):
+        raise DiagnosisError(f"no diagnosis.json in {diagnosis_dir}; run `ciml diagnose --out DIR` first")
+    from .run import read_diagnosis_json
+
+    doc = read_diagnosis_json(path)  # size and nesting limits
     effects, smoothing = effects_from_diagnosis(doc)
     joints = doc["model"].get("joint_names")
     if joints is not None and list(joints) != list(robot.joint_names):

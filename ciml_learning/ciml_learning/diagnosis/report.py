@@ -110,23 +110,28 @@ def closed_loop_html(closed_loop: dict | None) -> str:
 
 def attach_closed_loop(diagnosis_dir: str, closed_loop: dict) -> None:
     """Add closed-loop metrics ({model name: `ciml closed-loop` metrics}) to DIR/diagnosis.json and
-    DIR/report.html (both rewritten atomically)."""
-    import json
+    DIR/report.html: the directory is rebuilt and replaced in one step (run.write_diagnosis_dir),
+    so a reader finds both files old or both new."""
     import os
 
-    from ..fileio import atomic_write_json, atomic_write_text
+    from ..errors import CimlError
+    from .run import REPORT_HTML, read_diagnosis_json, write_diagnosis_dir
 
-    jpath, hpath = os.path.join(diagnosis_dir, "diagnosis.json"), os.path.join(diagnosis_dir, "report.html")
-    with open(jpath, encoding="utf-8") as f:
-        doc = json.load(f)
+    doc = read_diagnosis_json(diagnosis_dir)
     doc["closed_loop"] = closed_loop
-    atomic_write_json(jpath, doc)
-    with open(hpath, encoding="utf-8") as f:
-        page = f.read()
-    a, b = page.find(CLOSED_LOOP_BEGIN), page.find(CLOSED_LOOP_END)
-    if a >= 0 and b > a:
-        page = page[:a + len(CLOSED_LOOP_BEGIN)] + closed_loop_html(closed_loop) + page[b:]
-        atomic_write_text(hpath, page)
+    page = None
+    try:
+        with open(os.path.join(diagnosis_dir, REPORT_HTML), encoding="utf-8") as f:
+            page = f.read()
+    except FileNotFoundError:
+        pass
+    except (OSError, UnicodeDecodeError) as err:
+        raise CimlError(f"--report {diagnosis_dir}: cannot read {REPORT_HTML} ({err})") from None
+    if page is not None:
+        a, b = page.find(CLOSED_LOOP_BEGIN), page.find(CLOSED_LOOP_END)
+        if a >= 0 and b > a:
+            page = page[:a + len(CLOSED_LOOP_BEGIN)] + closed_loop_html(closed_loop) + page[b:]
+    write_diagnosis_dir(diagnosis_dir, doc, page, what="--report", update=True)
 
 
 def render_report(robot, result: dict, series: dict, rows_ho, selection) -> str:

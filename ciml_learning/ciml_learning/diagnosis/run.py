@@ -24,7 +24,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..fileio import atomic_write_json, atomic_write_text
+from ..fileio import atomic_dir, check_out_dir, json_dumps, load_json_bounded
 from ..pipeline import load_dataset
 from ..robot import RobotDescription
 from .bounds import physical_ranges
@@ -191,8 +191,8 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     bags = [str(b) for b in bags]
     if not bags:
         raise DiagnosisError("no bag given")
-    if out_dir is not None and os.path.exists(out_dir) and not os.path.isdir(out_dir):
-        raise DiagnosisError(f"--out {out_dir} exists and is not a directory")
+    if out_dir is not None:  # refused before minutes of work, not after
+        check_out_dir(out_dir, is_diagnosis_dir, "diagnosis")
     for b in list(bags) + [str(h) for h in heldout or []]:
         if not os.path.exists(b):
             raise DiagnosisError(f"bag not found: {b}")
@@ -321,17 +321,54 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     }
     _check_finite(result)
     if out_dir is not None:
-        os.makedirs(out_dir, exist_ok=True)
-        atomic_write_json(os.path.join(out_dir, "diagnosis.json"), result)
+        html = None
         if report:
             _say(progress, "report")
             from .report import render_report
 
             series = residual_series(corr_ho, res, sel.sigma, ds_ho.targets.t)
             html = render_report(robot, result, series, rows_ho, sel)
-            atomic_write_text(os.path.join(out_dir, "report.html"), html)
+        write_diagnosis_dir(out_dir, result, html)
         result["time_s"] = round(time.perf_counter() - t_start, 2)
     return result
+
+
+DIAGNOSIS_JSON, REPORT_HTML = "diagnosis.json", "report.html"
+DIAGNOSIS_MAX_BYTES = 64 * 2**20
+
+
+def write_diagnosis_dir(out_dir: str, result: dict, html: str | None, what: str = "--out",
+                        update: bool = False) -> None:
+    """DIR/diagnosis.json and DIR/report.html as one directory published in one step
+    (fileio.atomic_dir): a reader finds both old or both new. `update`: start from the
+    existing directory's other files."""
+    with atomic_dir(out_dir, is_diagnosis_dir, "diagnosis", what, copy_from_old=update) as tmp:
+        with open(os.path.join(tmp, DIAGNOSIS_JSON), "w", encoding="utf-8") as f:
+            f.write(json_dumps(result))
+        if html is not None:
+            with open(os.path.join(tmp, REPORT_HTML), "w", encoding="utf-8") as f:
+                f.write(html)
+
+
+def read_diagnosis_json(path: str) -> dict:
+    """DIR/diagnosis.json (or the file itself) with size and nesting limits; CimlError (one line)."""
+    if os.path.isdir(path):
+        path = os.path.join(path, DIAGNOSIS_JSON)
+    doc = load_json_bounded(path, "diagnosis", DIAGNOSIS_MAX_BYTES)
+    if not isinstance(doc, dict):
+        raise DiagnosisError(f"{path} is not a CIML diagnosis")
+    return doc
+
+
+def is_diagnosis_dir(path: str) -> bool:
+    """Whether `path` holds a CIML diagnosis (what `--out` may replace)."""
+    from ..errors import CimlError
+
+    try:
+        read_diagnosis_json(path)
+        return True
+    except CimlError:
+        return False
 
 
 def _check_finite(obj, path: str = "") -> None:

@@ -1,0 +1,104 @@
+"""Argument types of the `ciml` verbs: bad values end in argparse's one-line usage error
+(exit 2) before any work starts, never in a traceback later.
+
+- finite(lo, hi): a float in [lo, hi] (NaN and ±inf refused).
+- integer(lo, hi): an int in [lo, hi].
+- jobs: an integer; cap_jobs() checks it is -1 (all cores) or positive and bounds it by the
+  cores this process may use, saying so when it does.
+- path: a non-empty path of valid text (no NUL, no undecodable bytes), at most PATH_MAX.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from collections.abc import Callable
+
+PATH_MAX = 4096
+
+
+def finite(lo: float = -math.inf, hi: float = math.inf, unit: str = "") -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            x = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not math.isfinite(x) or not lo <= x <= hi:
+            raise argparse.ArgumentTypeError(f"expected a finite number in [{lo:g}, {hi:g}]{unit}, got {text!r}")
+        return x
+
+    parse.__name__ = "number"
+    return parse
+
+
+def integer(lo: int, hi: int) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            x = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if not lo <= x <= hi:
+            raise argparse.ArgumentTypeError(f"expected an integer in [{lo}, {hi}], got {text!r}")
+        return x
+
+    parse.__name__ = "integer"
+    return parse
+
+
+def jobs(text: str) -> int:
+    """An integer; cap_jobs() checks the range (-1 or positive) when the verb runs."""
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected -1 or a positive integer, got {text!r}") from None
+
+
+def available_cores() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def cap_jobs(n: int, what: str = "--jobs") -> int:
+    """n processes bounded by the available cores (-1: all of them); a note on stderr when capped."""
+    if n == 0 or n < -1:
+        from .errors import CimlError
+
+        raise CimlError(f"{what} must be a positive number of processes or -1 (all cores), got {n}")
+    cores = available_cores()
+    if n == -1:
+        return cores
+    if n > cores:
+        print(f"ciml: note: {what} {n} capped at the {cores} available cores", file=sys.stderr)
+        return cores
+    return n
+
+
+def path(text: str) -> str:
+    """A path argument: non-empty text that the file system and our messages can carry."""
+    if not text:
+        raise argparse.ArgumentTypeError("expected a path, got an empty string")
+    if "\x00" in text:
+        raise argparse.ArgumentTypeError("a path cannot contain a NUL character")
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise argparse.ArgumentTypeError(f"path {text.encode('utf-8', 'surrogateescape')!r} is not valid "
+                                         "UTF-8 text") from None
+    if len(text.encode("utf-8")) > PATH_MAX:
+        raise argparse.ArgumentTypeError(f"path longer than {PATH_MAX} bytes")
+    return text
+
+
+path.__name__ = "path"
+jobs.__name__ = "jobs"
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse with its usage error on one line (exit 2); `--help` still shows the usage.
+    Subparsers inherit the class."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")

@@ -112,7 +112,7 @@ class GraphProbe:
         from sensor_msgs.msg import JointState
 
         self.context = rclpy.Context()
-        rclpy.init(context=self.context)
+        rclpy.init(args=[], context=self.context)  # not this program's argv (e.g. ciml bench's)
         self.node = rclpy.create_node("ciml_graph_probe", context=self.context)
         self.lock = threading.Lock()
         self.recording = False

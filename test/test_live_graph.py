@@ -1,0 +1,199 @@
+"""The live graph as a user starts it: the shipped launch file, `ciml launch`, start orders, SIGINT.
+
+Every test runs the shipped `ciml_sim/launch/closed_loop.launch.yaml` through the same
+launcher as `ciml launch` (ciml_learning.launcher) on this run's own DDS domain (loopback
+only, conftest.py) and watches the graph with ciml_learning.live_bench.GraphProbe (the
+benchmarks' probe). Each wait is bounded; on a loaded machine start-up is slow, so the
+bounds are generous and the checks are on simulated time (message stamps).
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from ciml_learning import topics
+from ciml_learning.launch_file import find_package_share, load
+from ciml_learning.launcher import Launcher
+from ciml_learning.live_bench import NOMINAL_RATES_HZ, GraphProbe
+
+pytestmark = [pytest.mark.slow, pytest.mark.ros]
+
+NODES = ("mujoco_bridge", "reference_generator", "id_controller", "model_server", "state_filter",
+         "error_extractor", "online_learner")
+STARTUP = 180.0
+"""[s] wall-clock bound for a node to come up (imports, numba caches; a shared 2-core machine)."""
+STANDING_Z = 0.5
+"""[m] base height above which HyQ stands (standing pose 0.61 m; on its trunk < 0.3 m)."""
+
+
+def shipped_file() -> str:
+    return os.path.join(find_package_share("ciml_sim"), "launch", "closed_loop.launch.yaml")
+
+
+def rate_probe() -> GraphProbe:
+    return GraphProbe({t: topics.TYPES[t] for t in NOMINAL_RATES_HZ})
+
+
+def diagnosing(probe: GraphProbe, node: str) -> bool:
+    """The node publishes /diagnostics: it spins (its constructor has finished)."""
+    with probe.lock:
+        return any(name.lstrip("/").split("/")[-1] == node for name in probe.diagnostics)
+
+
+def walks(probe: GraphProbe, sim_seconds: float, wall_timeout: float) -> tuple[float, float, float]:
+    """Watch `sim_seconds` of simulated time from now: (x advance [m], lowest z [m], simulated s seen)."""
+    assert probe.wait_for(lambda: bool(probe.base_z), 60.0), "no /base_state"
+    with probe.lock:
+        t0, x0 = probe.base_x[-1]
+        i0 = len(probe.base_z) - 1
+    probe.wait_for(lambda: probe.base_z[-1][0] - t0 >= sim_seconds, wall_timeout)
+    with probe.lock:
+        zs = [z for _t, z in probe.base_z[i0:]]
+        t1, x1 = probe.base_x[-1]
+    return x1 - x0, min(zs), t1 - t0
+
+
+def logs_of(tmp_path, launcher: Launcher) -> dict[str, str]:
+    out = {}
+    for n in launcher.nodes:
+        with open(tmp_path / f"{n.label}.log", encoding="utf-8") as f:
+            out[n.label] = f.read()
+    return out
+
+
+@pytest.fixture
+def graph(tmp_path):
+    """(launcher factory, probe); every node still running at the end is stopped."""
+    probe = rate_probe()
+    launchers: list[Launcher] = []
+    log = open(tmp_path / "launch.log", "w", encoding="utf-8")
+
+    def make(**arguments) -> Launcher:
+        args = {"model_dir": str(tmp_path / "online_model"), **arguments}
+        launcher = Launcher(load(shipped_file(), args), out=log, log_dir=str(tmp_path))
+        launchers.append(launcher)
+        return launcher
+
+    yield make, probe
+    for launcher in launchers:
+        launcher.stop()
+    log.close()
+    probe.close()
+
+
+def test_ciml_launch_brings_up_the_graph_and_sigint_stops_it(tmp_path):
+    """`ciml launch ciml_sim closed_loop.launch.yaml`: all seven nodes in the graph, sensors,
+    commands, filtered states and predictions flowing; one SIGINT → every node exits 0."""
+    probe = rate_probe()
+    probe.recording = True
+    proc = subprocess.Popen([os.path.join(sys.prefix, "bin", "ciml"), "launch", "ciml_sim", "closed_loop.launch.yaml",
+                             f"model_dir:={tmp_path / 'online_model'}"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert probe.wait_for(lambda: set(NODES) <= probe.node_names(), STARTUP), probe.node_names()
+        flowing = (topics.JOINT_STATES, topics.TORQUE_COMMAND, topics.REFERENCE, topics.FILTERED_STATE,
+                   topics.MODEL_ERROR_MEASURED, topics.MODEL_ERROR_PREDICTED)
+        assert probe.wait_for(lambda: all(len(probe.receipts[t]) > 50 for t in flowing), STARTUP), \
+            {t: len(probe.receipts[t]) for t in flowing}
+        assert probe.wait_for(lambda: all(diagnosing(probe, n) for n in NODES), 60.0)
+        assert probe.first_torque_stamp is not None  # the controller commands torques (not only damping)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        probe.close()
+    assert proc.returncode == 0, out[-3000:]
+    assert "all 7 nodes exited cleanly" in out
+    assert "Traceback" not in out, out[out.index("Traceback") - 500:][:3000]
+
+
+ORDERS = {
+    # name: list of (nodes started together, seconds to wait before the next group)
+    "bridge_first": [(("mujoco_bridge",), 8.0), (NODES[1:], 0.0)],
+    "controller_first": [(("reference_generator", "id_controller"), 8.0),
+                         (("mujoco_bridge", "model_server", "state_filter", "error_extractor", "online_learner"), 0.0)],
+    "learner_late": [(NODES[:6], 15.0), (("online_learner",), 0.0)],
+    "model_server_restarted": [(NODES, 0.0)],
+}
+
+
+@pytest.mark.parametrize("order", list(ORDERS))
+def test_start_orders_end_standing_then_walking(graph, order):
+    """Whatever the start order, the robot stands until the controller commands it, then
+    trots (trot_35: 0.35 m/s) without falling; a restarted model_server changes nothing."""
+    make, probe = graph
+    launcher = make()
+    for group, pause in ORDERS[order]:
+        launcher.start(list(group))
+        if "mujoco_bridge" in group:
+            assert probe.wait_for(lambda: bool(probe.base_z), STARTUP), "no /base_state from the bridge"
+        if pause:
+            deadline = time.monotonic() + pause
+            while time.monotonic() < deadline:
+                base = probe.latest_base()
+                assert base is None or base[1] > STANDING_Z, f"{order}: base at {base[1]:.2f} m before the loop runs"
+                time.sleep(0.1)
+    assert probe.wait_for(lambda: probe.first_torque_stamp is not None, STARTUP), f"{order}: no torque command"
+    base = probe.latest_base()
+    assert base is not None and base[1] > STANDING_Z, f"{order}: not standing when the controller took over: {base}"
+    if order == "model_server_restarted":
+        dx, zmin, seen = walks(probe, 3.0, 60.0)
+        assert zmin > STANDING_Z - 0.1, f"fell before the restart (z {zmin:.2f} m)"
+        server = next(n for n in launcher.nodes if n.label == "model_server")
+        server.stopping = True
+        server.proc.send_signal(signal.SIGINT)
+        assert server.proc.wait(timeout=20) == 0
+        launcher.nodes.remove(server)
+        launcher.start(["model_server"])
+        assert probe.wait_for(lambda: diagnosing(probe, "model_server"), STARTUP)
+    dx, zmin, seen = walks(probe, 8.0, 120.0)
+    assert seen >= 8.0, f"{order}: only {seen:.1f} s simulated"
+    assert zmin > STANDING_Z - 0.1, f"{order}: the robot fell (lowest base height {zmin:.2f} m)"
+    assert dx > 0.35 * 8.0 * 0.5, f"{order}: the base advanced only {dx:.2f} m in 8 s of trot_35"
+
+
+SIGINT_ROUNDS = int(os.environ.get("CIML_SIGINT_ROUNDS", "20"))
+
+
+def test_sigint_20_times_per_node_exits_0_without_traceback(tmp_path):
+    """Each round starts every node of the shipped file at once, waits until each one spins
+    (publishes /diagnostics), sends each one SIGINT and waits ≤ 10 s: rc 0, no traceback."""
+    probe = rate_probe()
+    failures: list[str] = []
+    try:
+        for k in range(SIGINT_ROUNDS):
+            round_dir = tmp_path / f"round{k}"
+            round_dir.mkdir()
+            with open(round_dir / "launch.log", "w", encoding="utf-8") as log:
+                launcher = Launcher(load(shipped_file(), {"model_dir": str(round_dir / "model")}), out=log,
+                                    log_dir=str(round_dir))
+                with probe.lock:
+                    probe.diagnostics.clear()
+                launcher.start()
+                try:
+                    up = probe.wait_for(lambda: all(diagnosing(probe, n) for n in NODES), STARTUP)
+                    assert up, f"round {k}: nodes not up: {[n for n in NODES if not diagnosing(probe, n)]}"
+                    for n in launcher.nodes:
+                        n.stopping = True
+                        n.proc.send_signal(signal.SIGINT)
+                    for n in launcher.nodes:
+                        try:
+                            n.returncode = n.proc.wait(timeout=10.0)
+                        except subprocess.TimeoutExpired:
+                            failures.append(f"round {k}: {n.label} still running 10 s after SIGINT")
+                finally:
+                    launcher.stop()
+            for label, text in logs_of(round_dir, launcher).items():
+                rc = next(n.returncode for n in launcher.nodes if n.label == label)
+                if rc != 0 or "Traceback" in text:
+                    failures.append(f"round {k}: {label} rc {rc}: {text[-800:]}")
+    finally:
+        probe.close()
+    assert not failures, "\n".join(failures[:5]) + f"\n({len(failures)} failures in {SIGINT_ROUNDS} rounds)"

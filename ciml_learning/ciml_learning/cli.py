@@ -154,6 +154,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--bag", type=ca.path, nargs="+", required=True)
     s.add_argument("--heldout", type=ca.path, nargs="+")
     s.add_argument("--out", type=ca.path, required=True, help="output directory (diagnosis.json, report.html)")
+    s.add_argument("--publish", type=ca.finite(0, 3600, " s"), nargs="?", const=5.0, default=None, metavar="SECONDS",
+                   help="then publish the summary once on /gap_diagnosis (ciml_msgs/GapDiagnosis, transient local) "
+                        "and keep it available for SECONDS (default 5)")
     s.set_defaults(func=_run("ciml_learning.diagnosis.commands", "diagnose"))
 
     s = verb("gap-bench", help="score the diagnosis on scenarios with withheld effects")

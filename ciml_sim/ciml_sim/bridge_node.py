@@ -47,8 +47,10 @@ from ciml_learning import conversions as cv
 from ciml_learning import topics
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import load_robot
-from ciml_learning.ros_common import COMMAND_QOS, OK, SENSOR_PUB_QOS, SENSOR_QOS, WARN, Health, declare, run_node
+from ciml_learning.ros_common import (COMMAND_QOS, OK, SENSOR_PUB_QOS, SENSOR_QOS, WARN, Health, declare_schema,
+                                      run_node)
 
+from .node_params import MUJOCO_BRIDGE
 from .plant import Plant
 from .scenario import nominal_scenario, resolve_scenario
 
@@ -61,20 +63,10 @@ STATS_WINDOW = 250
 class MujocoBridge(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("mujoco_bridge", **kwargs)
-        scenario = declare(self, "scenario", "nominal",
-                           "Scenario: a YAML file or a shipped scenario name (nominal, default_gap, ...)")
-        self.seed = declare(self, "seed", 0, "Seed of the sensor noise", 0, 2**31 - 1)
-        rate = declare(self, "publish_rate", 250.0, "Sensor and /clock publish rate [Hz] (1000/n)", 10.0, 1000.0)
-        self.timeout = declare(self, "command_timeout", 0.05,
-                               "Damping mode after this long without a valid command [s, sim time]", 0.004, 5.0)
-        self.kd_safe = declare(self, "damping_gain", 10.0, "Joint damping in damping mode [Nm s/rad]", 0.0, 200.0)
-        self.rtf = declare(self, "real_time_factor", 1.0, "Simulation seconds per wall-clock second", 0.05, 20.0)
-        self.hold_at_start = declare(self, "hold_standing_until_command", True,
-                                     "Hold the standing pose (joint PD + gravity compensation) after start and "
-                                     "reset until the first torque command; false: damp the joints instead")
-        self.publish_truth = declare(self, "publish_ground_truth", False,
-                                     "Also publish the simulation-only /sim/ topics (true v̇, contact and effect forces)")
-        urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
+        p = declare_schema(self, MUJOCO_BRIDGE, self._apply_parameters)  # node_params.py: the one schema
+        scenario, self.seed, rate, urdf = p["scenario"], p["seed"], p["publish_rate"], p["urdf"]
+        self.timeout, self.kd_safe, self.rtf = p["command_timeout"], p["damping_gain"], p["real_time_factor"]
+        self.hold_at_start, self.publish_truth = p["hold_standing_until_command"], p["publish_ground_truth"]
         self.robot = load_robot(urdf or None)
         self.scenario = resolve_scenario(scenario, self.robot) if scenario else nominal_scenario()
         self.steps_per_sample = max(1, int(round(1000.0 / rate)))
@@ -103,6 +95,16 @@ class MujocoBridge(Node):
         self.get_logger().info(
             f"mujoco_bridge: {self.robot.n_joints} joints, physics 1 kHz, publishing at "
             f"{1000.0 / self.steps_per_sample:g} Hz of simulation time, real-time factor {self.rtf:g}")
+
+    def _apply_parameters(self, changes: dict) -> str | None:
+        """Run-time sets of the reconfigurable parameters (the others are read-only)."""
+        self.timeout = changes.get("command_timeout", self.timeout)
+        self.publish_truth = changes.get("publish_ground_truth", self.publish_truth)
+        if "damping_gain" in changes:
+            self.kd_safe = changes["damping_gain"]
+            if self.damping:  # damping now: with the new gain
+                self._enter_damping(self.health.mode_message)
+        return None
 
     # --- commands ------------------------------------------------------------------------
     def _standing_command(self):

@@ -16,27 +16,33 @@ from rclpy.node import Node
 from ciml_learning import topics
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import load_robot
-from ciml_learning.ros_common import COMMAND_QOS, ERROR, Health, declare, run_node
+from ciml_learning.ros_common import COMMAND_QOS, ERROR, Health, declare_schema, run_node
 
 from ..conversions import reference_msg
-from ..references import MOTIONS, make_reference, standing_configuration
+from ..node_params import REFERENCE_GENERATOR
+from ..references import make_reference, standing_configuration
 
 
 class ReferenceGeneratorNode(Node):
-    def __init__(self) -> None:
-        super().__init__("reference_generator")
-        motion = declare(self, "motion", "stand", f"Motion to generate, one of: {', '.join(MOTIONS)}")
-        rate = declare(self, "rate", 250.0, "Publish rate [Hz]", 1.0, 1000.0)
-        foot_height = declare(self, "foot_height", 0.002,
-                              "Height of the foot frames above the ground when standing [m] (sphere foot radius)", 0.0, 0.2)
-        urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
+    def __init__(self, **kwargs) -> None:
+        super().__init__("reference_generator", **kwargs)
+        p = declare_schema(self, REFERENCE_GENERATOR, self._apply_parameters)  # node_params.py: the one schema
+        motion, rate, foot_height, urdf = p["motion"], p["rate"], p["foot_height"], p["urdf"]
         self.robot = load_robot(urdf or None)
         self.reference = make_reference(self.robot, motion, standing_configuration(self.robot, foot_height))
         self.health = Health(self)
         self.pub = self.create_publisher(RobotReference, topics.REFERENCE, COMMAND_QOS)
         self.start_ns: int | None = None
-        self.create_timer(1.0 / rate, self.tick)
+        self.timer = self.create_timer(1.0 / rate, self.tick)
         self.get_logger().info(f"publishing {motion} on {topics.REFERENCE} at {rate:.0f} Hz")
+
+    def _apply_parameters(self, changes: dict) -> str | None:
+        """`rate` at run time: the publish timer is replaced (the motion's clock goes on)."""
+        if "rate" in changes:
+            self.destroy_timer(self.timer)
+            self.timer = self.create_timer(1.0 / changes["rate"], self.tick)
+            self.get_logger().info(f"publishing at {changes['rate']:g} Hz")
+        return None
 
     def tick(self) -> None:
         now = self.get_clock().now().nanoseconds
@@ -45,8 +51,7 @@ class ReferenceGeneratorNode(Node):
         try:
             point = self.reference.sample(0.0 if self.start_ns is None else (now - self.start_ns) * 1e-9)
         except CimlError as err:  # e.g. an unreachable foot target: publish nothing
-            self.health.set(ERROR, str(err))
-            self.health.count("reference_errors", str(err))
+            self.health.count("reference_errors", str(err), level=ERROR)  # ERROR while it lasts
             return
         self.pub.publish(reference_msg(self.robot, now, point))
         self.health.counts["published"] += 1

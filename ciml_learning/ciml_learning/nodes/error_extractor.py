@@ -14,18 +14,23 @@ from .. import topics
 from ..errors import CimlError
 from ..extraction import extract
 from ..robot import load_robot
-from ..ros_common import COMMAND_QOS, Health, declare, run_node
+from ..node_params import ERROR_EXTRACTOR
+from ..ros_common import COMMAND_QOS, Health, declare_schema, run_node
 
 
 class ErrorExtractorNode(Node):
-    def __init__(self) -> None:
-        super().__init__("error_extractor")
-        self.gamma = declare(self, "gamma", 0.02, "Regularisation of near-singular leg blocks [m/rad]", 1e-4, 0.2)
-        urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
+    def __init__(self, **kwargs) -> None:
+        super().__init__("error_extractor", **kwargs)
+        p = declare_schema(self, ERROR_EXTRACTOR, self._apply_parameters)  # node_params.py: the one schema
+        self.gamma, urdf = p["gamma"], p["urdf"]
         self.robot = load_robot(urdf or None)
         self.health = Health(self)
         self.pub = self.create_publisher(ModelError, topics.MODEL_ERROR_MEASURED, COMMAND_QOS)
         self.create_subscription(RobotState, topics.FILTERED_STATE, self.on_state, COMMAND_QOS)
+
+    def _apply_parameters(self, changes: dict) -> str | None:
+        self.gamma = changes.get("gamma", self.gamma)  # used by the next extraction
+        return None
 
     def on_state(self, msg) -> None:
         try:

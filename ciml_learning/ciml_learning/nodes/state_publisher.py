@@ -40,8 +40,8 @@ def _transform_msg(stamp, t: LinkTransform) -> TransformStamped:
 
 
 class StatePublisherNode(Node):
-    def __init__(self) -> None:
-        super().__init__("state_publisher")
+    def __init__(self, **kwargs) -> None:
+        super().__init__("state_publisher", **kwargs)
         p = declare_schema(self, STATE_PUBLISHER, self.apply)
         self.min_period_ns = int(1e9 / p["publish_rate"])
         self.odom_frame = p["odom_frame"]

@@ -1,0 +1,22 @@
+"""Parameter schema of the mujoco_bridge node (ciml_learning.params): the one source of its
+declare() calls, config/mujoco_bridge.yaml and the README table."""
+from __future__ import annotations
+
+from ciml_learning.params import NodeSchema, Param
+
+MUJOCO_BRIDGE = NodeSchema("ciml_sim", "mujoco_bridge", "the simulated robot (MuJoCo, 1 kHz joint loop) on the live graph", (
+    Param("scenario", "nominal", "Scenario: a YAML file or a shipped scenario name (nominal, default_gap, go1_gap)"),
+    Param("seed", 0, "Seed of the sensor noise", "", 0, 2**31 - 1),
+    Param("publish_rate", 250.0, "Sensor and /clock publish rate (1000/n; physics runs at 1 kHz)", "Hz", 10.0, 1000.0),
+    Param("command_timeout", 0.05, "Damping mode after this long without a valid /torque_command (simulation time)",
+          "s", 0.004, 5.0, read_only=False),
+    Param("damping_gain", 10.0, "Joint damping in damping mode", "Nm s/rad", 0.0, 200.0, read_only=False),
+    Param("real_time_factor", 1.0, "Simulation seconds per wall-clock second", "", 0.05, 20.0),
+    Param("hold_standing_until_command", True, "Hold the standing pose (joint PD + gravity compensation) after start "
+          "and reset until the first torque command; false: damp the joints instead"),
+    Param("publish_ground_truth", False, "Also publish the simulation-only /sim/ topics (true v̇, contact and "
+          "effect forces)", read_only=False),
+    Param("urdf", "", "Robot URDF ('' = HyQ from example-robot-data)"),
+))
+
+SCHEMAS: tuple[NodeSchema, ...] = (MUJOCO_BRIDGE,)

@@ -213,3 +213,28 @@ def test_command_update_sampling_is_a_baseline_not_an_effect(tmp_path):
     assert p["qd"] == pytest.approx(-kp * dt / 2, rel=0.3)
     b = d["shrink"]["baseline"]
     assert b["heldout_rms_after_baseline"] < 0.5 * b["heldout_rms_before_baseline"]
+
+
+@pytest.mark.slow
+def test_reference_mode_names_only_what_distinguishes_the_logs(scenario_bag, tmp_path, capsys):
+    """reference = scenario A (the knee friction), real = A + B (plus the weak hip actuator): the
+    comparison names B only, with its parameter; A is shared by both, not a gap between them."""
+    ref = str(tmp_path / "reference")
+    info = record_plant_bag(ROBOT, {**SCENARIO, "name": "reference", "effects": SCENARIO["effects"][1:]}, ref,
+                            seconds=9.0, seed=3)
+    assert not info["fell"]
+    out = str(tmp_path / "diag")
+    assert main(["diagnose", "--bag", scenario_bag, "--reference", ref, "--out", out]) == 0
+    assert "Against the reference: torque_gain at rh_hfe_joint (real only" in capsys.readouterr().out
+    with open(os.path.join(out, "diagnosis.json")) as f:
+        d = json.load(f)
+    comp = d["reference_comparison"]
+    assert [(x["type"], x["where"], x["status"]) for x in comp["differences"]] == [
+        ("torque_gain", "rh_hfe_joint", "real only")]
+    diff = comp["differences"][0]
+    assert abs(diff["params"]["value"] - 0.8) < 0.05 and diff["std"]["value"] > 0
+    shared = {(x["type"], x["where"]) for x in comp["effects"] if x["status"] == "shared"}
+    assert ("joint_coulomb_friction", "lf_kfe_joint") in shared
+    # both are reported against the nominal model too
+    assert {e["type"] for e in d["reference"]["effects"]} >= {"joint_coulomb_friction"}
+    assert "torque_gain" not in {e["type"] for e in d["reference"]["effects"]}

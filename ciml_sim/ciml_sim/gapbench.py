@@ -10,7 +10,14 @@ scenario can reach it. The result is scored against the answer:
   error, spurious effects with share > 5 %, held-out shrink;
 - out-of-catalogue effects (a term the diagnosis has no candidate for): whether it gave a
   large ``unexplained_share`` localised to the right leg instead of naming a wrong effect
-  with confidence.
+  with confidence;
+- calibration: the fraction of true parameters inside the reported 95 % and 68 % intervals
+  (coverage), and whether any estimate outside its physical bounds is reported with confidence;
+- honest shrink: the physical shrink (N, Nm, per dimension), the dimensions made worse, the
+  noise floor's share of the nominal residual;
+- reference cases (``reference_effects``): the simulator records the same motions twice, with the
+  reference scenario A and with A + B, and `ciml diagnose --bag A+B... --reference A...` must name
+  B, and only B, as what distinguishes them.
 
 The suite targets HyQ's joint and link names (the robot the simulator stands in for).
 """
@@ -28,10 +35,12 @@ import yaml
 
 from ciml_learning.fileio import atomic_write_json, atomic_write_text
 
+from .scenario import OUT_OF_CATALOGUE_TYPES
+
 NOISE = {"q": 0.0005, "qd": 0.01, "tau": 0.5, "base_orientation": 0.001}
 """The realistic sensor noise of DESIGN §5 (standard deviations)."""
 
-OUT_OF_CATALOGUE = ("joint_stribeck_friction", "joint_spring", "torque_ripple")
+OUT_OF_CATALOGUE = OUT_OF_CATALOGUE_TYPES
 
 TRAIN_MOTIONS: tuple[tuple[str, float], ...] = (("base_only", 12.0), ("walk_35", 16.0), ("trot_35", 8.0))
 HELDOUT_MOTIONS: tuple[tuple[str, float], ...] = (("walk_20", 12.0), ("trot_20", 8.0))
@@ -40,8 +49,20 @@ SPURIOUS_SHARE = 0.05
 UNEXPLAINED_LARGE = 0.5
 
 
-def _case(effects: list[dict], seed: int, noise: bool = False) -> dict:
-    return {"seed": seed, "sensor_noise": dict(NOISE) if noise else {}, "effects": effects}
+def _case(effects: list[dict], seed: int, noise: bool = False, reference: list[dict] | None = None) -> dict:
+    """A suite case; with `reference` (scenario A), effects = A + B are the "real" logs and A the reference."""
+    out = {"seed": seed, "sensor_noise": dict(NOISE) if noise else {}, "effects": (reference or []) + effects}
+    if reference is not None:
+        out["reference_effects"] = reference
+    return out
+
+
+def scenario_of(spec: dict, reference: bool = False) -> dict:
+    """The scenario mapping (the simulator's input) of a suite case: its real or its reference logs."""
+    out = {k: v for k, v in spec.items() if k != "reference_effects"}
+    if reference:
+        out["effects"] = spec["reference_effects"]
+    return out
 
 
 SUITE: tuple[dict, ...] = (
@@ -78,6 +99,15 @@ SUITE: tuple[dict, ...] = (
             "velocity": 0.1}], 19),
     _case([{"type": "joint_spring", "joint": "lh_hfe_joint", "stiffness": 80.0, "rest": 0.0}], 20),
     _case([{"type": "torque_ripple", "joint": "lf_kfe_joint", "amplitude": 6.0, "period": 0.3}], 21),
+    # the torque sensor (not the actuator): its gain and offset in the catalogue, a reading ripple outside it
+    _case([{"type": "torque_sensor_gain", "joint": "lh_kfe_joint", "value": 0.8}], 22, noise=True),
+    _case([{"type": "torque_sensor_offset", "joint": "rf_haa_joint", "value": -4.0}], 23),
+    _case([{"type": "torque_sensor_ripple", "joint": "lf_kfe_joint", "amplitude": 6.0, "period": 2 * np.pi / 10}], 24),
+    # sim-to-real against a reference: the reference logs have A, the "real" ones A + B; B must be named
+    _case([{"type": "torque_sensor_gain", "joint": "lh_kfe_joint", "value": 0.85}], 25, noise=True,
+          reference=[{"type": "joint_coulomb_friction", "joint": "rf_kfe_joint", "value": 6.0}]),
+    _case([{"type": "link_mass_scale", "link": "lf_lowerleg", "value": 1.5}], 26,
+          reference=[{"type": "actuator_lag", "joints": "all", "time_constant": 0.01}]),
 )
 
 
@@ -123,11 +153,78 @@ def _leg_of(name: str) -> str:
     return name.split("_")[0]
 
 
-def score_case(truth_effects: Sequence[dict], diagnosis: dict, all_joints: Sequence[str]) -> dict:
-    """Compare a diagnosis.json with the answer of its scenario."""
-    found = list(diagnosis.get("effects", []))
+Z95, Z68 = 1.959964, 0.994458
+
+
+def _coverage(truth: dict, found: dict) -> tuple[int, int, int]:
+    """(inside 95 %, inside 68 %, count) over the true parameters' scalar components that the found
+    effect reports with a standard deviation (value ± z·std)."""
+    params, std = found.get("params", {}), found.get("std", {})
+    n95 = n68 = n = 0
+    for k, v in truth.items():
+        if k not in params or k not in std:
+            continue
+        t, f, sd = (np.atleast_1d(np.asarray(x, float)) for x in (v, params[k], std[k]))
+        if not (t.shape == f.shape == sd.shape):
+            continue
+        err = np.abs(f - t)
+        n95 += int(np.sum(err <= Z95 * sd))
+        n68 += int(np.sum(err <= Z68 * sd))
+        n += t.size
+    return n95, n68, n
+
+
+def confident_outside_bounds(diagnosis: dict) -> list[str]:
+    """Effects reported with confidence (high or medium) whose parameter lies outside the physical
+    ranges the diagnosis states (diagnosis.json `bounds`)."""
+    ranges = diagnosis.get("bounds", {})
+    out = []
+    for e in diagnosis.get("effects", []):
+        if e.get("confidence") not in ("high", "medium"):
+            continue
+        for k, v in e.get("params", {}).items():
+            r = ranges.get(e["type"], {}).get(k)
+            if isinstance(r, list) and len(r) == 2 and all(isinstance(x, (int, float)) for x in r):
+                vals = np.atleast_1d(np.asarray(v, float))
+                if np.any(vals < r[0] - 1e-9) or np.any(vals > r[1] + 1e-9):
+                    out.append(f"{e['type']}:{k}={v}")
+    return out
+
+
+def reference_effects_found(diagnosis: dict) -> list[dict]:
+    """The differences of a --reference diagnosis (reference_comparison) as effects to score: what it
+    names as distinguishing the real logs ("real only", "differs", "reference only")."""
+    out = []
+    for d in diagnosis.get("reference_comparison", {}).get("differences", []):
+        e = {"type": d["type"], "status": d["status"]}
+        where = d["where"]
+        if where == "all":
+            e["joints"] = "all"
+        elif where != "base":
+            e["link" if where in _LINKS else "joint"] = where
+        e["params"] = d.get("params", d.get("params_real", {}))
+        e["std"] = d.get("std", {})
+        e["share"] = float(d.get("share_real", 1.0)) if d["status"] == "real only" else 1.0
+        out.append(e)
+    return out
+
+
+_LINKS: set[str] = set()
+"""Link names of the robot (filled from the robot description when scoring)."""
+
+
+def score_case(truth_effects: Sequence[dict], diagnosis: dict, all_joints: Sequence[str],
+               reference_effects: Sequence[dict] | None = None) -> dict:
+    """Compare a diagnosis.json with the answer of its scenario. With `reference_effects` (A of a
+    reference case), the answer is the rest (B) and the diagnosis' reference_comparison is scored."""
+    if reference_effects is not None:
+        truth_effects = [t for t in truth_effects if t not in list(reference_effects)]
+        found = reference_effects_found(diagnosis)
+    else:
+        found = list(diagnosis.get("effects", []))
     used: set[int] = set()
     rows = []
+    cov = np.zeros(3, int)
     for t in truth_effects:
         if t["type"] in OUT_OF_CATALOGUE:
             continue
@@ -143,18 +240,36 @@ def score_case(truth_effects: Sequence[dict], diagnosis: dict, all_joints: Seque
             loc_hits = [i for i in candidates if _location(found[i]) & t_loc]
         used.update(loc_hits)
         rel = None
+        row_cov = None
         if loc_hits:
             truth_p = _main_param(t)
             errs = [_relative_error(truth_p, _main_param(found[i]), t["type"]) for i in loc_hits]
             errs = [e for e in errs if e is not None]
             rel = float(np.median(errs)) if errs else None
+            exact = [i for i in loc_hits if _location(found[i]) == t_loc] or loc_hits[:1]
+            row_cov = _coverage(truth_p, found[exact[0]])
+            cov += np.asarray(row_cov)
         rows.append({"type": t["type"], "location": sorted(t_loc), "type_right": type_ok,
-                     "location_right": bool(loc_hits), "param_rel_error": rel})
+                     "location_right": bool(loc_hits), "param_rel_error": rel,
+                     "coverage": None if row_cov is None else {"in_95": row_cov[0], "in_68": row_cov[1],
+                                                                "params": row_cov[2]}})
     spurious = [f for i, f in enumerate(found) if i not in used and float(f.get("share", 0.0)) > SPURIOUS_SHARE]
+    shr = diagnosis.get("shrink", {})
     out = {"effects": rows, "spurious": [{"type": f.get("type"), "location": sorted(_location(f)),
                                           "share": f.get("share")} for f in spurious],
-           "shrink_ratio": diagnosis.get("shrink", {}).get("ratio"),
-           "unexplained_share": diagnosis.get("unexplained_share")}
+           "shrink_ratio": shr.get("ratio"),
+           "shrink_ratio_physical": shr.get("ratio_physical_per_dimension"),
+           "worsened_dimensions": [w["dimension"] for w in shr.get("worsened_dimensions", [])],
+           "noise_floor_share": diagnosis.get("noise_floor", {}).get("share_of_nominal"),
+           "unexplained_share": diagnosis.get("unexplained_share"),
+           "coverage": {"in_95": int(cov[0]), "in_68": int(cov[1]), "params": int(cov[2])},
+           "confident_outside_bounds": confident_outside_bounds(diagnosis),
+           "not_identified": [f"{e['type']}@{e.get('joint') or e.get('link') or 'base'}"
+                              for e in diagnosis.get("not_identified", [])]}
+    if reference_effects is not None:
+        out["reference"] = {"named_only_the_difference": bool(rows) and all(r["location_right"] for r in rows)
+                            and not spurious,
+                            "differences": [f"{f['type']}@{sorted(_location(f))[0]} ({f['status']})" for f in found]}
     ooc = [t for t in truth_effects if t["type"] in OUT_OF_CATALOGUE]
     if ooc:
         leg = _leg_of(ooc[0]["joint"])
@@ -181,44 +296,69 @@ def _ciml(*args: str) -> None:
         raise RuntimeError(f"{' '.join(cmd[1:3])} failed: {tail[0]}")
 
 
+def _record_motions(case: str, scenario_path: str, seed: int, scale: float, prefix: str = "") -> dict[str, list[str]]:
+    """Record the training and held-out motions of one scenario into case/<prefix><role>_<k> (no ground
+    truth); the seeds depend on the case and the motion only (a reference records the same motions)."""
+    bags: dict[str, list[str]] = {"train": [], "heldout": []}
+    for role, motions in (("train", TRAIN_MOTIONS), ("heldout", HELDOUT_MOTIONS)):
+        for k, (motion, duration) in enumerate(motions):
+            bag = os.path.join(case, f"{prefix}{role}_{k}")
+            if not os.path.isdir(bag):
+                _ciml("record", "--scenario", scenario_path, "--motion", motion, "--duration", f"{duration * scale:g}",
+                      "--seed", str(100 * seed + len(bags[role]) + (50 if role == "heldout" else 0)),
+                      "--no-ground-truth", "--out", bag)
+            bags[role].append(bag)
+    return bags
+
+
 def run_case(index: int, spec: dict, out_dir: str, scale: float = 1.0) -> dict:
-    """Record the case's motions (no ground truth), diagnose them in a separate process, score."""
+    """Record the case's motions (no ground truth), diagnose them in a separate process, score.
+    A reference case also records the reference scenario's motions and diagnoses with --reference."""
     from ciml_learning.robot import load_robot
 
+    robot = load_robot()
+    _LINKS.update(robot.link_names)
     case = os.path.join(out_dir, f"case_{index:02d}")
     answer_dir = os.path.join(out_dir, "answers")
     os.makedirs(answer_dir, exist_ok=True)
     scenario_path = os.path.join(answer_dir, f"case_{index:02d}.yaml")
-    atomic_write_text(scenario_path, yaml.safe_dump({"name": f"case_{index:02d}", **spec}, sort_keys=False))
+    atomic_write_text(scenario_path, yaml.safe_dump({"name": f"case_{index:02d}", **scenario_of(spec)}, sort_keys=False))
     t0 = time.perf_counter()
-    bags = {"train": [], "heldout": []}
-    for role, motions in (("train", TRAIN_MOTIONS), ("heldout", HELDOUT_MOTIONS)):
-        for k, (motion, duration) in enumerate(motions):
-            bag = os.path.join(case, f"{role}_{k}")
-            if not os.path.isdir(bag):
-                _ciml("record", "--scenario", scenario_path, "--motion", motion, "--duration", f"{duration * scale:g}",
-                      "--seed", str(100 * spec["seed"] + len(bags[role]) + (50 if role == "heldout" else 0)),
-                      "--no-ground-truth", "--out", bag)
-            bags[role].append(bag)
+    bags = _record_motions(case, scenario_path, spec["seed"], scale)
+    reference = []
+    if "reference_effects" in spec:
+        ref_path = os.path.join(answer_dir, f"case_{index:02d}_reference.yaml")
+        atomic_write_text(ref_path, yaml.safe_dump({"name": f"case_{index:02d}_reference",
+                                                    **scenario_of(spec, reference=True)}, sort_keys=False))
+        ref_bags = _record_motions(case, ref_path, spec["seed"], scale, prefix="reference_")
+        reference = ["--reference", *ref_bags["train"], *ref_bags["heldout"]]
     t1 = time.perf_counter()
     diag_dir = os.path.join(case, "diagnosis")
-    _ciml("diagnose", "--bag", *bags["train"], "--heldout", *bags["heldout"], "--out", diag_dir)
+    _ciml("diagnose", "--bag", *bags["train"], "--heldout", *bags["heldout"], *reference, "--out", diag_dir)
     t2 = time.perf_counter()
     with open(os.path.join(diag_dir, "diagnosis.json"), encoding="utf-8") as f:
         diagnosis = json.load(f)
-    scored = score_case(spec["effects"], diagnosis, load_robot().joint_names)
+    scored = score_case(spec["effects"], diagnosis, robot.joint_names, spec.get("reference_effects"))
     scored.update({"case": index, "effects_true": spec["effects"], "noise": bool(spec["sensor_noise"]),
                    "record_s": round(t1 - t0, 1), "diagnose_s": round(t2 - t1, 1)})
+    if "reference_effects" in spec:
+        scored["reference_effects"] = spec["reference_effects"]
     return scored
 
 
 def summarise(cases: list[dict]) -> dict:
     """The issue's targets, measured over the suite."""
-    rows = [r for c in cases for r in c.get("effects", [])]
-    in_cat = [c for c in cases if "out_of_catalogue" not in c and "error" not in c]
-    ooc = [c for c in cases if "out_of_catalogue" in c]
+    ok = [c for c in cases if "error" not in c]
+    plain = [c for c in ok if "reference" not in c]
+    rows = [r for c in plain for r in c.get("effects", [])]
+    in_cat = [c for c in plain if "out_of_catalogue" not in c]
+    ooc = [c for c in plain if "out_of_catalogue" in c]
+    refs = [c for c in ok if "reference" in c]
     rel = [r["param_rel_error"] for r in rows if r["param_rel_error"] is not None]
     shrink = [c["shrink_ratio"] for c in in_cat if c.get("shrink_ratio") is not None]
+    phys = [c["shrink_ratio_physical"] for c in in_cat if c.get("shrink_ratio_physical") is not None]
+    cov = np.sum([[c["coverage"]["in_95"], c["coverage"]["in_68"], c["coverage"]["params"]]
+                  for c in ok if "coverage" in c], axis=0) if ok else np.zeros(3)
     return {
         "cases": len(cases),
         "failed_cases": sum(1 for c in cases if "error" in c),
@@ -226,27 +366,44 @@ def summarise(cases: list[dict]) -> dict:
         "named_right_fraction": (sum(r["type_right"] and r["location_right"] for r in rows) / len(rows)) if rows else None,
         "cases_with_spurious_effect": sum(1 for c in in_cat if c.get("spurious")),  # in-catalogue cases
         "median_param_rel_error": float(np.median(rel)) if rel else None,
+        "coverage_95": float(cov[0] / cov[2]) if cov[2] else None,
+        "coverage_68": float(cov[1] / cov[2]) if cov[2] else None,
+        "coverage_parameters": int(cov[2]),
+        "confident_outside_bounds": sum(len(c.get("confident_outside_bounds", [])) for c in ok),
         "median_heldout_shrink": float(np.median(shrink)) if shrink else None,
         "min_heldout_shrink": float(np.min(shrink)) if shrink else None,
+        "median_heldout_shrink_physical": float(np.median(phys)) if phys else None,
+        "cases_with_worsened_dimensions": sum(1 for c in in_cat if c.get("worsened_dimensions")),
         "out_of_catalogue_unexplained_and_localised": sum(
             1 for c in ooc if c["out_of_catalogue"]["unexplained_large"] and c["out_of_catalogue"]["localised_right"]
             and not c["out_of_catalogue"]["named_wrong_with_confidence"]),
         "out_of_catalogue_cases": len(ooc),
+        "reference_cases_named_only_the_difference": sum(1 for c in refs if c["reference"]["named_only_the_difference"]),
+        "reference_cases": len(refs),
         "median_diagnose_s": float(np.median([c["diagnose_s"] for c in cases if "diagnose_s" in c])) if cases else None,
-        "targets": {"named_right_fraction": ">= 0.90", "spurious share": "<= 0.05", "median_param_rel_error": "<= 0.15",
-                    "median_heldout_shrink": ">= 0.70", "out_of_catalogue_unexplained_and_localised": ">= 2 of 3"},
+        "targets": {"named_right_fraction": ">= 0.95", "spurious share": "<= 0.05", "median_param_rel_error": "<= 0.15",
+                    "coverage_95": ">= 0.90", "confident_outside_bounds": "0",
+                    "median_heldout_shrink": ">= 0.70",
+                    "out_of_catalogue_unexplained_and_localised": ">= 3 of 4, no catalogue effect above 30 % share",
+                    "reference_cases_named_only_the_difference": "all"},
     }
 
 
 def table(cases: list[dict]) -> str:
     """Markdown summary table, one row per case."""
-    lines = ["| case | true effects | named right | param rel. err | spurious | shrink | unexplained | diagnose [s] |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["| case | true effects | named right | param rel. err | in 95 % / 68 % interval | spurious | shrink "
+             "(normalised / physical) | made worse | noise floor | unexplained | diagnose [s] |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for c in cases:
-        true = "; ".join(f"{e['type']}@{e.get('joint') or e.get('joints') or e.get('link') or 'base'}"
-                         for e in c.get("effects_true", []))
+        ref = {json.dumps(e, sort_keys=True) for e in c.get("reference_effects", [])}
+
+        def name(e: dict) -> str:
+            tag = "ref: " if json.dumps(e, sort_keys=True) in ref else ""
+            return f"{tag}{e['type']}@{e.get('joint') or e.get('joints') or e.get('link') or 'base'}"
+
+        true = "; ".join(name(e) for e in c.get("effects_true", []))
         if "error" in c:
-            lines.append(f"| {c['case']} | {true} | error: {c['error']} | | | | | |")
+            lines.append(f"| {c['case']} | {true} | error: {c['error']} | | | | | | | | |")
             continue
         if "out_of_catalogue" in c:
             o = c["out_of_catalogue"]
@@ -255,11 +412,51 @@ def table(cases: list[dict]) -> str:
                 named += f", at {o['unexplained_joint']}"
         else:
             named = f"{sum(r['type_right'] and r['location_right'] for r in c['effects'])}/{len(c['effects'])}"
+            if "reference" in c:
+                named += " (differences: " + ", ".join(c["reference"]["differences"]) + ")"
         rel = [r["param_rel_error"] for r in c.get("effects", []) if r["param_rel_error"] is not None]
         fmt = (lambda x: "" if x is None else f"{x:.2f}")
-        lines.append(f"| {c['case']} | {true} | {named} | {fmt(max(rel) if rel else None)} | {len(c.get('spurious', []))} "
-                     f"| {fmt(c.get('shrink_ratio'))} | {fmt(c.get('unexplained_share'))} | {c.get('diagnose_s', '')} |")
+        cv = c.get("coverage", {})
+        cov = f"{cv['in_95']}/{cv['params']} / {cv['in_68']}/{cv['params']}" if cv.get("params") else ""
+        lines.append(f"| {c['case']} | {true} | {named} | {fmt(max(rel) if rel else None)} | {cov} "
+                     f"| {len(c.get('spurious', []))} | {fmt(c.get('shrink_ratio'))} / {fmt(c.get('shrink_ratio_physical'))} "
+                     f"| {', '.join(c.get('worsened_dimensions', []))} | {fmt(c.get('noise_floor_share'))} "
+                     f"| {fmt(c.get('unexplained_share'))} | {c.get('diagnose_s', '')} |")
     return "\n".join(lines)
+
+
+def rescore(out_dir: str) -> dict:
+    """Score the diagnoses already in DIR again (after a change of the scoring), without recording or
+    diagnosing; rewrites DIR/gap_bench.json and .md."""
+    from ciml_learning.robot import load_robot
+
+    robot = load_robot()
+    _LINKS.update(robot.link_names)
+    with open(os.path.join(out_dir, "gap_bench.json"), encoding="utf-8") as f:
+        old = {c["case"]: c for c in json.load(f)["cases"]}
+    results = []
+    for i, c in sorted(old.items()):
+        path = os.path.join(out_dir, f"case_{i:02d}", "diagnosis", "diagnosis.json")
+        if "error" in c or not os.path.isfile(path):
+            results.append(c)
+            continue
+        with open(path, encoding="utf-8") as f:
+            diagnosis = json.load(f)
+        spec = SUITE[i - 1]
+        scored = score_case(spec["effects"], diagnosis, robot.joint_names, spec.get("reference_effects"))
+        scored.update({k: c[k] for k in ("case", "effects_true", "noise", "record_s", "diagnose_s") if k in c})
+        if "reference_effects" in spec:
+            scored["reference_effects"] = spec["reference_effects"]
+        results.append(scored)
+    return _write(out_dir, results)
+
+
+def _write(out_dir: str, results: list[dict]) -> dict:
+    doc = {"summary": summarise(results), "cases": results}
+    atomic_write_json(os.path.join(out_dir, "gap_bench.json"), doc)
+    atomic_write_text(os.path.join(out_dir, "gap_bench.md"),
+                      "# gap-bench\n\n" + table(results) + "\n\n```json\n" + json.dumps(doc["summary"], indent=1) + "\n```\n")
+    return doc
 
 
 def gap_bench(out_dir: str, cases: Sequence[int] | None = None, jobs: int = 1, scale: float = 1.0,
@@ -283,11 +480,7 @@ def gap_bench(out_dir: str, cases: Sequence[int] | None = None, jobs: int = 1, s
         iterator = tqdm(selected, desc="gap-bench", unit="case")
     results = Parallel(n_jobs=jobs)(delayed(one)(i) for i in iterator)
     results.sort(key=lambda c: c["case"])
-    doc = {"summary": summarise(results), "cases": results}
-    atomic_write_json(os.path.join(out_dir, "gap_bench.json"), doc)
-    atomic_write_text(os.path.join(out_dir, "gap_bench.md"),
-                      "# gap-bench\n\n" + table(results) + "\n\n```json\n" + json.dumps(doc["summary"], indent=1) + "\n```\n")
-    return doc
+    return _write(out_dir, results)
 
 
 def gap_bench_command(args) -> int:

@@ -5,7 +5,7 @@ import pytest
 
 from ciml_learning.robot import load_robot
 from ciml_sim import gapbench
-from ciml_sim.scenario import parse_scenario
+from ciml_sim.scenario import CATALOGUE_TYPES, parse_scenario
 
 JOINTS = load_robot().joint_names
 
@@ -14,13 +14,17 @@ def test_every_suite_case_is_a_valid_scenario_and_the_suite_covers_the_catalogue
     robot = load_robot()
     types = set()
     for i, spec in enumerate(gapbench.SUITE, start=1):
-        parse_scenario({"name": f"case_{i:02d}", **spec}, robot)
+        parse_scenario({"name": f"case_{i:02d}", **gapbench.scenario_of(spec)}, robot)
+        if "reference_effects" in spec:
+            parse_scenario({"name": f"case_{i:02d}_reference", **gapbench.scenario_of(spec, reference=True)}, robot)
+            assert all(e in spec["effects"] for e in spec["reference_effects"])
+            assert len(spec["effects"]) > len(spec["reference_effects"])
         types |= {e["type"] for e in spec["effects"]}
     assert len(gapbench.SUITE) >= 16 + 3
-    catalogue = {"payload", "link_mass_scale", "joint_coulomb_friction", "joint_viscous_friction", "actuator_lag",
-                 "torque_gain", "torque_offset", "encoder_offset", "base_imu_tilt"}
-    assert catalogue <= types
-    assert sum(1 for s in gapbench.SUITE if s["effects"][0]["type"] in gapbench.OUT_OF_CATALOGUE) >= 3
+    assert set(CATALOGUE_TYPES) <= types  # every catalogue effect, the torque sensor's included
+    assert sum(1 for s in gapbench.SUITE if s["effects"][0]["type"] in gapbench.OUT_OF_CATALOGUE) >= 4
+    assert any(s["effects"][0]["type"] == "torque_sensor_ripple" for s in gapbench.SUITE)
+    assert sum(1 for s in gapbench.SUITE if "reference_effects" in s) >= 2
     assert any(len(s["effects"]) == 3 for s in gapbench.SUITE) and any(len(s["effects"]) == 2 for s in gapbench.SUITE)
 
 
@@ -73,3 +77,32 @@ def test_out_of_catalogue_scoring():
     assert not o["unexplained_large"] and not o["localised_right"] and o["named_wrong_with_confidence"]
     summary = gapbench.summarise([{"case": 1, **gapbench.score_case(truth, good, JOINTS), "diagnose_s": 1.0}])
     assert summary["out_of_catalogue_unexplained_and_localised"] == 1
+
+
+def test_coverage_bounds_and_reference_scoring():
+    truth = [{"type": "payload", "mass": 6.0, "com": [0.15, 0.0, 0.05]},
+             {"type": "actuator_lag", "joints": "all", "time_constant": 0.01}]
+    diag = {"effects": [
+        {"type": "payload", "params": {"mass": 5.9, "com": [0.14, 0.0, 0.2]},
+         "std": {"mass": 0.1, "com": [0.01, 0.01, 0.01]}, "share": 0.6, "confidence": "high"},
+        {"type": "actuator_lag", "joints": "all", "params": {"time_constant": 0.0077},
+         "std": {"time_constant": 0.0005}, "share": 0.3, "confidence": "high"}],
+        "bounds": {"payload": {"mass": [0.0, 5.0]}}, "shrink": {}, "localization": []}
+    s = gapbench.score_case(truth, diag, JOINTS)
+    # mass 5.9 ± 0.1 and com x 0.14 ± 0.01 are inside at 95 % only, com y at both, com z and the lag at neither
+    assert s["coverage"] == {"in_95": 3, "in_68": 1, "params": 5}
+    assert s["confident_outside_bounds"] == ["payload:mass=5.9"]
+    summary = gapbench.summarise([{"case": 1, **s, "diagnose_s": 1.0}])
+    assert summary["coverage_95"] == 0.6 and summary["confident_outside_bounds"] == 1
+    # reference case: A shared, B named; a difference in A would be spurious
+    a = {"type": "joint_coulomb_friction", "joint": "rf_kfe_joint", "value": 6.0}
+    b = {"type": "torque_sensor_gain", "joint": "lh_kfe_joint", "value": 0.85}
+    comp = {"reference_comparison": {"differences": [
+        {"type": "torque_sensor_gain", "where": "lh_kfe_joint", "status": "real only", "params": {"value": 0.86},
+         "std": {"value": 0.01}, "share_real": 0.9}]}, "shrink": {}, "localization": []}
+    s = gapbench.score_case([a, b], comp, JOINTS, [a])
+    assert s["reference"]["named_only_the_difference"] and s["coverage"]["params"] == 1
+    comp["reference_comparison"]["differences"].append(
+        {"type": "joint_coulomb_friction", "where": "rf_kfe_joint", "status": "differs", "params_real": {"value": 7.0}})
+    s = gapbench.score_case([a, b], comp, JOINTS, [a])
+    assert not s["reference"]["named_only_the_difference"] and len(s["spurious"]) == 1

@@ -1,4 +1,4 @@
-"""Physical bounds of every catalogue parameter, in one place (docs/ARCHITECTURE.md, the diagnosis).
+"""Physical bounds of every catalogue parameter, in one place (docs/DIAGNOSIS.md).
 
 A parameter outside these ranges is not a property of a robot: a 0.06 kg foot does not weigh
 two tonnes, an encoder is not mounted 10° off, friction does not push. The identification

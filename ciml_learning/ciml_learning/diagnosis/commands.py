@@ -1,4 +1,4 @@
-"""`ciml diagnose --bag BAG... [--heldout BAG...] --out DIR` (DESIGN §4, §6)."""
+"""`ciml diagnose --bag BAG... [--heldout BAG...] [--reference REF_BAG...] --out DIR` (DESIGN §4, §6)."""
 from __future__ import annotations
 
 import argparse
@@ -11,7 +11,8 @@ def diagnose(args: argparse.Namespace) -> int:
     from .run import diagnose as run
 
     robot = robot_from_args(args)
-    result = run(robot, args.bag, args.heldout, args.out, progress=True, profile=profile_from_args(args))
+    result = run(robot, args.bag, args.heldout, args.out, progress=True, profile=profile_from_args(args),
+                 reference=getattr(args, "reference", None))
     print(f"diagnosis: {os.path.join(args.out, 'diagnosis.json')}")
     print(f"report:    {os.path.join(args.out, 'report.html')}")
     for line in answers(result):

@@ -803,18 +803,56 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
         m_ho = fit_model(layout, model.candidates, Gh, ch, tick=model.tick)
         reproduction = np.abs(_flatten(physical_parameters(m_ho)) - flat) / np.sqrt(2.0)
     conversion = np.zeros_like(flat)
+    misspecification = np.zeros_like(flat)
+    rel_mis = misspecification_bounds(selection, heldout) if heldout is not None else [0.0] * len(base)
     k = 0
-    for cand, p in zip(model.candidates, base):
+    for cand, p, rel in zip(model.candidates, base, rel_mis):
         n = len(_flatten([p]))
         if cand.type == "actuator_lag" and model.tick:
             T, conv = lag_time_constant(float(model.params_of(cand)[0]), model.tick)
             conversion[k] = conv * (p["time_constant"] / T if T > 0 else 1.0)  # × the joint's gain
+        # deviations from the null value ("no effect") scale with the bound
+        null = _flatten([{key: (1.0 if key == "value" and cand.type in ("link_mass_scale", "torque_gain",
+                                                                       "torque_sensor_gain") else 0.0)
+                          if not isinstance(v, list) else [0.0] * len(v) for key, v in p.items()}])
+        misspecification[k:k + n] = unc.MISSPECIFICATION_SCALE * rel * np.abs(flat[k:k + n] - null)
         k += n
-    std = unc.combine(sampling, reproduction, conversion)
+    std = unc.combine(sampling, reproduction, conversion, misspecification)
     info = {"method": "block bootstrap over time (blocks from the residual's autocorrelation), held-out "
                       "reproduction and the lag's sampling conversion, in quadrature",
-            "block_seconds": block / fs, "blocks": int(len(Gb)), "draws": int(len(draws))}
+            "block_seconds": block * unc.SPAN / fs, "block_starts_every_s": block / fs,
+            "autocorrelation_time_s": unc.integrated_autocorrelation_time_max(_residual_series(selection, rows)) / fs,
+            "draws": int(len(draws))}
     return _unflatten(base, std), info
+
+
+def misspecification_bounds(selection: Selection, heldout: Grams) -> list[float]:
+    """Per candidate of the selected model, the relative bias a residual the model leaves could cause
+    (uncertainty.py, misspecification): √(r² / s²) with s² the candidate's own held-out prediction
+    (normalised SS) and r² the held-out residual above the noise floor in the dimensions it acts on
+    (those holding ≥ 1 % of its prediction). Cauchy–Schwarz: a least-squares coefficient moves by at most
+    that fraction when such a residual is added to its data."""
+    model = selection.model
+    if not model.candidates:
+        return []
+    w = selection.weights
+    theta = model.feature_theta()
+    res = heldout.ss(theta)  # per dimension, physical units²
+    floor = (heldout.n * (selection.noise_floor ** 2) if selection.noise_floor is not None
+             else np.zeros_like(res))
+    above = np.maximum(res - floor, 0.0) * w
+    A = model.matrix()
+    out = []
+    for sl in model.slices():
+        t = A[:, sl] @ model.theta[sl]
+        own = np.einsum("i,dij,j->d", t, heldout.G, t) * w
+        total = own.sum()
+        if total <= 0:
+            out.append(0.0)
+            continue
+        dims = own >= 0.01 * own.max()
+        out.append(float(np.sqrt(above[dims].sum() / total)))
+    return out
 
 
 def bootstrap_std(selection: Selection, rows: Rows, fs: float = 250.0, n_boot: int = BOOTSTRAP,

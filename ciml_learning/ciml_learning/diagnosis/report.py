@@ -61,16 +61,45 @@ def answers(result: dict) -> list[str]:
                                       f"{e['share']:.0%} of the gap" for e in eff)
     else:
         which = "Which: no catalogue effect explains the gap"
+    if eff:
+        which = which.replace(" of the gap", " of the gap above noise")
+        which += " [confidence: " + ", ".join(f"{_where(e)} {e.get('confidence')}" for e in eff) + "]"
     which += f"; unexplained: {result['unexplained_share']:.0%}"
+    floor = result.get("noise_floor", {})
+    if result.get("gap_at_noise_floor"):
+        which += " (the held-out error is at the noise floor: nothing above noise to explain)"
+    elif "share_of_nominal" in floor:
+        which += f" of the gap above the noise floor (noise: {floor['share_of_nominal']:.0%} of the nominal residual)"
     outside = [u for u in result.get("unexplained_localised", []) if u["share"] >= OUTSIDE_REPORTED]
     if outside:
         which += " — of it, a joint torque no catalogue effect explains at " + "; ".join(
             f"{u['joint']} ({u['share']:.0%}: {u['torque_at_center']:.3g} Nm at q = {u['position_center']:.3g} rad, "
-            f"stiffness {u['stiffness']:.3g} Nm/rad)" for u in outside)
+            f"stiffness {u['stiffness']:.3g} Nm/rad{', in the torque reading' if u.get('level') == 'sensor' else ''})"
+            for u in outside)
+    for e in result.get("not_identified", []):
+        which += f"; {e['type']} at {_where(e)}: at bound — not identified ({_fmt_params(e['params'], {})})"
     s = result["shrink"]
     far = (f"How far: on held-out data the gap shrinks by {s['ratio']:.0%} "
            f"(noise-normalised RMS {s['heldout_rms_nominal']:.3g} → {s['heldout_rms_with_effects']:.3g})")
-    return [where, which, far]
+    if "ratio_physical_per_dimension" in s:
+        far += f"; in physical units (N, Nm; per dimension) by {s['ratio_physical_per_dimension']:.0%}"
+    worse = s.get("worsened_dimensions", [])
+    far += ("; made worse: " + ", ".join(f"{w['dimension']} ({w['rms_nominal']:.3g} → {w['rms_with_effects']:.3g} "
+                                          f"{w['unit']})" for w in worse)) if worse else "; no dimension made worse"
+    out = [where, which, far]
+    comp = result.get("reference_comparison")
+    if comp is not None:
+        diffs = comp["differences"]
+        line = "Against the reference: " + ("; ".join(
+            f"{d['type']} at {d['where']} ({d['status']}"
+            + (f": {_fmt_params(d['params'], d['std'])})" if "params" in d else
+               f": real − reference = {_fmt_params(d['difference'], d['difference_std'])})") for d in diffs)
+            if diffs else "no effect distinguishes the logs from the reference")
+        shared = [x for x in comp["effects"] if x["status"] == "shared"]
+        if shared:
+            line += "; shared by both (not a gap between them): " + ", ".join(f"{x['type']} at {x['where']}" for x in shared)
+        out.append(line)
+    return out
 
 
 def _gapped(t: np.ndarray, *ys: np.ndarray):

@@ -28,7 +28,7 @@ from ..fileio import atomic_dir, check_out_dir, json_dumps, load_json_bounded
 from ..pipeline import load_dataset
 from ..robot import RobotDescription
 from .bounds import physical_ranges
-from .candidates import COULOMB_SMOOTHING, FeatureLayout, link_inertias
+from .candidates import COULOMB_SMOOTHING, UNMODELLED_SENSOR_TYPE, FeatureLayout, link_inertias
 from .effects import DiagnosisError
 from .features import build_rows, grams
 from .identification import parameter_uncertainty, physical_parameters, relevance_function, select
@@ -178,22 +178,28 @@ def _unmodelled_entry(layout: FeatureLayout, dataset, samples: np.ndarray, cand,
             "torque_at_center": float(-coefficients[0]),
             "stiffness": float(coefficients[1] / layout.q_scale[j]),
             "torque_position_dependent_rms": float(np.std(varying)),
-            "description": "a position-dependent joint torque at this joint that no catalogue effect explains "
-                           "(e.g. a spring, a cable); in unexplained_share, not an effect"}
+            "level": "sensor" if cand.type == UNMODELLED_SENSOR_TYPE else "joint",
+            "description": ("a position-dependent error of this joint's torque reading (in both Φ̃ and Γ, e.g. a "
+                            "sensor ripple) that no catalogue effect explains" if cand.type == UNMODELLED_SENSOR_TYPE
+                            else "a position-dependent joint torque at this joint that no catalogue effect explains "
+                                 "(e.g. a spring, a cable)") + "; in unexplained_share, not an effect"}
 
 
 def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str] | None = None,
-             out_dir: str | None = None, progress: bool = True, report: bool = True, profile=None) -> dict:
+             out_dir: str | None = None, progress: bool = True, report: bool = True, profile=None,
+             reference: Sequence[str] | None = None) -> dict:
     """Run the diagnosis; write DIR/diagnosis.json (atomically) and DIR/report.html if out_dir.
 
-    profile: the robot profile the bags are read through (None: CIML's own topics)."""
+    profile: the robot profile the bags are read through (None: CIML's own topics).
+    reference: bags of the same robot to compare with (e.g. the simulator's logs of the same motions):
+    they are diagnosed too, and what distinguishes the bags from them is added (reference.py)."""
     t_start = time.perf_counter()
     bags = [str(b) for b in bags]
     if not bags:
         raise DiagnosisError("no bag given")
     if out_dir is not None:  # refused before minutes of work, not after
         check_out_dir(out_dir, is_diagnosis_dir, "diagnosis")
-    for b in list(bags) + [str(h) for h in heldout or []]:
+    for b in list(bags) + [str(h) for h in heldout or []] + [str(r) for r in reference or []]:
         if not os.path.exists(b):
             raise DiagnosisError(f"bag not found: {b}")
     _say(progress, f"reading {len(bags)} bag(s)")
@@ -319,6 +325,13 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
         },
         "time_s": round(time.perf_counter() - t_start, 2),
     }
+    if reference:
+        from .reference import compare, reference_summary
+
+        _say(progress, f"diagnosing {len(reference)} reference bag(s) against the nominal model")
+        ref = diagnose(robot, [str(r) for r in reference], None, None, progress=progress, report=False, profile=profile)
+        result["reference"] = reference_summary(ref, [str(r) for r in reference])
+        result["reference_comparison"] = compare(result, ref)
     _check_finite(result)
     if out_dir is not None:
         html = None

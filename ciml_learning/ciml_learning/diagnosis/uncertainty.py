@@ -1,4 +1,4 @@
-"""Parameter uncertainty that covers the truth as often as it claims (docs/ARCHITECTURE.md).
+"""Parameter uncertainty that covers the truth as often as it claims (docs/DIAGNOSIS.md).
 
 A parameter's reported standard deviation combines, in quadrature:
 
@@ -14,7 +14,13 @@ A parameter's reported standard deviation combines, in quadrature:
    depends on the motion it is fitted on is not known better than the two estimates agree
    (|θ_id − θ_ho| / √2, the standard deviation of one estimate if both were independent draws);
 3. conversion: the actuator lag's sampling correction (identification.lag_time_constant)
-   lies between two readings of the command (a staircase, or continuous): half their difference.
+   lies between two readings of the command (a staircase, or continuous): half their difference;
+4. misspecification: what the selected model leaves above the noise floor (a simulator's contact
+   softness, an effect outside the catalogue, the linearisations) biases the parameters, the same
+   on every subset of the data, so neither 1 nor 2 sees it. A least-squares coefficient moves by at
+   most ‖r‖/‖x‖ when a residual r is added to its data (Cauchy–Schwarz); relative to the effect's
+   own prediction x θ that is √(r²/s²) (identification.misspecification_bounds). That worst case
+   (all of r along the effect) is taken as MISSPECIFICATION_SCALE⁻¹ standard deviations.
 
 The unit test checks coverage on synthetic regressions with AR(1) noise (block_bootstrap,
 block_length: the functions the diagnosis uses).
@@ -32,6 +38,8 @@ MIN_BLOCK_SECONDS = 1.0
 MIN_BLOCKS = 20
 """Blocks are shortened so that the data hold at least this many (a bootstrap needs several)."""
 N_BOOT = 100
+MISSPECIFICATION_SCALE = 0.5
+"""The misspecification bound (worst case) counts as 1/0.5 = 2 standard deviations."""
 
 
 def integrated_autocorrelation_time(x: np.ndarray) -> float:
@@ -50,11 +58,16 @@ def integrated_autocorrelation_time(x: np.ndarray) -> float:
     return float(max(1.0, 1.0 + 2.0 * rho[1:stop].sum()))
 
 
+def integrated_autocorrelation_time_max(residuals: list[np.ndarray]) -> float:
+    """The largest integrated_autocorrelation_time of several series [samples]."""
+    return max([integrated_autocorrelation_time(r) for r in residuals if len(r) >= 4] or [1.0])
+
+
 def block_length(residuals: list[np.ndarray], fs: float, n_samples: int) -> int:
     """Bootstrap *sub-block* length [samples] (block_bootstrap: a block is SPAN of them): a block is
     BLOCK_FACTOR × the largest integrated autocorrelation time of the given residual series, at
     least MIN_BLOCK_SECONDS, at most n_samples / MIN_BLOCKS."""
-    tau = max([integrated_autocorrelation_time(r) for r in residuals if len(r) >= 4] or [1.0])
+    tau = integrated_autocorrelation_time_max(residuals)
     block = int(np.ceil(max(BLOCK_FACTOR * tau, MIN_BLOCK_SECONDS * fs)))
     block = int(max(1, min(block, n_samples // MIN_BLOCKS if n_samples >= MIN_BLOCKS else n_samples)))
     return max(1, int(np.ceil(block / SPAN)))

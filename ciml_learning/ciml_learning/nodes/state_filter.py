@@ -4,7 +4,12 @@ Thin adapter around ciml_learning.filters.OnlineStateFilter. Each /joint_states 
 is paired with the latest base state and contact state at or before it and the latest
 command strictly before it (the one the measured torque was produced under); stale
 partners, wrong joint names, non-finite values and out-of-order stamps are rejected
-and counted on /diagnostics. Output is aligned to the filter's delay (60 ms at 250 Hz).
+and counted on /diagnostics. Output is aligned to the filter's delay (≈ 60 ms at any rate).
+
+The filters are designed for the rate of /joint_states: the `rate` parameter, or (0, the
+default) the rate measured from the first RATE_SAMPLES stamps (median period, as the
+offline pipeline measures a whole log); those first samples are held and filtered once
+the rate is known, so nothing is lost and online still equals offline.
 """
 from __future__ import annotations
 
@@ -21,9 +26,14 @@ from .. import conversions as cv
 from .. import topics
 from ..errors import CimlError
 from ..filters import OnlineStateFilter
+from ..stamps import measure_rate
 from ..robot import load_robot
 from ..ros_common import COMMAND_QOS, SENSOR_QOS, Health, declare, run_node
 
+
+
+RATE_SAMPLES = 32
+"""Joint samples whose stamps set the filter's rate when the `rate` parameter is 0."""
 
 
 def _latest(history, stamp: int, strict: bool = False):
@@ -37,11 +47,15 @@ def _latest(history, stamp: int, strict: bool = False):
 class StateFilterNode(Node):
     def __init__(self) -> None:
         super().__init__("state_filter")
-        fs = declare(self, "rate", 250.0, "Rate of /joint_states the filter is designed for [Hz]", 50.0, 2000.0)
+        fs = declare(self, "rate", 0.0, "Rate of /joint_states the filter is designed for [Hz]; 0: measured "
+                     "from the stamps of the first samples", 0.0, 2000.0)
         self.max_age = declare(self, "max_age", 0.02, "Oldest base/contact/command sample paired with a joint sample [s]", 0.001, 1.0)
         urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
         self.robot = load_robot(urdf or None)
-        self.filter = OnlineStateFilter(fs)
+        if 0.0 < fs < 50.0:
+            raise CimlError(f"rate {fs} Hz is too low for the 10 Hz low-pass (20 Hz stopband); give ≥ 50 Hz or 0")
+        self.filter = OnlineStateFilter(fs) if fs > 0 else None
+        self._rate_samples: list = []  # held while the rate is measured
         self.health = Health(self)
         self.base: deque = deque(maxlen=16)
         self.contacts: deque = deque(maxlen=16)
@@ -120,8 +134,26 @@ class StateFilterNode(Node):
         v = np.concatenate([twist, qdj])
         elapsed = 0.0 if command_stamp is None else (stamp - command_stamp) * 1e-9
         u = command.total(qj, qdj, self.robot.torque_limits, elapsed=elapsed)
+        if self.filter is None:
+            self._rate_samples.append((stamp * 1e-9, q, v, tau, u, contacts))
+            if len(self._rate_samples) < RATE_SAMPLES:
+                return
+            fs = measure_rate(np.array([x[0] for x in self._rate_samples])).rate_hz
+            if not 50.0 <= fs <= 2000.0:
+                self.health.count("rate_out_of_range", f"measured /joint_states rate {fs:.1f} Hz is outside 50–2000 Hz")
+                self._rate_samples.clear()
+                return
+            self.get_logger().info(f"/joint_states rate measured from the stamps: {fs:.2f} Hz")
+            self.filter = OnlineStateFilter(fs)
+            held, self._rate_samples = self._rate_samples, []
+        else:
+            held = [(stamp * 1e-9, q, v, tau, u, contacts)]
+        for sample in held:
+            self._filter(*sample)
+
+    def _filter(self, t: float, q, v, tau, u, contacts) -> None:
         try:
-            ready = self.filter.push(stamp * 1e-9, q, v, tau, u, contacts)
+            ready = self.filter.push(t, q, v, tau, u, contacts)
         except ValueError as err:
             self.health.count("rejected_samples", str(err))
             return

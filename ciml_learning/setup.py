@@ -14,6 +14,7 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
         ("share/" + package_name + "/config/layouts", glob("config/layouts/*")),  # Foxglove, PlotJuggler
+        ("share/" + package_name + "/config/robots", glob("config/robots/*.yaml")),  # robot profiles
     ],
     install_requires=["setuptools"],
     zip_safe=False,

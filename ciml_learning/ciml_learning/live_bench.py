@@ -40,6 +40,11 @@ NOMINAL_RATES_HZ = {topics.JOINT_STATES: 250.0, topics.BASE_STATE: 250.0, topics
                     topics.MODEL_ERROR_MEASURED: 250.0, topics.REFERENCE: 250.0,
                     topics.MODEL_ERROR_PREDICTED: 250.0}
 """Configured rates of the shipped launch file's defaults (bridge publish_rate, reference rate)."""
+MAIN_TOPIC = {"mujoco_bridge": topics.JOINT_STATES, "reference_generator": topics.REFERENCE,
+              "id_controller": topics.TORQUE_COMMAND, "model_server": topics.MODEL_ERROR_PREDICTED,
+              "state_filter": topics.FILTERED_STATE, "error_extractor": topics.MODEL_ERROR_MEASURED,
+              "online_learner": topics.MODEL_ERROR_MEASURED}
+"""The message each node handles once per cycle (its CPU per cycle = CPU time / these messages)."""
 
 
 def feedback_effort(cmd: cv.TorqueCommandArrays, q: np.ndarray, qd: np.ndarray) -> float:
@@ -292,6 +297,11 @@ def graph_rates(duration: float = 60.0, warmup: float = 10.0, arguments: dict[st
             result["cpu_cores"] = {k: None if cpu_start[k] is None or cpu_end[k] is None
                                    else round((cpu_end[k] - cpu_start[k]) / wall, 3) for k in pids}
             result["cpu_cores_total"] = round(sum(v for v in result["cpu_cores"].values() if v), 3)
+            # CPU per cycle [ms]: what 250 Hz costs a node, less dependent on other load than rates
+            result["cpu_ms_per_cycle"] = {
+                k: round(1e3 * c * wall / len(probe.receipts[MAIN_TOPIC[k]]), 3)
+                for k, c in result["cpu_cores"].items()
+                if c is not None and k in MAIN_TOPIC and probe.receipts.get(MAIN_TOPIC[k])}
             with probe.lock:
                 z = [v for _t, v in probe.base_z]
             result["base_height_min_m"] = round(min(z), 3) if z else None

@@ -300,3 +300,46 @@ def test_out_on_a_device_node_is_refused(old_model, tmp_path, capsys):
     link.symlink_to("/etc/hostname")
     assert main(["evaluate", "--model", old_model, "--bag", BAG, "--out", str(link)]) == 1
     assert "symbolic link" in capsys.readouterr().err and os.path.islink(link)
+
+
+def test_duplicated_messages_are_counted_as_dropped(tmp_path):
+    """A log with repeated joint-state messages: each repeat is a counted drop, not a silent one."""
+    from ciml_learning.bagio import BagWriter, iter_bag_messages, load_sensor_log
+
+    clean = load_sensor_log(ROBOT, BAG)
+    out = tmp_path / "dup"
+    repeats = 0
+    with BagWriter(out) as w:
+        seen = 0
+        for topic, ns, raw, msgtype in iter_bag_messages(BAG):
+            w.write_serialized(topic, ns, raw, msgtype)
+            if topic == "/joint_states":
+                seen += 1
+                if seen % 10 == 0:
+                    w.write_serialized(topic, ns, raw, msgtype)
+                    repeats += 1
+    log = load_sensor_log(ROBOT, str(out))
+    dropped = {k: v for k, v in log.rejected.items() if "duplicated stamp" in k}
+    assert repeats > 0 and sum(dropped.values()) == repeats, log.rejected
+    assert len(log) == len(clean)
+
+
+@pytest.mark.slow
+def test_ciml_train_killed_while_publishing_keeps_old_or_new(old_model, tmp_path):
+    """The real `ciml train` (same ModelSet.save as above): killed at the exchange the old
+    model is intact; killed after it (before removing the old copy) the new one is in place."""
+    script = """
+        import sys
+        from ciml_learning.cli import main
+        sys.exit(main(["train", "--bag", sys.argv[1], "--learner", "lwpr", "--jobs", "1", "--out", sys.argv[2]]))
+    """
+    for step, expect in (("exchange:1", "old"), ("cleanup:1", "new")):
+        out = tmp_path / step.replace(":", "_") / "model"  # its own folder: no temporaries of the other trial
+        shutil.copytree(old_model, out)
+        r = subprocess.run([sys.executable, "-c", textwrap.dedent(script), BAG, str(out)], capture_output=True,
+                           text=True, timeout=300, env={**os.environ, "PYTHONPATH": ROOT, FAULT_ENV: step})
+        assert r.returncode == 137, r.stderr[-2000:]
+        ms = ModelSet.load(str(out), ROBOT)  # complete and verified either way
+        assert (ms.training_.get("tag") == "old") == (expect == "old")
+        if expect == "new":
+            assert ms.training_["bags"] == [BAG]

@@ -183,10 +183,11 @@ def _open_reader(paths: Sequence[str | os.PathLike]):
             "'ros2 bag reindex' (db3) or 'mcap recover' (MCAP)"
         ) from err
     except FileNotFoundError as err:
+        missing = os.path.basename(err.filename) if err.filename else "metadata.yaml"
         raise BagError(
-            f"bag {', '.join(map(str, paths))} has no metadata.yaml ({err.filename}); "
-            "recreate it with 'ros2 bag reindex'"
-        ) from err
+            f"bag {', '.join(map(str, paths))}: {missing} is missing; "
+            "recreate metadata.yaml with 'ros2 bag reindex'"
+        ) from None
     return reader
 
 

@@ -547,6 +547,9 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     at or before the stamp (the command strictly before it: a command stamped t was
     computed from the sample at t and acts after it), at most max(max_age_s, 2.5 of that
     topic's periods) old. Malformed messages are dropped and counted by role and reason.
+    Stamps: every topic is ordered by its stamps (messages that arrived out of order are
+    sorted, not refused, and reported in stamp_report); of joint-state messages sharing a
+    stamp the last is used and the others are counted in `rejected`.
     """
     from .bagio import SensorLog
 
@@ -585,6 +588,9 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     jr = _JointReader(robot, profile, jtop.topic, need_effort=profile.torque_source != "none")
     tj, joints = _convert(jtop, rej, jr)
     keep = np.append(tj[1:] != tj[:-1], True)  # duplicated stamps: keep the last one
+    if not keep.all():  # every drop is counted
+        rej.add("joint_state", jtop.topic, "duplicated stamp (the last message of the stamp is used)",
+                int((~keep).sum()))
     tj, joints = tj[keep], [j for j, k in zip(joints, keep) if k]
     qj = np.array([j[0] for j in joints])
     qdj = np.array([j[1] for j in joints])

@@ -429,6 +429,8 @@ MIGRATED = {  # node class -> its schema (ciml_*/node_params.py)
     "ciml_control.nodes.reference_generator:ReferenceGeneratorNode": "ciml_control.node_params:REFERENCE_GENERATOR",
     "ciml_learning.nodes.error_extractor:ErrorExtractorNode": "ciml_learning.node_params:ERROR_EXTRACTOR",
     "ciml_learning.nodes.state_publisher:StatePublisherNode": "ciml_learning.node_params:STATE_PUBLISHER",
+    "ciml_learning.nodes.model_server:ModelServerNode": "ciml_learning.node_params:MODEL_SERVER",
+    "ciml_learning.nodes.state_filter:StateFilterNode": "ciml_learning.node_params:STATE_FILTER",
 }
 
 

@@ -31,16 +31,15 @@ from ..errors import CimlError
 from ..dynamics import ReferenceState, ReferenceTorque
 from ..online import LatestOnlyWorker, ServedModel, load_served_model, predict_at_reference
 from ..robot import load_robot
-from ..ros_common import COMMAND_QOS, Health, declare, run_node
+from ..node_params import MODEL_SERVER
+from ..ros_common import COMMAND_QOS, Health, declare_schema, run_node
 
 
 class ModelServerNode(Node):
-    def __init__(self) -> None:
-        super().__init__("model_server")
-        model_dir = declare(self, "model_dir", "", "Model folder served at start ('' = nominal model)")
-        swap_period = declare(self, "swap_check_period", 0.02,
-                              "How often a freshly loaded model is swapped in [s]", 0.001, 1.0)
-        urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
+    def __init__(self, **kwargs) -> None:
+        super().__init__("model_server", **kwargs)
+        p = declare_schema(self, MODEL_SERVER)  # node_params.py: the one schema (all read-only)
+        model_dir, swap_period, urdf = p["model_dir"], p["swap_check_period"], p["urdf"]
         self.robot = load_robot(urdf or None)
         self.served: ServedModel | None = None
         self.reference_torque = ReferenceTorque(self.robot)  # τ̇_ref of the stream, across model swaps

@@ -28,7 +28,8 @@ from ..errors import CimlError
 from ..filters import OnlineStateFilter
 from ..stamps import measure_rate
 from ..robot import load_robot
-from ..ros_common import COMMAND_QOS, SENSOR_QOS, Health, declare, run_node
+from ..node_params import STATE_FILTER
+from ..ros_common import COMMAND_QOS, SENSOR_QOS, Health, declare_schema, run_node
 
 
 
@@ -45,12 +46,10 @@ def _latest(history, stamp: int, strict: bool = False):
 
 
 class StateFilterNode(Node):
-    def __init__(self) -> None:
-        super().__init__("state_filter")
-        fs = declare(self, "rate", 0.0, "Rate of /joint_states the filter is designed for [Hz]; 0: measured "
-                     "from the stamps of the first samples", 0.0, 2000.0)
-        self.max_age = declare(self, "max_age", 0.02, "Oldest base/contact/command sample paired with a joint sample [s]", 0.001, 1.0)
-        urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
+    def __init__(self, **kwargs) -> None:
+        super().__init__("state_filter", **kwargs)
+        p = declare_schema(self, STATE_FILTER, self._apply_parameters)  # node_params.py: the one schema
+        fs, self.max_age, urdf = p["rate"], p["max_age"], p["urdf"]
         self.robot = load_robot(urdf or None)
         if 0.0 < fs < 50.0:
             raise CimlError(f"rate {fs} Hz is too low for the 10 Hz low-pass (20 Hz stopband); give ≥ 50 Hz or 0")
@@ -67,6 +66,10 @@ class StateFilterNode(Node):
         self.create_subscription(Odometry, topics.BASE_STATE, self.on_base, SENSOR_QOS)
         self.create_subscription(ContactState, topics.CONTACT_STATE, self.on_contacts, SENSOR_QOS)
         self.create_subscription(TorqueCommand, topics.TORQUE_COMMAND, self.on_command, COMMAND_QOS)
+
+    def _apply_parameters(self, changes: dict) -> str | None:
+        self.max_age = changes.get("max_age", self.max_age)  # used by the next pairing
+        return None
 
     def _convert(self, what: str, fn, msg):
         try:

@@ -47,6 +47,8 @@ VERBS: dict[str, tuple[list[str], dict[str, str]]] = {
                   {"--out": "path", "--cases": "number", "--jobs": "number", "--scale": "number"}),
     "play": (["--bag", "{tmp}/missing_bag", "--rate", "1"], {"--bag": "path", "--rate": "number"}),
     "bench": (["--out", "{tmp}/bench.json", "--only", "no_such_benchmark"], {"--out": "path", "--only": "enum"}),
+    "inspect": (["--bag", "{tmp}/missing_bag", "--out", "{tmp}/profile.yaml"], {"--bag": "path", "--out": "path"}),
+    "launch": (["{tmp}/missing.launch.yaml", "--stop-timeout", "1"], {"FILE": "path", "--stop-timeout": "number"}),
 }
 
 
@@ -60,6 +62,8 @@ def cases():
 
 def _with(base: list[str], arg: str, value: str) -> list[str]:
     out = list(base)
+    if arg == "FILE":  # the positional argument comes first
+        return [value, *out[1:]]
     if arg in out:
         out[out.index(arg) + 1] = value
     else:

@@ -177,17 +177,17 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_run("ciml_learning.commands", "bench"))
 
     s = verb("launch", help="start the nodes of a YAML launch file (the file ros2 launch reads)")
-    s.add_argument("file", help="launch file, or a package name followed by a file of its share/PKG/launch")
+    s.add_argument("file", type=ca.path, help="launch file, or a package name followed by a file of its share/PKG/launch")
     s.add_argument("arguments", nargs="*", metavar="name:=value", help="launch arguments")
     s.add_argument("-s", "--show-args", action="store_true", help="list the file's arguments and exit")
     s.add_argument("--print", action="store_true", help="print each node's command line and exit")
     s.add_argument("--log-dir", help="also write each node's output to LOG_DIR/<node>.log")
-    s.add_argument("--stop-timeout", type=float, default=10.0, help="[s] after SIGINT before SIGTERM")
+    s.add_argument("--stop-timeout", type=ca.finite(0, 3600, " s"), default=10.0, help="[s] after SIGINT before SIGTERM")
     s.set_defaults(func=_run("ciml_learning.launcher", "launch_command"))
 
     s = verb("inspect", help="what a bag holds and which roles CIML can read from it; drafts a robot profile")
-    s.add_argument("--bag", required=True, help="bag directory (MCAP/db3) or ROS 1 .bag file")
-    s.add_argument("--out", metavar="PROFILE.yaml", help="write a draft robot profile here (atomically)")
+    s.add_argument("--bag", type=ca.path, required=True, help="bag directory (MCAP/db3) or ROS 1 .bag file")
+    s.add_argument("--out", type=ca.path, metavar="PROFILE.yaml", help="write a draft robot profile here (atomically)")
     s.set_defaults(func=_run("ciml_learning.inspect_log", "inspect_command"))
     return p
 
@@ -201,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except CimlError as err:
-        print(f"ciml {args.verb}: error: {str(err).splitlines()[0] if str(err) else type(err).__name__}", file=sys.stderr)
+        print(ca.one_line(f"ciml {args.verb}: error: {str(err).strip() or type(err).__name__}"), file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:
         print(f"ciml {args.verb}: interrupted", file=sys.stderr)
@@ -209,14 +209,14 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, MemoryError) as err:  # the system refused something no check foresaw: still one line
         where = f" ({err.filename})" if isinstance(err, OSError) and err.filename else ""
         what = (err.strerror if isinstance(err, OSError) else None) or str(err) or type(err).__name__
-        print(f"ciml {args.verb}: error: {' '.join(what.split())}{where}", file=sys.stderr)
+        print(ca.one_line(f"ciml {args.verb}: error: {' '.join(what.split())}{where}"), file=sys.stderr)
         return EXIT_ERROR
     except Exception as err:  # a bug: one line here, the traceback with CIML_DEBUG=1
         if os.environ.get("CIML_DEBUG"):
             raise
-        msg = " ".join(str(err).split())[:300]
-        print(f"ciml {args.verb}: internal error: {type(err).__name__}: {msg} (run with CIML_DEBUG=1 for the "
-              "traceback)", file=sys.stderr)
+        msg = ca.one_line(str(err), 300)
+        print(ca.one_line(f"ciml {args.verb}: internal error: {type(err).__name__}: {msg} (run with CIML_DEBUG=1 "
+                          "for the traceback)"), file=sys.stderr)
         return EXIT_INTERNAL
 
 

@@ -101,4 +101,12 @@ class OneLineParser(argparse.ArgumentParser):
     Subparsers inherit the class."""
 
     def error(self, message: str):  # type: ignore[override]
-        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+        self.exit(2, one_line(f"{self.prog}: error: {message} (see {self.prog} --help)") + "\n")
+
+
+def one_line(text: str, limit: int = 2000) -> str:
+    """A message as one printable line: first line only, whitespace collapsed, bytes that
+    are not UTF-8 (surrogate-escaped paths) shown as escapes, at most `limit` characters."""
+    first = text.splitlines()[0] if text.strip() else text
+    first = " ".join(first.split())
+    return first.encode("utf-8", "backslashreplace").decode("utf-8")[:limit]

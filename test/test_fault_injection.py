@@ -343,3 +343,63 @@ def test_ciml_train_killed_while_publishing_keeps_old_or_new(old_model, tmp_path
         assert (ms.training_.get("tag") == "old") == (expect == "old")
         if expect == "new":
             assert ms.training_["bags"] == [BAG]
+
+
+def test_recording_killed_mid_run_leaves_nothing_at_out_and_is_cleaned(tmp_path):
+    """kill -9 while messages are being written: no bag at --out; the next writer removes the
+    dead run's partial folder."""
+    from ciml_learning.bagio import BagWriter
+
+    out = tmp_path / "bag"
+    script = """
+        import sys, time
+        from ciml_learning.bagio import BagWriter
+        from ciml_learning import topics
+        with BagWriter(sys.argv[1]) as w:
+            for k in range(50):
+                w.write_serialized(topics.JOINT_STATES, k, b"\\x00\\x01\\x00\\x00" + bytes(60), "sensor_msgs/msg/JointState")
+            print("writing", flush=True)
+            time.sleep(60)
+    """
+    p = subprocess.Popen([sys.executable, "-c", textwrap.dedent(script), str(out)], stdout=subprocess.PIPE, text=True,
+                         env={**os.environ, "PYTHONPATH": ROOT})
+    try:
+        assert p.stdout.readline().strip() == "writing"
+        partial = [n for n in os.listdir(tmp_path) if n.startswith(".bag.partial-")]
+        assert len(partial) == 1
+        p.kill()
+        p.wait(timeout=30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert not out.exists()
+    with BagWriter(out):
+        pass
+    assert os.listdir(tmp_path) == ["bag"]
+
+
+def test_nested_json_and_yaml_alias_bombs_are_one_line(tmp_path):
+    from ciml_learning.fileio import InputFileError, load_json_bounded, load_yaml_bounded
+
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(InputFileError, match="nested deeper"):
+        load_json_bounded(str(deep))
+    model = tmp_path / "m"
+    model.mkdir()
+    (model / MODEL_JSON).write_text('{"a":' * 5000 + "1" + "}" * 5000)
+    with pytest.raises(ModelFileError, match="nested deeper") as info:
+        ModelSet.load(str(model), ROBOT)
+    assert "\n" not in str(info.value)
+    bomb = tmp_path / "bomb.yaml"
+    lines = ['a0: &a0 ["x", "x", "x", "x", "x", "x", "x", "x", "x"]']
+    lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]" for i in range(1, 9)]
+    bomb.write_text("\n".join(lines) + "\n")
+    assert bomb.stat().st_size < 1000
+    with pytest.raises(InputFileError, match="expands to more than") as info:
+        load_yaml_bounded(str(bomb))
+    assert len(str(info.value)) < 300
+    big = tmp_path / "big.yaml"
+    big.write_text("x: " + "y" * (2**20 + 10))
+    with pytest.raises(InputFileError, match="larger than"):
+        load_yaml_bounded(str(big))

@@ -139,3 +139,18 @@ GO1_PROFILE = {
                                "kd": "motor_cmd[*].kd", "tau_ff": "motor_cmd[*].tau"}},
     },
 }
+
+
+def imu_messages(robot, s, rate_hz: float = 500.0, seconds: float = 1.0):
+    """An IMU (orientation = the odometry's, gyro zero) at the joint-state stamps."""
+    t, *_ = go1_signals(robot, rate_hz, seconds)
+    Imu, Qt, V = s.types["sensor_msgs/msg/Imu"], s.types["geometry_msgs/msg/Quaternion"], s.types["geometry_msgs/msg/Vector3"]
+    out = []
+    for tk in t:
+        ns = int(round(tk * 1e9))
+        out.append(("/imu", "sensor_msgs/msg/Imu", ns, Imu(
+            header=_header(s, ns, "imu_link"), orientation=Qt(x=0.0, y=0.0, z=float(np.sin(YAW / 2)), w=float(np.cos(YAW / 2))),
+            orientation_covariance=np.zeros(9), angular_velocity=V(x=0.0, y=0.0, z=0.0),
+            angular_velocity_covariance=np.zeros(9), linear_acceleration=V(x=0.0, y=0.0, z=9.81),
+            linear_acceleration_covariance=np.zeros(9))))
+    return out

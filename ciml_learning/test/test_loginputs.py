@@ -159,3 +159,18 @@ def test_native_bag_reads_as_before():
     log = load_log(load_robot(), bag)
     assert log.rate_hz == 250.0 and log.u_observed and log.stamp_report["zero_stamps"] == 0
     assert set(log.sources) == {"joint_state", "base", "contacts", "command"}
+
+
+def test_estimated_base_and_contacts_are_read_through_the_estimators(tmp_path):
+    from foreign_bags import imu_messages
+
+    s = store()
+    path = write_bag(tmp_path / "imu", go1_messages(ROBOT, s, 250.0, 1.0) + imu_messages(ROBOT, s, 250.0, 1.0))
+    imu = {"topic": "/imu", "type": "sensor_msgs/msg/Imu"}
+    a = load_log(ROBOT, path, _profile(imu=imu, base={"estimate": "imu_legs"}))
+    assert "estimated" in a.sources["base"] and a.sources["imu"].startswith("topic /imu")
+    np.testing.assert_allclose(np.abs(a.q[:, 3:7] @ [0, 0, np.sin(np.pi / 4), np.cos(np.pi / 4)]), 1.0, atol=1e-9)
+    assert np.all(np.isfinite(a.v)) and a.v.shape == (len(a), ROBOT.nv)
+    b = load_log(ROBOT, path, _profile(imu=imu, contacts={"estimate": "dynamics"}))
+    assert "estimated" in b.sources["contacts"] and b.contacts.shape == (len(b), 4)
+    np.testing.assert_allclose(b.v[:, :3], a.v[:, :3] * 0 + [V_WORLD[1], -V_WORLD[0], 0.0], atol=1e-12)  # odometry kept

@@ -47,6 +47,10 @@ MAIN_TOPIC = {"mujoco_bridge": topics.JOINT_STATES, "reference_generator": topic
 """The message each node handles once per cycle (its CPU per cycle = CPU time / these messages)."""
 
 
+FALL_HEIGHT = 0.3
+"""[m] base height below which HyQ lies on its trunk (standing 0.61 m; ciml_sim.recorder's fall rule)."""
+
+
 def feedback_effort(cmd: cv.TorqueCommandArrays, q: np.ndarray, qd: np.ndarray) -> float:
     """‖u_fb,pd + u_fb,lin‖ [Nm] of one command on the joint sample (q, q̇) it was computed for:
     u_fb,pd = K_p (qᵈ − q) + K_d (q̇ᵈ − q̇) as the joint loop computes it (TorqueCommand.msg),
@@ -305,6 +309,7 @@ def graph_rates(duration: float = 60.0, warmup: float = 10.0, arguments: dict[st
             with probe.lock:
                 z = [v for _t, v in probe.base_z]
             result["base_height_min_m"] = round(min(z), 3) if z else None
+            result["fell"] = bool(z) and min(z) < FALL_HEIGHT
             bridge = {k: probe.counter("mujoco_bridge", k) for k in
                       ("achieved_physics_rate_hz", "tick_period_error_p99_ms", "realtime_overruns")}
             result["bridge_diagnostics"] = bridge
@@ -380,4 +385,5 @@ def _effort_run(arguments: dict[str, str], duration: float, window: float, start
             "commands_matched": int(len(t)), "commands_received": len(commands),
             "simulated_s": round(float(t[-1]), 1) if len(t) else 0.0,
             "base_height_min_m": round(min(z), 3) if z else None,
+            "fell": bool(z) and min(z) < FALL_HEIGHT,
             "snapshots_written": snapshots, "model_swaps": swaps, "shutdown_rc": rc}

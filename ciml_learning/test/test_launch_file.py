@@ -230,3 +230,47 @@ def test_ciml_launch_process_exits_0_on_sigint(tmp_path):
                 os.environ.pop("AMENT_PREFIX_PATH")
             else:
                 os.environ["AMENT_PREFIX_PATH"] = old
+
+
+# --- the live benchmarks' measurement helpers (ciml_learning.live_bench) -------------------------
+
+
+def test_period_statistics_of_receipt_times():
+    import numpy as np
+
+    from ciml_learning.live_bench import period_stats
+
+    rng = np.random.default_rng(0)
+    t = np.cumsum(np.full(2500, 0.004) + rng.normal(0, 1e-4, 2500))
+    t[1000:] += 0.05  # one 54 ms gap
+    s = period_stats(t, 250.0)
+    assert s["messages"] == 2500
+    assert abs(s["rate_hz"] - 2499 / (t[-1] - t[0])) < 0.1 and s["rate_error_pct"] < 0
+    assert 3.9 < s["period_p50_ms"] < 4.1 and 53.0 < s["period_max_ms"] < 55.0
+    assert s["jitter_p99_ms"] < 0.5  # one gap in 2500 periods is beyond the 99th percentile
+    assert period_stats(t[:2], 250.0) == {"messages": 2}
+
+
+def test_feedback_effort_is_the_pd_part_plus_feedback_linearisation():
+    import numpy as np
+
+    from ciml_learning.conversions import TorqueCommandArrays
+    from ciml_learning.live_bench import feedback_effort
+
+    n = 12
+    kp, kd = np.full(n, 300.0), np.full(n, 8.0)
+    q_t, qd_t, lin = np.full(n, 0.1), np.full(n, 0.5), np.arange(n, dtype=float)
+    cmd = TorqueCommandArrays(0, np.full(n, 99.0), lin, q_t, qd_t, kp, kd)  # u_ff is not feedback
+    q, qd = np.zeros(n), np.zeros(n)
+    expected = np.linalg.norm(300.0 * 0.1 + 8.0 * 0.5 + lin)
+    assert abs(feedback_effort(cmd, q, qd) - expected) < 1e-9
+    assert feedback_effort(cmd, q_t, qd_t) == np.linalg.norm(lin)
+
+
+def test_process_memory_and_cpu_readers():
+    from ciml_learning.live_bench import cpu_seconds, rss_mb
+
+    assert rss_mb(os.getpid()) > 10.0 and cpu_seconds(os.getpid()) > 0.0
+    dead = subprocess.Popen(["true"])
+    dead.wait()
+    assert rss_mb(dead.pid) is None and cpu_seconds(dead.pid) is None

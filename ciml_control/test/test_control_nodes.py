@@ -51,7 +51,7 @@ def test_reference_generator_publishes_reference():
 
 
 @pytest.mark.ros
-def test_id_controller_commands_limited_torque_and_damps_without_state():
+def test_id_controller_waits_then_commands_limited_trusted_torque_and_damps_without_state():
     from ciml_msgs.msg import ContactState, ModelError, RobotReference, TorqueCommand
     from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import Odometry
@@ -70,21 +70,39 @@ def test_id_controller_commands_limited_torque_and_damps_without_state():
     q_stand = standing_configuration(ROBOT, 0.002)
     ref = make_reference(ROBOT, "stand", q_stand).sample(0.0)
     try:
-        # no state yet: the watchdog commands damping
-        assert listener.wait_for(lambda: len(cmds) >= 10, timeout=30), stop(node)
-        assert all(m.mode == TorqueCommand.MODE_DAMPING for m in cmds)
-        assert all(max(m.stiffness) == 0.0 and max(np.abs(m.feedforward)) == 0.0 for m in cmds)
+        # no input yet: "not ready" is not "stale after running" → no command at all (the robot
+        # driver keeps its own safe state), and /diagnostics says what it waits for
+        assert listener.wait_for(lambda: listener.node.count_publishers("/torque_command") >= 1
+                                 and any("id_controller" in s.name for d in listener.messages["/diagnostics"]
+                                         for s in d.status), timeout=30), stop(node)
+        time.sleep(1.5)
+        assert cmds == []
+        waiting = [s for d in listener.messages["/diagnostics"] for s in d.status if "id_controller" in s.name]
+        assert waiting[-1].level == b"\x01" and "waiting for" in waiting[-1].message and "/reference" in waiting[-1].message
         # a static standing state at 250 Hz → torque commands
         n_before = len(cmds)
         rng = np.random.default_rng(0)
         phi = np.zeros(18)
         phi[2] = 60.0  # the model says: 60 N more weight on the base
         gamma = np.full(ROBOT.n_joints, -2.0)  # and every actuator delivers 2 Nm too little
-        for k in range(375):
+        huge = np.zeros(18)
+        huge[2] = 1e6   # a poisoned prediction: 1e6 N on the base
+        ones_r, ones_a = np.ones(18, bool), np.ones(ROBOT.n_joints, bool)
+        phases = {}     # joint-state stamp → the prediction's phase
+        for k in range(600):
             ns = time.time_ns()
-            if k >= 250:  # last phase: with a model-error prediction
+            phases[ns] = "nominal"
+            if 250 <= k < 375:  # confident prediction (variance 0): used
+                phases[ns] = "confident"
+                pubs["/model_error/predicted"].publish(cv.model_error_msg(ROBOT, ns, "test", phi, ones_r, gamma, ones_a))
+            elif 375 <= k < 475:  # the same mean, but the model is less certain than the prior: gated
+                phases[ns] = "uncertain"
                 pubs["/model_error/predicted"].publish(cv.model_error_msg(
-                    ROBOT, ns, "test", phi, np.ones(18, bool), gamma, np.ones(ROBOT.n_joints, bool)))
+                    ROBOT, ns, "test", phi, ones_r, gamma, ones_a, np.full(18, 1e8), np.full(ROBOT.n_joints, 1e6)))
+            elif k >= 475:  # confident but beyond the robot's physics: clipped to m·g
+                phases[ns] = "huge"
+                pubs["/model_error/predicted"].publish(cv.model_error_msg(ROBOT, ns, "test", huge, ones_r,
+                                                                          np.zeros(ROBOT.n_joints), ones_a))
             qj = q_stand[7:] + 0.01 * rng.standard_normal(ROBOT.n_joints)
             pubs["/reference"].publish(reference_msg(ROBOT, ns, ref))
             pubs["/base_state"].publish(cv.odometry_msg(ns, q_stand[:3], q_stand[3:7], np.zeros(3), np.zeros(3)))
@@ -121,8 +139,14 @@ def test_id_controller_commands_limited_torque_and_damps_without_state():
 
     expected = IdController(ROBOT).compute(ref.q, ref.v, ref.contacts, ref, np.zeros(ROBOT.nv))
     assert expected.contact_forces[:, 2].sum() == pytest.approx(mg, rel=1e-3)
-    for m in torque[:150:10]:
-        assert np.allclose(cv.torque_command_arrays(ROBOT, m).feedforward, expected.feedforward, atol=1e-3)
+    def last(phase: str, n: int = 20):
+        """Feedforward of the last n commands computed for the joint states of a phase (stamped
+        with them: a loaded machine may drop some best-effort states, so counts are not fixed)."""
+        return [cv.torque_command_arrays(ROBOT, m).feedforward for m in torque
+                if phases.get(cv.stamp_to_ns(m.header.stamp)) == phase][-n:]
+
+    assert len(last("nominal")) == 20 and all(np.allclose(ff, expected.feedforward, atol=1e-3)
+                                              for ff in last("nominal"))
     # with the prediction: the feedforward of the QP with ε = J'ᵀ Φ̃' − Sᵀ Γ (eq. 17) at the reference
     from ciml_learning.extraction import combined_error
     from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
@@ -132,10 +156,21 @@ def test_id_controller_commands_limited_torque_and_damps_without_state():
     eps = combined_error(basis, phi, gamma, selection_matrix(ROBOT))
     with_eps = IdController(ROBOT).compute(ref.q, ref.v, ref.contacts, ref, eps)
     assert with_eps.contact_forces[:, 2].sum() == pytest.approx(mg + 60.0, rel=1e-3)
-    late = [cv.torque_command_arrays(ROBOT, m).feedforward for m in torque[-30:]]
-    assert all(np.allclose(ff, with_eps.feedforward, atol=1e-3) for ff in late)
+    assert len(last("confident")) == 20 and all(np.allclose(ff, with_eps.feedforward, atol=1e-3)
+                                                for ff in last("confident"))
+    # a prediction less certain than the prior is not trusted: the nominal feedforward
+    assert len(last("uncertain")) == 20 and all(np.allclose(ff, expected.feedforward, atol=1e-3)
+                                                for ff in last("uncertain"))
+    # 1e6 N is clipped to the robot's weight m·g: the QP plans for twice the weight
+    eps_clipped = np.zeros(ROBOT.nv)
+    eps_clipped[2] = mg
+    clipped = IdController(ROBOT).compute(ref.q, ref.v, ref.contacts, ref, eps_clipped)
+    assert not clipped.qp_failed and clipped.contact_forces[:, 2].sum() == pytest.approx(2 * mg, rel=1e-3)
+    assert len(last("huge")) == 20 and all(np.allclose(ff, clipped.feedforward, atol=1e-3) for ff in last("huge"))
     assert all(m.mode == TorqueCommand.MODE_DAMPING for m in after)
     keys = {kv.key: kv.value for kv in diags}
     assert int(keys.get("rejected_joint_states", 0)) >= 1, keys
     assert int(keys.get("stale_state", 0)) >= 1, keys
-    assert int(keys.get("model_error_used", 0)) >= 50, keys
+    assert int(keys.get("model_error_used", 0)) >= 60, keys
+    assert int(keys.get("epsilon_gated", 0)) >= 20, keys
+    assert int(keys.get("epsilon_clipped", 0)) >= 20, keys

@@ -24,8 +24,9 @@ Online learner (paper §III-D, LWPR learning at 250 Hz):
 Model server:
 
 - load_served_model loads and validates a model directory (ModelSet.load: version,
-  allow-listed learner, robot names, checksum; plus the checksum announced on
-  /model_update and a finite probe prediction) — any failure is a ModelFileError.
+  allow-listed learner, robot names, the whole-model checksum; an announced model must
+  carry that checksum; its predictions on its own training inputs stay within the robot's
+  physical bounds) — any failure is a ModelFileError.
 - predict_at_reference gives Φ̃' (18) and Γ (n_j) with variances at the reference (qᵈ, q̇ᵈ,
   q̈ᵈ and the torque it asks for, τ_ref, τ̇_ref: models.EpsilonFunction.predict), or the
   nominal model (see PredictedError): the set predicts Φ̃ = J'ᵀΦ̃' and the server publishes
@@ -65,6 +66,10 @@ SNAPSHOT_PREFIX = "snapshot-"
 LATEST = "latest"
 STAMPS_FILE = "learned_stamps.npy"
 """Optional file of a snapshot: int64 header stamps [ns] of the learned samples, in order."""
+PROBE_FILE = "probe_inputs.npy"
+"""File of a snapshot: float64 (k × n_inputs) learning inputs x drawn uniformly from the learned
+samples (reservoir sampling), on which the model server checks the model's predictions."""
+N_PROBES = 64
 
 
 # ---------------------------------------------------------------------- messages → arrays
@@ -187,6 +192,7 @@ class Snapshot:
     samples: int                   # pairs learned when the copy was taken
     stamps: np.ndarray | None      # learned stamps [ns], in order (record_stamps only)
     copy_seconds: float            # time the learning thread spent copying
+    probe_inputs: np.ndarray | None = None  # a uniform sample of the learned inputs x (k × n_inputs)
 
 
 class OnlineLearner:
@@ -197,13 +203,17 @@ class OnlineLearner:
     - "out_of_order_pairs": stamp not after the last learned one (learning order matters);
     - "invalid_samples": the state is not valid (near a contact change, filter warm-up,
       after a rejected input) or nothing in the error is observed;
-    - "non_finite_inputs": x is not finite (cannot happen after the conversions' checks).
+    - "non_finite_inputs": x is not finite (cannot happen after the conversions' checks);
+    - with a `gate` (learning_gate.LearningGate): its pause reasons (fall, tracking error,
+      target beyond physical bounds, no reference, recovering).
+    A uniform sample of the learned inputs (N_PROBES, reservoir sampling) goes with every
+    snapshot, for the model server's bounds check.
     Γ entries whose actuation_observed flag is false are not learned (passed as NaN,
     which partial_fit_one skips per dimension); Φ̃' entries follow rbd_observed.
     """
 
     def __init__(self, robot: RobotDescription, model_set: ModelSet, calibration_samples: int = 0,
-                 record_stamps: bool = False) -> None:
+                 record_stamps: bool = False, gate=None) -> None:
         if calibration_samples < 0:
             raise ValueError("calibration_samples must be >= 0")
         if not learner_class(model_set.learner).supports_partial_fit:
@@ -219,6 +229,10 @@ class OnlineLearner:
         self.last_stamp: int | None = None
         self._buffer: list[tuple[int, tuple[np.ndarray, ...]]] = []
         self._stamps = np.empty(1024 if record_stamps else 0, dtype=np.int64)
+        self.gate = gate
+        self._probes: list[np.ndarray] = []
+        self._probe_rng = np.random.default_rng(0)
+        self._probe_seen = 0
 
     @property
     def calibrating(self) -> bool:
@@ -238,10 +252,16 @@ class OnlineLearner:
             return self._reject("out_of_order_pairs")
         if not state.valid or not (error.rbd_observed.any() or error.actuation_observed.any()):
             return self._reject("invalid_samples")
+        if self.gate is not None:
+            paused = self.gate.check(stamp, state.q, np.where(error.rbd_observed, error.rbd_error, 0.0),
+                                     np.where(error.actuation_observed, error.actuation_error, 0.0))
+            if paused is not None:
+                return self._reject(paused)
         x = learning_inputs(state.q, state.v, state.a, state.tau, state.tau_dot)[0]
         if not np.all(np.isfinite(x)):
             return self._reject("non_finite_inputs")
         self.last_stamp = stamp
+        self._keep_probe(x)
         sample = (x, *self._targets(state.q, error))
         if self.calibrating:
             self._buffer.append((stamp, sample))
@@ -251,6 +271,21 @@ class OnlineLearner:
         self.model_set.partial_fit_one(*sample)
         self._record(stamp)
         return None
+
+    def _keep_probe(self, x: np.ndarray) -> None:
+        """Reservoir sampling (Algorithm R): every learned x is in the probe set with equal probability."""
+        self._probe_seen += 1
+        if len(self._probes) < N_PROBES:
+            self._probes.append(x.copy())
+        else:
+            k = int(self._probe_rng.integers(self._probe_seen))
+            if k < N_PROBES:
+                self._probes[k] = x.copy()
+
+    @property
+    def probe_inputs(self) -> np.ndarray:
+        """The current uniform sample of the learned inputs x (k × n_inputs, k ≤ N_PROBES)."""
+        return np.array(self._probes, dtype=float).reshape(len(self._probes), -1)
 
     def _targets(self, q: np.ndarray, error: ErrorSample) -> tuple[np.ndarray, ...]:
         """(Φ̃, mask, Γ, C) of one sample: Γ entries not observed are NaN (not learned)."""
@@ -282,7 +317,7 @@ class OnlineLearner:
         t0 = time.perf_counter()
         ms = copy.deepcopy(self.model_set)
         stamps = self.learned_stamps.copy() if self.record_stamps else None
-        return Snapshot(ms, self.n_learned, stamps, time.perf_counter() - t0)
+        return Snapshot(ms, self.n_learned, stamps, time.perf_counter() - t0, self.probe_inputs)
 
 
 def warm_up(robot: RobotDescription, learner: str = "lwpr") -> float:
@@ -428,6 +463,10 @@ class SnapshotWriter:
             buf = io.BytesIO()
             np.save(buf, snap.stamps.astype(np.int64), allow_pickle=False)
             extra[STAMPS_FILE] = buf.getvalue()
+        if snap.probe_inputs is not None and len(snap.probe_inputs):
+            buf = io.BytesIO()
+            np.save(buf, snap.probe_inputs.astype(np.float64), allow_pickle=False)
+            extra[PROBE_FILE] = buf.getvalue()
         snap.model_set.training_ = {**snap.model_set.training_, "source": "online_learner",
                                     "samples": int(snap.samples), "snapshot": self.seq}
         meta = snap.model_set.save(path, extra_files=extra, what="snapshot")
@@ -441,7 +480,7 @@ class SnapshotWriter:
         for _, old in self.snapshots()[: -self.keep]:
             fault_point("cleanup")
             shutil.rmtree(old, ignore_errors=True)
-        return SavedSnapshot(path, snap.model_set.learner, int(snap.samples), meta["npz"]["sha256"],
+        return SavedSnapshot(path, snap.model_set.learner, int(snap.samples), meta["checksum"],
                              time.perf_counter() - t0)
 
 
@@ -468,28 +507,68 @@ def probe_inputs(robot: RobotDescription) -> np.ndarray:
     return learning_inputs(q, np.zeros(robot.nv), np.zeros(robot.nv), zeros, zeros)[0]
 
 
-def load_served_model(robot: RobotDescription, model_dir: str, checksum: str = "") -> ServedModel:
+def load_served_model(robot: RobotDescription, model_dir: str, checksum: str | None = None) -> ServedModel:
     """Load and validate a model directory for serving; ModelFileError (one line) if unusable.
 
-    Beyond ModelSet.load's checks (format version, allow-listed learner, the robot's
-    names, npz checksum against model.json), the npz checksum must equal `checksum`
-    when given (the one announced on /model_update), and a probe prediction at the
-    standing posture must be finite.
+    - ModelSet.load's checks: format version, allow-listed learner, model.json's own
+      checksum, every file of its manifest, the robot's names.
+    - Announced models (`checksum` not None: a /model_update) must carry the whole-model
+      checksum (model.json's `checksum`, which covers the description and, through the
+      manifest, every file); an empty or different one is refused.
+    - Bounded predictions (check_predictions_within_bounds): on the model's own training
+      inputs (the snapshot's probe_inputs.npy, else the set's input mean) and at the standing
+      posture, every prediction finite and within the robot's physical bounds.
     """
     model_dir = os.path.abspath(os.path.expanduser(model_dir))
     meta = read_metadata(model_dir)
-    announced = str(checksum or "")
-    stored = str((meta.get("npz") or {}).get("sha256", ""))
-    if announced and stored != announced:
-        raise ModelFileError(f"{model_dir}: npz checksum {stored[:12]}… differs from the announced "
-                             f"{announced[:12]}… (replaced or tampered after the announcement)")
+    stored = str(meta.get("checksum", ""))
+    if checksum is not None:
+        announced = str(checksum)
+        if not announced:
+            raise ModelFileError(f"{model_dir}: announced without a checksum (refused: only checksummed "
+                                 "snapshots are served)")
+        if stored != announced:
+            raise ModelFileError(f"{model_dir}: model checksum {stored[:12]}… differs from the announced "
+                                 f"{announced[:12]}… (replaced or tampered after the announcement)")
     ms = ModelSet.load(model_dir, robot)
-    if announced and str((read_metadata(model_dir).get("npz") or {}).get("sha256", "")) != announced:
+    meta = read_metadata(model_dir)
+    if str(meta.get("checksum", "")) != stored:
         raise ModelFileError(f"{model_dir} changed while it was being loaded")
-    out = ms.predict_one(probe_inputs(robot))
-    if not all(np.all(np.isfinite(a)) for a in out):
-        raise ModelFileError(f"{model_dir}: the model predicts non-finite values at the standing posture")
+    probes = [probe_inputs(robot), ms.input_mean_]
+    if PROBE_FILE in meta["manifest"]:
+        probes += list(_read_probe_file(model_dir, meta, ms))
+    check_predictions_within_bounds(robot, ms, np.array(probes), model_dir)
     return served_model(robot, ms, f"{ms.learner}:{os.path.basename(model_dir)}", model_dir, stored)
+
+
+def _read_probe_file(model_dir: str, meta: dict, ms: ModelSet) -> np.ndarray:
+    from .models import read_model_file
+
+    try:
+        x = np.asarray(np.load(io.BytesIO(read_model_file(model_dir, meta, PROBE_FILE)), allow_pickle=False),
+                       dtype=float)
+    except (ValueError, OSError, EOFError, TypeError) as err:
+        raise ModelFileError(f"{model_dir}/{PROBE_FILE} is not a readable npy ({err})") from None
+    if x.ndim != 2 or x.shape[1] != len(ms.input_names) or not np.all(np.isfinite(x)):
+        raise ModelFileError(f"{model_dir}/{PROBE_FILE}: shape {x.shape} or values unusable "
+                             f"(expected finite (k, {len(ms.input_names)}))")
+    return x
+
+
+def check_predictions_within_bounds(robot: RobotDescription, ms: ModelSet, inputs: np.ndarray,
+                                    where: str = "model") -> None:
+    """ModelFileError unless every prediction (Φ̃ = J'ᵀΦ̃' and Γ, means) at the rows of `inputs`
+    is finite and within physical_bounds (base force m·g, base torque m·g·leg span, joint
+    torques their limits): a model predicting more than the robot can produce has learned a
+    fall or was corrupted (e.g. scaled)."""
+    from .physical_bounds import physical_bounds
+
+    bounds = physical_bounds(robot)
+    for x in np.atleast_2d(inputs):
+        rbd, _, gamma, _ = ms.predict_one(x)
+        bad = bounds.generalized_violation(rbd) or bounds.actuation_violation(gamma)
+        if bad:
+            raise ModelFileError(f"{where}: prediction beyond physical bounds on its own training inputs ({bad})")
 
 
 def served_model(robot: RobotDescription, ms: ModelSet, name: str, model_dir: str = "",

@@ -323,3 +323,140 @@ def test_latest_only_worker_skips_stale_items_and_reports_errors():
     assert seen == ["block", 2]
     assert [r.value for r in results[:2]] == ["block", 4]
     assert results[2].error == "ValueError: broken" and results[2].value is None
+
+
+# ---------------------------------------------------------------------- safety: bounds, gate, refusal
+def test_physical_bounds_come_from_the_robot_description():
+    from ciml_learning.physical_bounds import physical_bounds
+
+    b = physical_bounds(ROBOT)
+    mg = ROBOT.total_mass * 9.81
+    assert b.weight == pytest.approx(mg) and 800 < mg < 900          # HyQ: ~87 kg
+    assert 0.5 < b.standing_height < 0.7 and 0.5 < b.leg_span < 1.0  # m
+    np.testing.assert_allclose(b.rbd_error[:3], mg)
+    np.testing.assert_allclose(b.rbd_error[3:6], mg * b.leg_span)
+    np.testing.assert_allclose(b.rbd_error[6:], mg)
+    np.testing.assert_array_equal(b.actuation_error, ROBOT.torque_limits)
+    np.testing.assert_array_equal(b.generalized[6:], ROBOT.torque_limits)
+    assert b.rbd_violation(np.zeros(18)) is None
+    bad = np.zeros(18)
+    bad[2] = 1.01 * mg
+    assert b.rbd_violation(bad).startswith("base_fz")
+    assert b.actuation_violation(np.full(12, np.nan)) is not None      # NaN is never within bounds
+
+
+def _gate_stream(n: int):
+    """A robot standing and tracking its reference (the standing pose), 4 ms apart."""
+    q = ROBOT.neutral_configuration().copy()
+    q[2] = 0.6
+    q[7:] = ROBOT.standing_joints
+    return q, (np.arange(n) * 4_000_000 + 1_000_000_000).astype(np.int64)
+
+
+def test_learning_gate_pauses_on_a_fall_and_resumes_after_recovery():
+    from ciml_learning.learning_gate import FALL, HOLD, GateConfig, LearningGate
+
+    q, stamps = _gate_stream(1000)
+    gate = LearningGate(ROBOT, GateConfig(resume_after=0.5))
+    zeros_r, zeros_a = np.zeros(18), np.zeros(12)
+    assert gate.check(stamps[0], q, zeros_r, zeros_a) is None and not gate.paused
+    fallen = q.copy()
+    fallen[2] = 0.2                                                    # the trunk on the ground
+    assert gate.check(stamps[1], fallen, zeros_r, zeros_a) == FALL and gate.paused
+    assert "base height 0.200 m" in gate.reason
+    tipped = q.copy()
+    tipped[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(0.8, 0.0, 0.0)).coeffs()
+    assert gate.check(stamps[2], tipped, zeros_r, zeros_a) == FALL and "tilted 46°" in gate.reason
+    # up again: still paused until the checks have passed for resume_after (0.5 s = 125 samples)
+    results = [gate.check(s, q, zeros_r, zeros_a) for s in stamps[3:200]]
+    first_learned = results.index(None)
+    assert set(results[:first_learned]) == {HOLD} and not gate.paused
+    assert (stamps[3 + first_learned] - stamps[2]) * 1e-9 == pytest.approx(0.5, abs=0.005)
+    assert all(r is None for r in results[first_learned:])
+    assert gate.counts[FALL] == 2 and gate.counts["resumed"] == 1
+
+
+def test_learning_gate_checks_tracking_against_the_reference_of_the_same_stamp():
+    from ciml_learning.learning_gate import NO_REFERENCE, TRACKING, GateConfig, LearningGate
+
+    q, stamps = _gate_stream(10)
+    zeros_r, zeros_a = np.zeros(18), np.zeros(12)
+    # no reference ever: a replayed log is learned (tracking unchecked) unless required
+    assert LearningGate(ROBOT).check(stamps[0], q, zeros_r, zeros_a) is None
+    assert LearningGate(ROBOT, GateConfig(require_reference=True)).check(stamps[0], q, zeros_r, zeros_a) == NO_REFERENCE
+    gate = LearningGate(ROBOT, GateConfig(resume_after=0.0))
+    for s in stamps:
+        gate.add_reference(s, q)
+    assert gate.check(stamps[3] + 1_000_000, q, zeros_r, zeros_a) is None   # nearest reference, 1 ms away
+    off = q.copy()
+    off[0] += 0.3                                                     # 0.3 m away from the reference
+    assert gate.check(stamps[4], off, zeros_r, zeros_a) == TRACKING and "base position 0.300 m" in gate.reason
+    bent = q.copy()
+    bent[7:] += 0.5
+    assert gate.check(stamps[5], bent, zeros_r, zeros_a) == TRACKING and "RMS joint" in gate.reason
+    assert gate.check(stamps[6], q, zeros_r, zeros_a) is None         # resume_after 0: at once
+    # references seen, none near this stamp: paused (the reference stream stopped)
+    assert gate.check(stamps[-1] + 500_000_000, q, zeros_r, zeros_a) == NO_REFERENCE
+
+
+def test_online_learner_does_not_learn_a_fall_or_targets_beyond_physics():
+    from ciml_learning.learning_gate import FALL, TARGET, LearningGate
+
+    s = stream(200)
+    mg = ROBOT.total_mass * 9.81
+
+    def run(gate):
+        learner = OnlineLearner(ROBOT, ModelSet.for_robot(ROBOT, "lwpr"), gate=gate)
+        for k in range(50):
+            learner.learn(int(s["stamps"][k]), state_sample(s, k, True), error_sample(s, k))
+        # a falling state stream: the base sinks to the ground, the "error" grows past the
+        # robot's weight (the ground, not the model, holds the trunk), then it lies there
+        for k in range(50, 150):
+            st = state_sample(s, k, True)
+            st.q = st.q.copy()
+            st.q[2] = max(0.6 - 0.01 * (k - 50), 0.15)
+            err = error_sample(s, k)
+            err.rbd_error = err.rbd_error.copy()
+            err.rbd_error[2] = min(20.0 * (k - 50) ** 2, 3000.0)
+            learner.learn(int(s["stamps"][k]), st, err)
+        return learner
+
+    gate = LearningGate(ROBOT)
+    learner = run(gate)
+    assert learner.n_learned == 50 + 7 and len(learner.probe_inputs) == 57   # 20 k² ≤ m·g for k ≤ 6
+    # then paused: the target beyond m·g (k = 7…29), a fall from k = 30 (z = 0.30 m < 0.5 × 0.612 m)
+    assert learner.counts[TARGET] == 23 and learner.counts[FALL] == 70
+    assert gate.paused and gate.reason.startswith("fall: base height")
+    base_fz = learner.model_set.predict(s["X"]).rbd[:, 2]
+    assert np.abs(base_fz).max() < mg
+    # the same stream without the gate learns the fall: a base force error beyond the weight
+    ungated = run(None)
+    assert ungated.n_learned == 150 and np.abs(ungated.model_set.predict(s["X"]).rbd[:, 2]).max() > mg
+
+
+def test_model_server_refuses_unannounced_checksums_and_models_beyond_physical_bounds(tmp_path):
+    from ciml_learning.models import read_metadata
+    from ciml_learning.online import PROBE_FILE
+
+    learner, s = _trained()
+    saved = SnapshotWriter(str(tmp_path / "online")).write(learner.snapshot())
+    meta = read_metadata(saved.model_dir)
+    assert saved.checksum == meta["checksum"] and PROBE_FILE in meta["manifest"]
+    probes = np.load(os.path.join(saved.model_dir, PROBE_FILE), allow_pickle=False)
+    assert probes.shape == (64, s["X"].shape[1])
+    assert all(any(np.array_equal(p, x) for x in s["X"]) for p in probes)   # the learned inputs themselves
+    load_served_model(ROBOT, saved.model_dir, saved.checksum)              # announced with its checksum: served
+    load_served_model(ROBOT, saved.model_dir)                               # a configured model_dir: its own checksum
+    with pytest.raises(ModelFileError, match="without a checksum"):
+        load_served_model(ROBOT, saved.model_dir, "")
+    # poisoned: the same model scaled ×1e6, saved properly (valid checksum) and announced
+    poisoned = learner.snapshot().model_set
+    poisoned.output_scale_ = poisoned.output_scale_ * 1e6
+    meta_p = poisoned.save(str(tmp_path / "poisoned"), extra_files={
+        PROBE_FILE: open(os.path.join(saved.model_dir, PROBE_FILE), "rb").read()})
+    with pytest.raises(ModelFileError, match="beyond physical bounds"):
+        load_served_model(ROBOT, str(tmp_path / "poisoned"), meta_p["checksum"])
+    # without its probe file, the set's input mean and the standing posture still catch it
+    poisoned.save(str(tmp_path / "poisoned2"))
+    with pytest.raises(ModelFileError, match="beyond physical bounds"):
+        load_served_model(ROBOT, str(tmp_path / "poisoned2"))

@@ -21,7 +21,10 @@ plus gravity compensation with the weight shared by the four feet, computed once
 the nominal model), so a controller that starts late finds the robot standing instead
 of collapsed on its trunk. /diagnostics says so (level WARN, message starting
 `holding the standing pose:`). With `hold_standing_until_command` false the bridge
-damps instead, as a stopped controller's robot does.
+damps instead, as a stopped controller's robot does. A MODE_DAMPING command does not
+end the hold: it is ignored and counted (damping_ignored_while_holding), since a
+controller that has never commanded torque is "not ready yet", not "stopped after
+running" (docs/LIVE_GRAPH.md, standing start).
 
 Safety: after `command_timeout` (simulation time) without a valid command once torque
 control has started, or on a MODE_DAMPING command, the joints are only damped
@@ -152,7 +155,11 @@ class MujocoBridge(Node):
         self.health.counts["commands_received"] = self.commands_received
         self.last_command_time = self.plant.time
         if cmd.mode == TorqueCommand.MODE_DAMPING:
-            if not self.damping:
+            if self.holding:
+                # "not ready yet" is not "stopped after running": a controller that has never
+                # commanded torque since the start (or reset) cannot end the standing hold
+                self.health.counts["damping_ignored_while_holding"] += 1
+            elif not self.damping:
                 self._enter_damping("damping mode: requested by /torque_command")
         elif self.damping or self.holding:
             self.damping = self.holding = False

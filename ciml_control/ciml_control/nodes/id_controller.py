@@ -5,7 +5,12 @@ Thin adapter around ciml_control.controller.IdController. Each /joint_states sam
 state, reference and model-error prediction; the command is stamped with that joint
 sample's stamp. A watchdog timer at `rate` commands damping when the state stops.
 
-Safety (counted on /diagnostics):
+Standing start (docs/LIVE_GRAPH.md): until its inputs (joint, base and contact state and
+/reference) are fresh for the first time the node publishes nothing ("not ready yet",
+/diagnostics WARN "waiting for …"), so the robot driver keeps its own safe state (the
+bridge holds the robot standing until the first MODE_TORQUE command).
+
+Safety once it has commanded torque (counted on /diagnostics):
 - joint, base or contact state missing or older than `state_timeout` (time since
   receipt, on the node clock: run with use_sim_time:=true next to a simulator, so that
   a stalled simulation does not look like a dead robot), or no fresh /reference →
@@ -15,8 +20,12 @@ Safety (counted on /diagnostics):
 - QP failures → the controller's documented fallback; counted.
 Model error: the newest /model_error/predicted (if younger than `model_error_timeout`)
 gives ε = J'ᵀ Φ̃' − Sᵀ Γ (eq. 17) with the contact-invariant basis at the reference
-configuration; otherwise ε = 0 (nominal model). All 18 + 12 predicted entries are used
-(a model predicts every dimension; the observed mask belongs to measurements).
+configuration; otherwise ε = 0 (nominal model: a model server that is late, restarted or
+absent never stops the controller). All 18 + 12 predicted entries pass the trust law
+(ciml_control.trust, the same as the headless closed loop's): an entry whose predictive
+variance exceeds `max_variance_ratio` × its prior variance is not used (counted:
+epsilon_gated, steps with a gated entry), and ε is clipped to the robot's physical bounds
+(m·g, m·g·leg span, torque limits; counted: epsilon_clipped, with a warning).
 """
 from __future__ import annotations
 
@@ -32,16 +41,15 @@ from sensor_msgs.msg import JointState
 
 from ciml_learning import conversions as cv
 from ciml_learning import topics
-from ciml_learning.dynamics import selection_matrix
 from ciml_learning.errors import CimlError
-from ciml_learning.extraction import combined_error
 from ciml_learning.projection import contact_invariant_basis
 from ciml_learning.robot import load_robot
-from ciml_learning.ros_common import COMMAND_QOS, SENSOR_PUB_QOS, SENSOR_QOS, Health, declare, run_node
+from ciml_learning.ros_common import COMMAND_QOS, OK, SENSOR_PUB_QOS, SENSOR_QOS, WARN, Health, declare, run_node
 
 from ..controller import IdController
 from ..conversions import model_error_arrays, reference_point
 from ..feedback import FeedbackGains
+from ..trust import DEFAULT_MAX_VARIANCE_RATIO, TrustLaw
 
 MODE_TORQUE = 0
 MODE_DAMPING = 1
@@ -71,11 +79,16 @@ class IdControllerNode(Node):
         mu = declare(self, "mu", 0.5, "Friction coefficient of the QP's octagon cone", 0.05, 2.0)
         f_min = declare(self, "f_min", 5.0, "Smallest normal force of a stance foot in the QP [N]", 0.0, 500.0)
         fb_contacts = declare(self, "feedback_contacts", "reference", "Contact set of the feedback projector: reference | measured")
+        ratio = declare(self, "max_variance_ratio", DEFAULT_MAX_VARIANCE_RATIO,
+                        "Use a predicted model-error entry only if its variance is at most this × the "
+                        "nominal prior variance", 1e-3, 1e3)
         urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
         self.robot = load_robot(urdf or None)
+        self.trust = TrustLaw(self.robot, ratio)
+        self.commanding = False  # a MODE_TORQUE command has been published (then stale inputs → damping)
+        self._damped = False     # the last command was MODE_DAMPING
         gains = FeedbackGains.default(self.robot, kp, kd, base_kp, base_kd, joint_kp, joint_kd)
         self.controller = IdController(self.robot, gains, mu=mu, f_min=f_min, feedback_contacts=fb_contacts)
-        self.S = selection_matrix(self.robot)
         self.health = Health(self)
         self.joints = None       # (receipt time, stamp ns, (q, qd, tau))
         self.base = None
@@ -110,7 +123,8 @@ class IdControllerNode(Node):
         self.reference = self._convert("reference", lambda m: reference_point(self.robot, m), msg) or self.reference
 
     def on_model_error(self, msg) -> None:
-        self.model_error = self._convert("model_error", lambda m: model_error_arrays(self.robot, m), msg) or self.model_error
+        self.model_error = self._convert("model_error", lambda m: model_error_with_variance(self.robot, m),
+                                         msg) or self.model_error
 
     def on_joints(self, msg) -> None:
         joints = self._convert("joint_states", lambda m: cv.joint_state_arrays(self.robot, m), msg)
@@ -129,22 +143,41 @@ class IdControllerNode(Node):
 
     def watchdog(self) -> None:
         now = self._now()
-        if not self._fresh(self.joints, self.state_timeout, now):
+        if not self.commanding:
+            self._waiting(now)
+        elif not self._fresh(self.joints, self.state_timeout, now):
             self.publish_damping("stale_state", "no fresh joint state: damping")
+
+    def _waiting(self, now: float) -> None:
+        """Not ready yet: publish nothing, say what is missing."""
+        missing = [name for name, item, timeout in (
+            ("/joint_states", self.joints, self.state_timeout), ("/base_state", self.base, self.state_timeout),
+            ("/contact_state", self.contacts, self.state_timeout), ("/reference", self.reference, self.reference_timeout))
+            if not self._fresh(item, timeout, now)]
+        self.health.set(WARN, f"waiting for {', '.join(missing) or 'inputs'} before the first command")
 
     def epsilon(self, ref, now: float) -> np.ndarray:
         if not self.use_model_error or not self._fresh(self.model_error, self.model_error_timeout, now):
             return np.zeros(self.robot.nv)
-        phi, gamma = self.model_error[2]
+        phi, gamma, phi_var, gamma_var = self.model_error[2]
         # the foot Jacobians at qᵈ come from the controller's own Pinocchio pass at the reference
         basis = contact_invariant_basis(self.controller.desired_terms(ref)[2], self.robot.leg_joints)
         self.health.counts["model_error_used"] += 1
-        return combined_error(basis, phi, gamma, self.S)
+        trusted = self.trust.apply(phi, phi_var, gamma, gamma_var, basis)
+        if trusted.gated.any():
+            self.health.counts["epsilon_gated"] += 1
+        if trusted.clipped.any():
+            self.health.count("epsilon_clipped", "model error beyond the robot's physical bounds: clipped")
+        return trusted.epsilon
 
     def control(self) -> None:
         now = self._now()
         stamp = self.joints[1]
-        if not all(self._fresh(x, self.state_timeout, now) for x in (self.joints, self.base, self.contacts)):
+        states_fresh = all(self._fresh(x, self.state_timeout, now) for x in (self.joints, self.base, self.contacts))
+        if not self.commanding and not (states_fresh and self._fresh(self.reference, self.reference_timeout, now)):
+            self._waiting(now)  # not ready yet is not stale after running: no command at all
+            return
+        if not states_fresh:
             self.publish_damping("stale_state", "base or contact state missing or stale: damping", stamp)
             return
         if not self._fresh(self.reference, self.reference_timeout, now):
@@ -171,6 +204,9 @@ class IdControllerNode(Node):
                                      stiffness=out.kp, damping=out.kd)
         self.pub.publish(cv.torque_command_msg(self.robot, stamp, cmd))
         self.health.counts["commands"] += 1
+        if not self.commanding or self._damped:
+            self.commanding, self._damped = True, False
+            self.health.set(OK, "torque control")
         self.compute_times.append(time.perf_counter() - t0)
 
     def publish_damping(self, event: str, reason: str, stamp: int | None = None) -> None:
@@ -182,12 +218,36 @@ class IdControllerNode(Node):
         ns = stamp if stamp is not None else self.get_clock().now().nanoseconds
         self.pub.publish(cv.torque_command_msg(self.robot, ns, cmd))
         self.health.count(event, reason)
+        if not self._damped:
+            self._damped = True
+            self.health.set(WARN, reason)
 
     def report(self) -> None:
         if self.compute_times:
             t = np.array(self.compute_times) * 1e6
             self.health.counts["compute_p50_us"] = int(np.percentile(t, 50))
             self.health.counts["compute_p99_us"] = int(np.percentile(t, 99))
+
+
+def model_error_with_variance(robot, msg) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(Φ̃', Γ, var Φ̃', var Γ) of a ciml_msgs/ModelError in the robot's orders (by name).
+    Variances must be finite and ≥ 0 (ConversionError otherwise); missing variances (an empty
+    array, e.g. a measurement) are infinite: nothing known about the confidence → gated."""
+    phi, gamma = model_error_arrays(robot, msg)
+    rbd_index = {n: i for i, n in enumerate(msg.rbd_names)}
+    perm_r = [rbd_index[n] for n in robot.rbd_error_names]
+    perm_a = robot.joint_permutation(list(msg.actuation_names))
+
+    def variance(values, perm, n: int, what: str) -> np.ndarray:
+        if len(values) == 0:
+            return np.full(n, np.inf)
+        v = np.asarray(values, dtype=float)
+        if v.shape != (n,) or not np.all(np.isfinite(v)) or np.any(v < 0):
+            raise cv.ConversionError(f"model_error: {what} must be {n} finite values ≥ 0")
+        return v[perm]
+
+    return (phi, gamma, variance(msg.rbd_variance, perm_r, len(perm_r), "rbd_variance"),
+            variance(msg.actuation_variance, perm_a, len(perm_a), "actuation_variance"))
 
 
 def main(args=None) -> None:

@@ -13,12 +13,14 @@ of online.nominal_prediction (large: (5 % of the weight-derived force scale)²) 
 when no model is loaded (model_dir '') or when a prediction is non-finite (counted).
 
 Hot swap without a gap: a /model_update (or the initial model_dir) is loaded and
-validated on a worker thread (ModelSet.load's checks, the announced checksum, a finite
-probe prediction); the node swaps its served model in its own thread between two
-references, so the old model serves until the new one is ready. A refused model
-(tampered, truncated, wrong version or robot) is logged, counted (refused_models) and the
-old model keeps serving. Rejected references (non-finite, wrong names) are counted and
-produce no output: NaN never reaches /model_error/predicted.
+validated on a worker thread (online.load_served_model: ModelSet.load's checks with the
+whole-model checksum; an announcement must carry that checksum; predictions on the model's
+own training inputs within the robot's physical bounds); the node swaps its served model
+in its own thread between two references, so the old model serves until the new one is
+ready. A refused model (announced without or with another checksum, tampered, truncated,
+wrong version or robot, predicting beyond physical bounds, e.g. scaled ×1e6) is logged,
+counted (refused_models) and the old model keeps serving. Rejected references
+(non-finite, wrong names) are counted and produce no output: NaN never reaches /model_error/predicted.
 """
 from __future__ import annotations
 
@@ -51,7 +53,7 @@ class ModelServerNode(Node):
         self.create_subscription(ModelUpdate, topics.MODEL_UPDATE, self.on_update, COMMAND_QOS)
         self.create_timer(swap_period, self.swap)
         if model_dir:
-            self.loader.submit((model_dir, ""))
+            self.loader.submit((model_dir, None))  # not announced: its own checksum is verified
 
     def on_update(self, msg) -> None:
         self.health.counts["model_updates"] += 1

@@ -15,24 +15,33 @@ not convert (non-finite values, wrong joint/foot/error names, wrong sizes), stat
 errors without a partner of the same stamp within `max_pair_age` (unmatched_*), pairs
 out of stamp order, and invalid samples (filter warm-up, near a contact change).
 At shutdown a last snapshot of unsaved samples is written (not announced).
+
+Learning that cannot poison the loop (ciml_learning.learning_gate, docs/LIVE_GRAPH.md):
+valid pairs are learned only while the robot is up (base height, tilt), tracks the
+/reference sample of the same stamp (base position, attitude, joints), and the measured
+error is within the robot's physical bounds (m·g, m·g·leg span, torque limits). Otherwise
+learning pauses: /diagnostics WARN "learning paused: <reason>" and the paused_* counters;
+back to OK ("learning …") once the checks have passed for `resume_after` seconds. Without any
+/reference (a replayed log) tracking is not checked unless `require_reference`.
 """
 from __future__ import annotations
 
 import os
 import time
 
-from ciml_msgs.msg import ModelError, ModelUpdate, RobotState
+from ciml_msgs.msg import ModelError, ModelUpdate, RobotReference, RobotState
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from .. import conversions as cv
 from .. import topics
 from ..errors import CimlError
+from ..learning_gate import GateConfig, LearningGate
 from ..models import ModelSet
 from ..online import (ERROR, STATE, LatestOnlyWorker, OnlineLearner, SnapshotWriter, StampPairer, StateSample,
                       model_error_sample, warm_up)
 from ..robot import load_robot
-from ..ros_common import COMMAND_QOS, ERROR as DIAG_ERROR, Health, declare, run_node
+from ..ros_common import COMMAND_QOS, ERROR as DIAG_ERROR, OK, WARN, Health, declare, run_node
 
 DEFAULT_MODEL_DIR = os.path.join("~", ".ros", "ciml", "online_model")
 
@@ -53,14 +62,39 @@ class OnlineLearnerNode(Node):
         depth = declare(self, "queue_depth", 250, "Subscription queue depth (absorbs snapshot stalls)", 10, 10000)
         record = declare(self, "record_stamps", False,
                          "Write the learned samples' stamps (learned_stamps.npy) into each snapshot")
+        d = GateConfig()
+        gate = GateConfig(
+            min_height_ratio=declare(self, "min_height_ratio", d.min_height_ratio,
+                                     "Pause learning (fall) below this fraction of the standing base height",
+                                     0.05, 1.0),
+            max_tilt=declare(self, "max_tilt", d.max_tilt, "Pause learning (fall) above this base tilt [rad]",
+                             0.01, 3.14),
+            max_position_error=declare(self, "max_position_error", d.max_position_error,
+                                       "Pause learning above this base position error to /reference [m]", 0.001, 10.0),
+            max_attitude_error=declare(self, "max_attitude_error", d.max_attitude_error,
+                                       "Pause learning above this attitude error to /reference [rad]", 0.001, 3.14),
+            max_joint_error=declare(self, "max_joint_error", d.max_joint_error,
+                                    "Pause learning above this RMS joint error to /reference [rad]", 0.001, 3.14),
+            max_reference_age=declare(self, "max_reference_age", d.max_reference_age,
+                                      "Largest stamp distance between a state and its /reference sample [s]",
+                                      0.001, 1.0),
+            resume_after=declare(self, "resume_after", d.resume_after,
+                                 "Resume learning after the checks passed this long [s, stamps]", 0.0, 60.0),
+            bound_scale=declare(self, "bound_scale", d.bound_scale,
+                                "Multiplier of the physical bounds on learned targets (1: base force m·g, "
+                                "base torque m·g·leg span, joint torques their limits)", 0.1, 100.0),
+            require_reference=declare(self, "require_reference", d.require_reference,
+                                      "Learn only with a /reference at the state's stamp (false: a log "
+                                      "replayed without /reference is learned without the tracking check)"))
         urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
         self.robot = load_robot(urdf or None)
+        self.gate = LearningGate(self.robot, gate)
         if initial:
             ms = ModelSet.load(os.path.expanduser(initial), self.robot)
             self.get_logger().info(f"continuing from {initial} ({int(ms.n_samples_.max())} samples)")
         else:
             ms = ModelSet.for_robot(self.robot, learner)
-        self.learner = OnlineLearner(self.robot, ms, calibration_samples=calib, record_stamps=record)
+        self.learner = OnlineLearner(self.robot, ms, calibration_samples=calib, record_stamps=record, gate=self.gate)
         self.get_logger().info(f"learner code ready in {warm_up(self.robot, ms.learner):.2f} s")
         self.pairer = StampPairer(int(max_age * 1e9))
         self.writer = SnapshotWriter(model_dir or DEFAULT_MODEL_DIR, keep)
@@ -69,11 +103,14 @@ class OnlineLearnerNode(Node):
         self.saved_samples = 0      # samples in the newest snapshot written
         self.learn_times: list[float] = []
         self.health = Health(self)
-        self.health.set(0, f"learning, snapshots in {self.writer.root}")
+        self._learning_message = f"learning, snapshots in {self.writer.root}"
+        self.health.set(OK, self._learning_message)
+        self._paused = False
         self.pub = self.create_publisher(ModelUpdate, topics.MODEL_UPDATE, COMMAND_QOS)
         qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(RobotState, topics.FILTERED_STATE, self.on_state, qos)
         self.create_subscription(ModelError, topics.MODEL_ERROR_MEASURED, self.on_error, qos)
+        self.create_subscription(RobotReference, topics.REFERENCE, self.on_reference, qos)
         self.create_timer(self.snapshot_period, self.snapshot)
         self.create_timer(0.05, self.announce)
 
@@ -85,6 +122,14 @@ class OnlineLearnerNode(Node):
             self.health.count("rejected_states", f"filtered_state rejected: {err}")
             return
         self._pair(STATE, cv.stamp_to_ns(msg.header.stamp), StateSample(q, v, a, tau, tau_dot, valid))
+
+    def on_reference(self, msg) -> None:
+        try:
+            q = cv.robot_reference_arrays(self.robot, msg)[0]
+        except CimlError as err:
+            self.health.count("rejected_references", f"reference rejected: {err}")
+            return
+        self.gate.add_reference(cv.stamp_to_ns(msg.header.stamp), q)
 
     def on_error(self, msg) -> None:
         try:
@@ -102,8 +147,11 @@ class OnlineLearnerNode(Node):
         t0 = time.perf_counter()
         reason = self.learner.learn(*pair)
         dt = time.perf_counter() - t0
+        self._sync_gate()
         if reason is not None:
-            if reason != "invalid_samples":  # expected near every contact change: counted, not a warning
+            if reason.startswith("paused_"):
+                self.health.counts[reason] = self.learner.counts[reason]
+            elif reason != "invalid_samples":  # expected near every contact change: counted, not a warning
                 self.health.count(reason, f"pair at stamp {pair[0]} not learned: {reason}")
             else:
                 self.health.count(reason)
@@ -115,6 +163,21 @@ class OnlineLearnerNode(Node):
             c["learn_us_mean"] = int(1e6 * sum(self.learn_times) / len(self.learn_times))
             c["learn_us_max"] = int(1e6 * max(self.learn_times))
             self.learn_times.clear()
+
+    def _sync_gate(self) -> None:
+        """/diagnostics follows the gate: WARN with the reason while paused, OK when learning."""
+        if self.gate.paused and (not self._paused or self.health.mode_message != self._pause_text()):
+            self.health.set(WARN, self._pause_text())
+            if not self._paused:
+                self.get_logger().warning(self._pause_text())
+        elif not self.gate.paused and self._paused:
+            self.health.set(OK, self._learning_message)
+            self.health.counts["resumed"] = self.gate.counts["resumed"]
+            self.get_logger().info("learning resumed")
+        self._paused = self.gate.paused
+
+    def _pause_text(self) -> str:
+        return f"learning paused: {self.gate.reason}"
 
     def _sync_counts(self, counts) -> None:
         """Mirror the pairer's counters on /diagnostics (warning on new unmatched items)."""

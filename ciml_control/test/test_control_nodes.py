@@ -73,6 +73,7 @@ def test_id_controller_waits_then_commands_limited_trusted_torque_and_damps_with
         # no input yet: "not ready" is not "stale after running" → no command at all (the robot
         # driver keeps its own safe state), and /diagnostics says what it waits for
         assert listener.wait_for(lambda: listener.node.count_publishers("/torque_command") >= 1
+                                 and all(p.get_subscription_count() >= 1 for p in pubs.values())
                                  and any("id_controller" in s.name for d in listener.messages["/diagnostics"]
                                          for s in d.status), timeout=30), stop(node)
         time.sleep(1.5)

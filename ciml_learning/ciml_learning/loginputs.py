@@ -681,7 +681,7 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     t_s = tj * 1e-9
     # estimated roles: contacts need q (base orientation from the IMU or the base input), the base needs contacts
     if contacts is None:
-        from .estimation import contact_agreement, estimate_contacts  # noqa: F401  (agreement reported by callers)
+        from .estimation import estimate_contacts
 
         q_est = np.hstack([base_pos if base_pos is not None else np.zeros((n, 3)),
                            base_quat if base_quat is not None else (imu_quat if imu_quat is not None
@@ -723,6 +723,9 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     if n_stale:
         rejected["stale_or_missing"] = n_stale
     stamp_report["stale_by_role"] = stale
+    # every input topic's own rate and stamp problems (e.g. commands at 250 Hz under 1 kHz joint states)
+    stamp_report["topics"] = {top.topic: {"role": top.role, "rate_hz": top.report["rate_hz"],
+                                          "problems": top.report["problems"]} for top in tops.values()}
     return SensorLog(bag=str(path), t=t_s, q=q, v=v, tau=tau, u=u, contacts=np.asarray(contacts, dtype=bool),
                      rejected=rejected, rate_hz=float(rate), stamp_report=stamp_report, u_observed=u_observed,
                      sources=sources, warnings=warnings, torque_command_correlation=corr)

@@ -174,3 +174,10 @@ def test_estimated_base_and_contacts_are_read_through_the_estimators(tmp_path):
     b = load_log(ROBOT, path, _profile(imu=imu, contacts={"estimate": "dynamics"}))
     assert "estimated" in b.sources["contacts"] and b.contacts.shape == (len(b), 4)
     np.testing.assert_allclose(b.v[:, :3], a.v[:, :3] * 0 + [V_WORLD[1], -V_WORLD[0], 0.0], atol=1e-12)  # odometry kept
+
+
+def test_each_input_topic_reports_its_own_rate(go1_mcap):
+    log = load_log(ROBOT, go1_mcap, PROFILE)
+    topics = log.stamp_report["topics"]
+    assert topics["/low_cmd"]["role"] == "command" and topics["/low_cmd"]["rate_hz"] == pytest.approx(500.0)
+    assert set(topics) == {"/joint_states", "/odom", "/foot_force", "/low_cmd"}

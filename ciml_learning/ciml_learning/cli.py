@@ -109,7 +109,12 @@ def build_parser() -> argparse.ArgumentParser:
     _global_options(parent, suppress=True)
 
     def verb(name: str, **kw) -> argparse.ArgumentParser:
-        return sub.add_parser(name, parents=[parent], epilog=EPILOGS.get(name),
+        import textwrap
+
+        # paragraphs wrapped here, example lines kept whole (RawDescription keeps them as given)
+        epilog = "\n".join(textwrap.fill(par, 100, break_on_hyphens=False) if not par.startswith("example:")
+                            else par for par in EPILOGS.get(name, "").split("\n")) or None
+        return sub.add_parser(name, parents=[parent], epilog=epilog,
                               formatter_class=argparse.RawDescriptionHelpFormatter, **kw)
 
     s = verb("record", help="simulate a motion headless and write an MCAP bag")

@@ -377,7 +377,7 @@ def _scalar(v: np.ndarray, path: str) -> float:
     return float(v[0])
 
 
-def _read_base(spec, tops, rej):
+def _read_base(spec, tops, rej, warnings: list[str]):
     """(stamps, positions, quaternions, twists in the body frame, description) of a measured base input."""
     if "topic" in spec:
         top = tops[spec["topic"]]
@@ -395,6 +395,7 @@ def _read_base(spec, tops, rej):
         twist = np.array([r[2] for r in rows])
         desc = f"topic {top.topic} ({ODOMETRY})"
         frames = {getattr(m, "child_frame_id", "") for m in top.msgs[:50]}
+        parents = {m.header.frame_id for m in top.msgs[:50]}
     else:
         ptop, ttop = tops[spec["pose_topic"]], tops[spec["twist_topic"]]
 
@@ -422,11 +423,16 @@ def _read_base(spec, tops, rej):
         twist = np.asarray(trow)[idx[ok]]
         desc = f"topics {ptop.topic} ({spec['pose_type']}) + {ttop.topic} ({spec['twist_type']})"
         frames = {ttop.msgs[0].header.frame_id} if hasattr(ttop.msgs[0], "header") else set()
+        parents = {ptop.msgs[0].header.frame_id} if hasattr(ptop.msgs[0], "header") else set()
     if spec["twist_frame"] == "world":
         twist = np.hstack([_rotate_to_body(quat, twist[:, :3]), _rotate_to_body(quat, twist[:, 3:])])
         desc += ", twist in the world frame rotated into the base frame"
     else:
         desc += f", twist in the base frame (child_frame_id {sorted(frames)})"
+        if frames and frames == parents and "" not in frames:
+            # the twist's frame is the pose's parent frame: a world-frame twist read as a body one
+            warnings.append(f"base: the twist's frame {sorted(frames)} is the pose's frame_id; if the twist is in "
+                            "the world frame set inputs.base.twist_frame: world")
     return t, pos, quat, twist, desc
 
 
@@ -642,7 +648,7 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     # base (measured)
     base_pos = base_quat = base_twist = None
     if "estimate" not in base_spec:
-        tb, bp, bq, bt, sources["base"] = _read_base(base_spec, tops, rej)
+        tb, bp, bq, bt, sources["base"] = _read_base(base_spec, tops, rej, warnings)
         ib = hold("base", base_spec.get("topic", base_spec.get("pose_topic")), tb)
         ok &= ib >= 0
         base_pos, base_quat, base_twist = np.zeros((n, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)), np.zeros((n, 6))

@@ -181,3 +181,14 @@ def test_each_input_topic_reports_its_own_rate(go1_mcap):
     topics = log.stamp_report["topics"]
     assert topics["/low_cmd"]["role"] == "command" and topics["/low_cmd"]["rate_hz"] == pytest.approx(500.0)
     assert set(topics) == {"/joint_states", "/odom", "/foot_force", "/low_cmd"}
+
+
+def test_a_twist_in_the_pose_frame_read_as_body_twist_is_flagged(go1_mcap, tmp_path):
+    s = store()
+    msgs = go1_messages(ROBOT, s, 250.0, 0.2)
+    for topic, _, _, m in msgs:
+        if topic == "/odom":
+            m.child_frame_id = "odom"  # child frame = parent frame: the twist is a world-frame one
+    log = load_log(ROBOT, write_bag(tmp_path / "b", msgs), _profile(base={"topic": "/odom", "twist_frame": "child"}))
+    assert any("twist_frame: world" in w for w in log.warnings)
+    assert not any("twist_frame" in w for w in load_log(ROBOT, go1_mcap, PROFILE).warnings)

@@ -384,10 +384,11 @@ def load_json_bounded(path: str, what: str = "JSON file", max_bytes: int = JSON_
 
 
 def load_yaml_bounded(path: str, what: str = "YAML file", max_bytes: int = YAML_MAX_BYTES,
-                      max_nodes: int = YAML_MAX_NODES) -> Any:
+                      max_nodes: int = YAML_MAX_NODES, yaml_errors: bool = False) -> Any:
     """A YAML file (safe types only) with a size limit and a limit on the nodes its aliases
     expand to, counted on the composed graph before anything is built (alias bombs);
-    InputFileError (one line) for anything else, invalid YAML included."""
+    InputFileError (one line) for anything else, invalid YAML included (with yaml_errors:
+    yaml.YAMLError passes through, for callers that word it themselves)."""
     import yaml
 
     data = read_bounded(path, max_bytes, what)
@@ -405,6 +406,8 @@ def load_yaml_bounded(path: str, what: str = "YAML file", max_bytes: int = YAML_
     try:
         return yaml.load(text, Loader=BoundedLoader)  # noqa: S506 - a SafeLoader subclass
     except yaml.YAMLError as err:
+        if yaml_errors:
+            raise
         msg = " ".join(str(err).split())
         raise InputFileError(f"{what} {path}: invalid YAML ({msg[:300]})") from None
     except RecursionError:

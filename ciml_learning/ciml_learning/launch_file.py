@@ -213,9 +213,12 @@ def load(path: str, arguments: Mapping[str, str] | None = None,
     Unknown argument names, missing required arguments, unsupported actions or
     substitutions and malformed entries raise LaunchFileError.
     """
-    try:
-        with open(path, encoding="utf-8") as f:
-            doc = yaml.safe_load(f)
+    from .fileio import InputFileError, load_yaml_bounded
+
+    try:  # size and alias-expansion limits
+        doc = load_yaml_bounded(path, "launch file", yaml_errors=True)
+    except InputFileError as err:
+        raise LaunchFileError(str(err)) from None
     except OSError as err:
         raise LaunchFileError(f"cannot read launch file {path}: {err.strerror}") from err
     except yaml.YAMLError as err:

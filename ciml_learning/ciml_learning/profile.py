@@ -342,9 +342,12 @@ def load_profile(path: str | os.PathLike | None = None) -> RobotProfile:
     where = f"profile {path}"
     if not os.path.isfile(path):
         raise ProfileError(f"{where}: file not found")
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = yaml.safe_load(f)
+    from .fileio import InputFileError, load_yaml_bounded
+
+    try:  # size and alias-expansion limits
+        data = load_yaml_bounded(path, where, yaml_errors=True)
+    except InputFileError as err:
+        raise ProfileError(str(err)) from None
     except yaml.YAMLError as err:
         line = getattr(getattr(err, "problem_mark", None), "line", None)
         raise ProfileError(f"{where}: not valid YAML{f' (line {line + 1})' if line is not None else ''}: "

@@ -5,6 +5,7 @@ from __future__ import annotations
 from ciml_learning.params import NodeSchema, Param
 
 from .references import MOTIONS
+from .trust import DEFAULT_MAX_VARIANCE_RATIO
 
 URDF = Param("urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
 
@@ -16,4 +17,33 @@ REFERENCE_GENERATOR = NodeSchema("ciml_control", "reference_generator", "the ful
     URDF,
 ))
 
-SCHEMAS: tuple[NodeSchema, ...] = (REFERENCE_GENERATOR,)
+ID_CONTROLLER = NodeSchema("ciml_control", "id_controller", "the inverse-dynamics QP controller (eq. 17-24) with the predicted model error ε", (
+    Param("rate", 250.0, "Watchdog rate (control runs on each /joint_states sample)", "Hz", 10.0, 1000.0),
+    Param("state_timeout", 0.05, "Damping when a state topic is older than this (node clock; use_sim_time:=true "
+          "with a simulator)", "s", 0.002, 2.0, read_only=False),
+    Param("reference_timeout", 0.1, "Damping when /reference is older than this", "s", 0.004, 5.0, read_only=False),
+    Param("model_error_timeout", 0.1, "Nominal model (ε = 0) when the newest prediction is older than this", "s",
+          0.004, 5.0, read_only=False),
+    Param("use_model_error", True, "Add the predicted model error ε (eq. 17) to the QP", read_only=False),
+    Param("damping_gain", 10.0, "Joint damping of the safe mode", "Nm s/rad", 0.0, 200.0, read_only=False),
+    Param("kp", 300.0, "Joint PD stiffness of the 1 kHz loop", "Nm/rad", 0.0, 2000.0, read_only=False),
+    Param("kd", 8.0, "Joint PD damping of the 1 kHz loop", "Nm s/rad", 0.0, 200.0, read_only=False),
+    Param("base_kp_linear", 200.0, "Feedback linearisation gain, base position (eq. 24)", "1/s²", 0.0, 2000.0,
+          read_only=False),
+    Param("base_kp_angular", 200.0, "Feedback linearisation gain, base orientation", "1/s²", 0.0, 2000.0,
+          read_only=False),
+    Param("base_kd_linear", 25.0, "Feedback linearisation gain, base velocity", "1/s", 0.0, 200.0, read_only=False),
+    Param("base_kd_angular", 25.0, "Feedback linearisation gain, base angular velocity", "1/s", 0.0, 200.0,
+          read_only=False),
+    Param("joint_lin_kp", 0.0, "Feedback linearisation gain, joints", "1/s²", 0.0, 2000.0, read_only=False),
+    Param("joint_lin_kd", 0.0, "Feedback linearisation gain, joint velocities", "1/s", 0.0, 200.0, read_only=False),
+    Param("mu", 0.5, "Friction coefficient of the QP's octagon cone", "", 0.05, 2.0, read_only=False),
+    Param("f_min", 5.0, "Smallest normal force of a stance foot in the QP", "N", 0.0, 500.0, read_only=False),
+    Param("feedback_contacts", "reference", "Contact set of the feedback projector", choices=("reference", "measured"),
+          read_only=False),
+    Param("max_variance_ratio", DEFAULT_MAX_VARIANCE_RATIO, "Use a predicted model-error entry only if its variance "
+          "is at most this × the nominal prior variance", "", 1e-3, 1e3, read_only=False),
+    URDF,
+))
+
+SCHEMAS: tuple[NodeSchema, ...] = (REFERENCE_GENERATOR, ID_CONTROLLER)

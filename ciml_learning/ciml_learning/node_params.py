@@ -2,6 +2,7 @@
 source of the node's declare() calls, its config/<node>.yaml and its README table."""
 from __future__ import annotations
 
+from .learning_gate import GateConfig
 from .params import NodeSchema, Param
 
 URDF = Param("urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
@@ -32,4 +33,38 @@ MODEL_SERVER = NodeSchema("ciml_learning", "model_server", "/reference → /mode
     URDF,
 ))
 
-SCHEMAS: tuple[NodeSchema, ...] = (STATE_FILTER, ERROR_EXTRACTOR, MODEL_SERVER, STATE_PUBLISHER)
+_GATE = GateConfig()
+ONLINE_LEARNER = NodeSchema("ciml_learning", "online_learner", "learns the model error from /filtered_state + /model_error/measured; snapshots announced on /model_update", (
+    Param("model_dir", "", "Snapshot folder ('' = ~/.ros/ciml/online_model; snapshot-NNNNNN/, latest -> newest)"),
+    Param("snapshot_period", 5.0, "Seconds between model snapshots (only when something new was learned)", "s",
+          0.1, 3600.0),
+    Param("keep_snapshots", 3, "Snapshot folders kept (older ones are deleted)", "", 1, 1000),
+    Param("learner", "lwpr", "Incremental learner of the model set (partial_fit; the sparse GP is batch-only)",
+          choices=("lwpr",)),
+    Param("initial_model", "", "Model folder to continue learning from ('' = empty model set)"),
+    Param("calibration_samples", 0, "Valid samples buffered to calibrate input/output scaling first "
+          "(0 = default scaling)", "", 0, 100000),
+    Param("max_pair_age", 0.5, "Longest wait for the partner (same stamp) of a state or error", "s", 0.004, 10.0),
+    Param("queue_depth", 250, "Subscription queue depth (absorbs snapshot stalls; 1 s at 250 Hz)", "", 10, 10000),
+    Param("record_stamps", False, "Write the learned samples' stamps (learned_stamps.npy) into each snapshot"),
+    Param("min_height_ratio", _GATE.min_height_ratio, "Pause learning (fall) below this fraction of the standing "
+          "base height", "", 0.05, 1.0),
+    Param("max_tilt", _GATE.max_tilt, "Pause learning (fall) above this base tilt", "rad", 0.01, 3.14),
+    Param("max_position_error", _GATE.max_position_error, "Pause learning above this base position error to "
+          "/reference", "m", 0.001, 10.0),
+    Param("max_attitude_error", _GATE.max_attitude_error, "Pause learning above this attitude error to /reference",
+          "rad", 0.001, 3.14),
+    Param("max_joint_error", _GATE.max_joint_error, "Pause learning above this RMS joint error to /reference", "rad",
+          0.001, 3.14),
+    Param("max_reference_age", _GATE.max_reference_age, "Largest stamp distance between a state and its /reference "
+          "sample", "s", 0.001, 1.0),
+    Param("resume_after", _GATE.resume_after, "Resume learning after the checks passed this long (stamps)", "s",
+          0.0, 60.0),
+    Param("bound_scale", _GATE.bound_scale, "Multiplier of the physical bounds on learned targets (1: base force "
+          "m·g, base torque m·g·leg span, joint torques their limits)", "", 0.1, 100.0),
+    Param("require_reference", _GATE.require_reference, "Learn only with a /reference at the state's stamp (false: "
+          "a log replayed without /reference is learned without the tracking check)"),
+    URDF,
+))
+
+SCHEMAS: tuple[NodeSchema, ...] = (STATE_FILTER, ERROR_EXTRACTOR, MODEL_SERVER, ONLINE_LEARNER, STATE_PUBLISHER)

@@ -44,12 +44,13 @@ from ciml_learning import topics
 from ciml_learning.errors import CimlError
 from ciml_learning.projection import contact_invariant_basis
 from ciml_learning.robot import load_robot
-from ciml_learning.ros_common import COMMAND_QOS, OK, SENSOR_PUB_QOS, SENSOR_QOS, WARN, Health, declare, run_node
+from ciml_learning.ros_common import COMMAND_QOS, OK, SENSOR_PUB_QOS, SENSOR_QOS, WARN, Health, declare_schema, run_node
 
 from ..controller import IdController
 from ..conversions import model_error_arrays, reference_point
 from ..feedback import FeedbackGains
-from ..trust import DEFAULT_MAX_VARIANCE_RATIO, TrustLaw
+from ..node_params import ID_CONTROLLER
+from ..trust import TrustLaw
 
 MODE_TORQUE = 0
 MODE_DAMPING = 1
@@ -59,36 +60,19 @@ STATE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT, histo
 
 
 class IdControllerNode(Node):
-    def __init__(self) -> None:
-        super().__init__("id_controller")
-        rate = declare(self, "rate", 250.0, "Watchdog rate (control runs on each /joint_states) [Hz]", 10.0, 1000.0)
-        self.state_timeout = declare(self, "state_timeout", 0.05, "Damping when a state topic is older than this [s]", 0.002, 2.0)
-        self.reference_timeout = declare(self, "reference_timeout", 0.1, "Damping when /reference is older than this [s]", 0.004, 5.0)
-        self.model_error_timeout = declare(self, "model_error_timeout", 0.1,
-                                           "Nominal model (ε = 0) when the newest prediction is older than this [s]", 0.004, 5.0)
-        self.use_model_error = declare(self, "use_model_error", True, "Add the predicted model error ε (eq. 17) to the QP")
-        self.damping_gain = declare(self, "damping_gain", 10.0, "Joint damping of the safe mode [Nm s/rad]", 0.0, 200.0)
-        kp = declare(self, "kp", 300.0, "Joint PD stiffness of the 1 kHz loop [Nm/rad]", 0.0, 2000.0)
-        kd = declare(self, "kd", 8.0, "Joint PD damping of the 1 kHz loop [Nm s/rad]", 0.0, 200.0)
-        base_kp = (declare(self, "base_kp_linear", 200.0, "Feedback linearisation, base position [1/s²]", 0.0, 2000.0),
-                   declare(self, "base_kp_angular", 200.0, "Feedback linearisation, base orientation [1/s²]", 0.0, 2000.0))
-        base_kd = (declare(self, "base_kd_linear", 25.0, "Feedback linearisation, base velocity [1/s]", 0.0, 200.0),
-                   declare(self, "base_kd_angular", 25.0, "Feedback linearisation, base angular velocity [1/s]", 0.0, 200.0))
-        joint_kp = declare(self, "joint_lin_kp", 0.0, "Feedback linearisation, joints [1/s²]", 0.0, 2000.0)
-        joint_kd = declare(self, "joint_lin_kd", 0.0, "Feedback linearisation, joint velocities [1/s]", 0.0, 200.0)
-        mu = declare(self, "mu", 0.5, "Friction coefficient of the QP's octagon cone", 0.05, 2.0)
-        f_min = declare(self, "f_min", 5.0, "Smallest normal force of a stance foot in the QP [N]", 0.0, 500.0)
-        fb_contacts = declare(self, "feedback_contacts", "reference", "Contact set of the feedback projector: reference | measured")
-        ratio = declare(self, "max_variance_ratio", DEFAULT_MAX_VARIANCE_RATIO,
-                        "Use a predicted model-error entry only if its variance is at most this × the "
-                        "nominal prior variance", 1e-3, 1e3)
-        urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
+    def __init__(self, **kwargs) -> None:
+        super().__init__("id_controller", **kwargs)
+        p = declare_schema(self, ID_CONTROLLER, self._apply_parameters)  # node_params.py: the one schema
+        self.params = dict(p)
+        rate, urdf, ratio = p["rate"], p["urdf"], p["max_variance_ratio"]
+        self.state_timeout, self.reference_timeout = p["state_timeout"], p["reference_timeout"]
+        self.model_error_timeout, self.use_model_error = p["model_error_timeout"], p["use_model_error"]
+        self.damping_gain = p["damping_gain"]
         self.robot = load_robot(urdf or None)
         self.trust = TrustLaw(self.robot, ratio)
         self.commanding = False  # a MODE_TORQUE command has been published (then stale inputs → damping)
         self._damped = False     # the last command was MODE_DAMPING
-        gains = FeedbackGains.default(self.robot, kp, kd, base_kp, base_kd, joint_kp, joint_kd)
-        self.controller = IdController(self.robot, gains, mu=mu, f_min=f_min, feedback_contacts=fb_contacts)
+        self.controller = self._build_controller(p)
         self.health = Health(self)
         self.joints = None       # (receipt time, stamp ns, (q, qd, tau))
         self.base = None
@@ -104,6 +88,34 @@ class IdControllerNode(Node):
         self.create_subscription(ModelError, topics.MODEL_ERROR_PREDICTED, self.on_model_error, COMMAND_QOS)
         self.create_timer(1.0 / rate, self.watchdog)
         self.create_timer(1.0, self.report)
+
+    def _build_controller(self, p: dict) -> IdController:
+        gains = FeedbackGains.default(self.robot, p["kp"], p["kd"], (p["base_kp_linear"], p["base_kp_angular"]),
+                                      (p["base_kd_linear"], p["base_kd_angular"]), p["joint_lin_kp"],
+                                      p["joint_lin_kd"])
+        return IdController(self.robot, gains, mu=p["mu"], f_min=p["f_min"], feedback_contacts=p["feedback_contacts"])
+
+    CONTROLLER_PARAMETERS = frozenset({"kp", "kd", "base_kp_linear", "base_kp_angular", "base_kd_linear",
+                                       "base_kd_angular", "joint_lin_kp", "joint_lin_kd", "mu", "f_min",
+                                       "feedback_contacts"})
+
+    def _apply_parameters(self, changes: dict) -> str | None:
+        """Run-time sets: timeouts and switches at the next tick; gains, cone and contact set by
+        rebuilding the controller (~20 ms, between two ticks of this single-threaded node)."""
+        params = {**self.params, **changes}
+        if self.CONTROLLER_PARAMETERS & changes.keys():
+            try:
+                controller = self._build_controller(params)
+            except (CimlError, ValueError) as err:
+                return f"controller not rebuilt: {err}"
+            self.controller = controller
+        if "max_variance_ratio" in changes:
+            self.trust = TrustLaw(self.robot, changes["max_variance_ratio"])
+        self.params = params
+        self.state_timeout, self.reference_timeout = params["state_timeout"], params["reference_timeout"]
+        self.model_error_timeout, self.use_model_error = params["model_error_timeout"], params["use_model_error"]
+        self.damping_gain = params["damping_gain"]
+        return None
 
     # --- inputs ------------------------------------------------------------------------
     def _convert(self, what: str, fn, msg):

@@ -26,6 +26,7 @@ back to OK ("learning …") once the checks have passed for `resume_after` secon
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 
@@ -41,52 +42,20 @@ from ..models import ModelSet
 from ..online import (ERROR, STATE, LatestOnlyWorker, OnlineLearner, SnapshotWriter, StampPairer, StateSample,
                       model_error_sample, warm_up)
 from ..robot import load_robot
-from ..ros_common import COMMAND_QOS, ERROR as DIAG_ERROR, OK, WARN, Health, declare, run_node
+from ..node_params import ONLINE_LEARNER
+from ..ros_common import COMMAND_QOS, ERROR as DIAG_ERROR, OK, WARN, Health, declare_schema, run_node
 
 DEFAULT_MODEL_DIR = os.path.join("~", ".ros", "ciml", "online_model")
 
 
 class OnlineLearnerNode(Node):
-    def __init__(self) -> None:
-        super().__init__("online_learner")
-        model_dir = declare(self, "model_dir", "", f"Snapshot folder ('' = {DEFAULT_MODEL_DIR})")
-        self.snapshot_period = declare(self, "snapshot_period", 5.0, "Seconds between model snapshots [s]", 0.1, 3600.0)
-        keep = declare(self, "keep_snapshots", 3, "Snapshot folders kept (older ones are deleted)", 1, 1000)
-        learner = declare(self, "learner", "lwpr", "Incremental learner of the model set (lwpr)")
-        initial = declare(self, "initial_model", "", "Model folder to continue learning from ('' = empty model set)")
-        calib = declare(self, "calibration_samples", 0,
-                        "Valid samples buffered to calibrate input/output scaling first (0 = default scaling)",
-                        0, 100000)
-        max_age = declare(self, "max_pair_age", 0.5,
-                          "Longest wait for the partner (same stamp) of a state or error [s]", 0.004, 10.0)
-        depth = declare(self, "queue_depth", 250, "Subscription queue depth (absorbs snapshot stalls)", 10, 10000)
-        record = declare(self, "record_stamps", False,
-                         "Write the learned samples' stamps (learned_stamps.npy) into each snapshot")
-        d = GateConfig()
-        gate = GateConfig(
-            min_height_ratio=declare(self, "min_height_ratio", d.min_height_ratio,
-                                     "Pause learning (fall) below this fraction of the standing base height",
-                                     0.05, 1.0),
-            max_tilt=declare(self, "max_tilt", d.max_tilt, "Pause learning (fall) above this base tilt [rad]",
-                             0.01, 3.14),
-            max_position_error=declare(self, "max_position_error", d.max_position_error,
-                                       "Pause learning above this base position error to /reference [m]", 0.001, 10.0),
-            max_attitude_error=declare(self, "max_attitude_error", d.max_attitude_error,
-                                       "Pause learning above this attitude error to /reference [rad]", 0.001, 3.14),
-            max_joint_error=declare(self, "max_joint_error", d.max_joint_error,
-                                    "Pause learning above this RMS joint error to /reference [rad]", 0.001, 3.14),
-            max_reference_age=declare(self, "max_reference_age", d.max_reference_age,
-                                      "Largest stamp distance between a state and its /reference sample [s]",
-                                      0.001, 1.0),
-            resume_after=declare(self, "resume_after", d.resume_after,
-                                 "Resume learning after the checks passed this long [s, stamps]", 0.0, 60.0),
-            bound_scale=declare(self, "bound_scale", d.bound_scale,
-                                "Multiplier of the physical bounds on learned targets (1: base force m·g, "
-                                "base torque m·g·leg span, joint torques their limits)", 0.1, 100.0),
-            require_reference=declare(self, "require_reference", d.require_reference,
-                                      "Learn only with a /reference at the state's stamp (false: a log "
-                                      "replayed without /reference is learned without the tracking check)"))
-        urdf = declare(self, "urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
+    def __init__(self, **kwargs) -> None:
+        super().__init__("online_learner", **kwargs)
+        p = declare_schema(self, ONLINE_LEARNER)  # node_params.py: the one schema (all read-only)
+        model_dir, self.snapshot_period, keep = p["model_dir"], p["snapshot_period"], p["keep_snapshots"]
+        learner, initial, calib = p["learner"], p["initial_model"], p["calibration_samples"]
+        max_age, depth, record, urdf = p["max_pair_age"], p["queue_depth"], p["record_stamps"], p["urdf"]
+        gate = GateConfig(**{f.name: p[f.name] for f in dataclasses.fields(GateConfig)})
         self.robot = load_robot(urdf or None)
         self.gate = LearningGate(self.robot, gate)
         if initial:
@@ -203,11 +172,14 @@ class OnlineLearnerNode(Node):
     def announce(self) -> None:
         for result in self.worker.drain():
             if result.error is not None:
-                self.health.count("snapshot_failures", f"snapshot not written: {result.error}")
-                self.health.set(DIAG_ERROR, f"snapshot not written: {result.error}")
+                self.health.count("snapshot_failures")
+                # ERROR until a snapshot is written again (then it clears)
+                self.health.condition("snapshot_failed", True, DIAG_ERROR, f"snapshot not written: {result.error}")
+                self.get_logger().error(f"snapshot not written: {result.error}")
                 self.snapshot_samples = self.saved_samples  # retry at the next period
                 continue
             saved = result.value
+            self.health.condition("snapshot_failed", False)
             self.saved_samples = max(self.saved_samples, saved.samples)
             msg = ModelUpdate(header=cv.header_msg(self.get_clock().now().nanoseconds), model_dir=saved.model_dir,
                               learner=saved.learner, samples=saved.samples, checksum=saved.checksum)

@@ -90,3 +90,23 @@ def test_hostile_argument_gives_one_line(verb, arg, kind, i, tmp_path, capsys, m
     # nothing outside tmp was replaced and nothing half-made was left behind
     assert os.path.exists("/dev/null") and not os.path.isfile("/dev/null")
     assert (tmp_path / "full_dir" / "user_file.txt").read_text() == "not CIML's"
+
+
+def test_jobs_are_capped_at_the_available_cores(capsys):
+    from ciml_learning.cliargs import available_cores, cap_jobs
+
+    cores = available_cores()
+    assert cap_jobs(10_000) == cores and f"capped at the {cores} available cores" in capsys.readouterr().err
+    assert cap_jobs(-1) == cores and cap_jobs(1) == 1 and capsys.readouterr().err == ""
+
+
+def test_bag_without_metadata_names_what_is_missing(tmp_path, capsys):
+    import shutil
+
+    bag = tmp_path / "bag"
+    shutil.copytree(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "bags", "nominal_stand"),
+                    bag)
+    (bag / "metadata.yaml").unlink()
+    assert main(["extract", "--bag", str(bag), "--out", str(tmp_path / "t.npz")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "metadata.yaml is missing" in err and "None" not in err and err.count("\n") == 0

@@ -259,7 +259,7 @@ def start_graph(arguments: dict[str, str], log_dir: str, only: list[str] | None 
 
 
 def graph_rates(duration: float = 60.0, warmup: float = 10.0, arguments: dict[str, str] | None = None,
-                startup_timeout: float = 120.0) -> dict:
+                startup_timeout: float = 300.0) -> dict:
     """`live_graph_rates`: the shipped graph (trot on the default gap, online learning) for
     `duration` seconds after the controller commands torques and `warmup` seconds more."""
     _private_domain()
@@ -330,7 +330,7 @@ def graph_rates(duration: float = 60.0, warmup: float = 10.0, arguments: dict[st
     return result
 
 
-def online_learning_effort(duration: float = 60.0, window: float = 10.0, startup_timeout: float = 120.0) -> dict:
+def online_learning_effort(duration: float = 60.0, window: float = 10.0, startup_timeout: float = 300.0) -> dict:
     """`live_online_learning`: feedback effort RMS over the first and the last `window`
     seconds of a `duration` trot on the default gap, nominal model vs online learning."""
     _private_domain()

@@ -73,6 +73,7 @@ class IdControllerNode(Node):
         self.commanding = False  # a MODE_TORQUE command has been published (then stale inputs → damping)
         self._damped = False     # the last command was MODE_DAMPING
         self.controller = self._build_controller(p)
+        self._warm_up()
         self.health = Health(self)
         self.joints = None       # (receipt time, stamp ns, (q, qd, tau))
         self.base = None
@@ -116,6 +117,20 @@ class IdControllerNode(Node):
         self.model_error_timeout, self.use_model_error = params["model_error_timeout"], params["use_model_error"]
         self.damping_gain = params["damping_gain"]
         return None
+
+    def _warm_up(self) -> None:
+        """One control step at the standing reference before any input: the first step loads the
+        compiled core and fills caches (~0.2 s here), which must not delay the first command
+        after the robot driver's standing hold (a late first command drops the robot)."""
+        from ..references import make_reference, standing_configuration
+
+        ref = make_reference(self.robot, "stand", standing_configuration(self.robot, 0.002)).sample(0.0)
+        t0 = time.perf_counter()
+        self.controller.compute(ref.q, ref.v, ref.contacts, ref, np.zeros(self.robot.nv))
+        basis = contact_invariant_basis(self.controller.desired_terms(ref)[2], self.robot.leg_joints)
+        self.trust.apply(np.zeros(len(self.robot.rbd_error_names)), None, np.zeros(self.robot.n_joints), None, basis)
+        self.controller.steps = 0
+        self.get_logger().info(f"controller warmed up in {1e3 * (time.perf_counter() - t0):.0f} ms")
 
     # --- inputs ------------------------------------------------------------------------
     def _convert(self, what: str, fn, msg):

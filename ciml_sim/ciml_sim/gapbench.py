@@ -275,15 +275,20 @@ def score_case(truth_effects: Sequence[dict], diagnosis: dict, all_joints: Seque
         leg = _leg_of(ooc[0]["joint"])
         top = [d["dimension"] for d in diagnosis.get("localization", [])[:3]]
         confident_wrong = [f for f in found if float(f.get("share", 0.0)) > 0.3]
+        # the out-of-catalogue probe's joint with the largest share (diagnosis.json unexplained_localised)
+        probe = max(diagnosis.get("unexplained_localised", []), key=lambda u: u["share"], default={}).get("joint")
+        by_dimension = any(leg in d for d in top if not d.startswith("base"))
+        by_probe = probe is not None and _leg_of(probe) == leg
         out["out_of_catalogue"] = {
             "type": ooc[0]["type"], "joint": ooc[0]["joint"],
             "unexplained_large": (diagnosis.get("unexplained_share") or 0.0) >= UNEXPLAINED_LARGE,
-            "localised_right": any(leg in d for d in top if not d.startswith("base")),
+            # localised: the leg among the three largest error dimensions, or the unexplained part
+            # attributed to a joint of that leg (unexplained_localised)
+            "localised_right": by_dimension or by_probe,
+            "localised_by_dimension": by_dimension, "localised_by_probe": by_probe,
             "named_wrong_with_confidence": bool(confident_wrong),
             "top_dimensions": top,
-            # the out-of-catalogue probe's joint with the largest share (diagnosis.json unexplained_localised)
-            "unexplained_joint": max(diagnosis.get("unexplained_localised", []), key=lambda u: u["share"],
-                                     default={}).get("joint"),
+            "unexplained_joint": probe,
         }
     return out
 
@@ -426,25 +431,34 @@ def table(cases: list[dict]) -> str:
 
 
 def rescore(out_dir: str) -> dict:
-    """Score the diagnoses already in DIR again (after a change of the scoring), without recording or
-    diagnosing; rewrites DIR/gap_bench.json and .md."""
+    """Score the diagnoses already in DIR again (after a change of the scoring, or of an interrupted
+    run: the cases whose case_NN/diagnosis/diagnosis.json exists), without recording or diagnosing;
+    rewrites DIR/gap_bench.json and .md."""
     from ciml_learning.robot import load_robot
 
     robot = load_robot()
     _LINKS.update(robot.link_names)
-    with open(os.path.join(out_dir, "gap_bench.json"), encoding="utf-8") as f:
-        old = {c["case"]: c for c in json.load(f)["cases"]}
+    path = os.path.join(out_dir, "gap_bench.json")
+    if os.path.isfile(path):
+        with open(path, encoding="utf-8") as f:
+            old = {c["case"]: c for c in json.load(f)["cases"]}
+    else:
+        old = {int(n[5:]): {"case": int(n[5:]), "effects_true": SUITE[int(n[5:]) - 1]["effects"]}
+               for n in sorted(os.listdir(out_dir)) if n.startswith("case_") and n[5:].isdigit()
+               and 1 <= int(n[5:]) <= len(SUITE)}
     results = []
     for i, c in sorted(old.items()):
         path = os.path.join(out_dir, f"case_{i:02d}", "diagnosis", "diagnosis.json")
         if "error" in c or not os.path.isfile(path):
-            results.append(c)
+            if "error" in c:
+                results.append(c)
             continue
         with open(path, encoding="utf-8") as f:
             diagnosis = json.load(f)
         spec = SUITE[i - 1]
         scored = score_case(spec["effects"], diagnosis, robot.joint_names, spec.get("reference_effects"))
         scored.update({k: c[k] for k in ("case", "effects_true", "noise", "record_s", "diagnose_s") if k in c})
+        scored.setdefault("diagnose_s", diagnosis.get("time_s"))
         if "reference_effects" in spec:
             scored["reference_effects"] = spec["reference_effects"]
         results.append(scored)

@@ -484,6 +484,28 @@ def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total
     return current
 
 
+def _prune(prob: _Problem, fixed: list[Candidate], current: list[Candidate], thresholds: dict[str, float],
+           relevance, steps: list[Step], total_nominal: float) -> None:
+    """Drop (in place) effects that became negligible or no longer pay for themselves once others were
+    rejected or dropped (e.g. a stand-in that took part of a rejected effect's data, now near zero)."""
+    while current:
+        m = prob.fit(fixed + current)
+        ss_now = prob.ss(m)
+        worst = None
+        for k in current:
+            if relevance is not None and relevance(m, k) < MIN_RELEVANCE:
+                worst = (k, -np.inf, 0.0)
+                break
+            cost = prob.ss(prob.fit(fixed + [x for x in current if x is not k])) - ss_now
+            if cost < thresholds[k.kind] and (worst is None or cost / thresholds[k.kind] < worst[1]):
+                worst = (k, cost / thresholds[k.kind], cost)
+        if worst is None:
+            return
+        current.remove(worst[0])
+        steps.append(Step(f"dropped {worst[0].label} (no longer pays for itself after the rejections)",
+                          -worst[2] / total_nominal, None, 0.0))
+
+
 def consistency(model: Model, subsets: list[Grams], weights: np.ndarray, extra=None) -> list[float]:
     """Relative spread of each effect's main parameter over data subsets (contact configurations,
     bags): refit that effect alone on each subset, the others held at their estimates, and take
@@ -576,12 +598,16 @@ def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
                               "configurations and bags", 0.0, None, 0.0))
         model = fit_model(layout, base + current, Gt, ct)
     # after every refit: an estimate on a physical bound is not identified (bounds.py)
-    for k in [k for k in current if _at_bound(model, k)]:
+    stuck = [k for k in current if _at_bound(model, k)]
+    for k in stuck:
         if _at_far_bound(model, k):
             limited[k.label] = (k, model, 0.0)
         current.remove(k)
         steps.append(Step(f"dropped {k.label} (parameter on its physical bound after the final refit)", 0.0, None, 0.0))
     model = fit_model(layout, base + current, Gt, ct)
+    if rejected or stuck:
+        _prune(prob, base, current, thresholds, relevance, steps, nominal)
+        model = fit_model(layout, base + current, Gt, ct)
     current_ss = _heldout_ss(model, Gh, ch, sh)
     floor = noise_floor(layout, heldout, sigma)
     floor_ss = float(np.sum(heldout.n * (floor / sigma) ** 2))
@@ -598,8 +624,16 @@ def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
     model = fit_model(layout, base + [current[i] for i in order], Gt, ct)
     spread = (consistency(model, subsets or [], w, candidate_subsets)[len(base):]
               if (subsets or candidate_subsets) else [0.0] * len(order))
-    not_identified = [_not_identified_entry(k, m, g / nominal if nominal > 0 else 0.0)
-                      for label, (k, m, g) in sorted(limited.items()) if k not in current and k.in_catalogue]
+    # a candidate pushed onto a bound is reported only if it still is, and would still explain a part of
+    # the data, next to the final effects (not a stand-in tried before the right effect entered)
+    not_identified = []
+    for label, (k, _, _) in sorted(limited.items()):
+        if k in current or not k.in_catalogue:
+            continue
+        m = fit_model(layout, base + current + [k], Gt, ct)
+        gain = current_ss - _heldout_ss(m, Gh, ch, sh)
+        if _at_far_bound(m, k) and gain >= thresholds[k.kind]:
+            not_identified.append(_not_identified_entry(k, m, gain / nominal if nominal > 0 else 0.0))
     return Selection(model=model, sigma=sigma, weights=w, nominal_ss=nominal, final_ss=current_ss,
                      shares=[shares[i] for i in order], steps=steps, full_fit_rms=full_rms,
                      spread=spread, rejected=rejected, raw_nominal_ss=float(sh), n_baseline=len(base),

@@ -108,8 +108,8 @@ SNAPSHOT = """
     from ciml_learning.models import ModelSet
     from ciml_learning.online import Snapshot, SnapshotWriter
     ms = ModelSet.load(sys.argv[1])
-    w = SnapshotWriter(sys.argv[2], keep=2)
-    for k in range(3):
+    w = SnapshotWriter(sys.argv[2], keep=1)
+    for k in range(2):  # the second write also removes the first snapshot
         ms.training_ = {"tag": "new"}
         w.write(Snapshot(model_set=ms, samples=10 + k, stamps=np.arange(k + 1), copy_seconds=0.0))
 """
@@ -133,7 +133,7 @@ def test_snapshot_writer_killed_at_every_step_leaves_loadable_snapshots(old_mode
             assert tag_of(str(latest)) == "new"  # never a dangling or half-written target
 
     every_step(SNAPSHOT, check, old_model, str(root))
-    assert len([n for n in os.listdir(root) if n.startswith("snapshot-")]) == 2
+    assert len([n for n in os.listdir(root) if n.startswith("snapshot-")]) == 1
 
 
 DIAG = """
@@ -403,3 +403,33 @@ def test_nested_json_and_yaml_alias_bombs_are_one_line(tmp_path):
     big.write_text("x: " + "y" * (2**20 + 10))
     with pytest.raises(InputFileError, match="larger than"):
         load_yaml_bounded(str(big))
+
+
+@pytest.mark.slow
+def test_closed_loop_report_killed_at_every_step_keeps_the_diagnosis_whole(tmp_path):
+    """The real `ciml closed-loop --report DIAG` (the diagnosis folder rewritten by the same
+    write_diagnosis_dir as `ciml diagnose`): killed at every step, DIAG holds both files of
+    the old or both of the new write, and the result JSON is absent or complete."""
+    from ciml_learning.diagnosis.run import write_diagnosis_dir
+
+    diag, result = str(tmp_path / "diag"), tmp_path / "r.json"
+    write_diagnosis_dir(diag, {"format_version": 1, "tag": "old"}, "<html>old<!--closed-loop--><!--/closed-loop--></html>")
+    script = """
+        import sys
+        from ciml_learning.cli import main
+        sys.exit(main(["closed-loop", "--scenario", "nominal", "--motion", "stand", "--model", "nominal",
+                       "--duration", "0.2", "--out", sys.argv[1], "--report", sys.argv[2]]))
+    """
+    seen = set()
+
+    def check(killed: bool) -> None:
+        doc = json.load(open(os.path.join(diag, "diagnosis.json")))
+        page = open(os.path.join(diag, "report.html")).read()
+        with_nominal = "nominal" in doc.get("closed_loop", {})
+        assert with_nominal == ("<td>nominal</td>" in page)  # the two files agree
+        seen.add(with_nominal)
+        if result.exists():
+            assert "metrics" in json.loads(result.read_text())
+
+    every_step(script, check, str(result), diag)
+    assert seen == {False, True}

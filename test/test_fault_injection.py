@@ -433,3 +433,31 @@ def test_closed_loop_report_killed_at_every_step_keeps_the_diagnosis_whole(tmp_p
 
     every_step(script, check, str(result), diag)
     assert seen == {False, True}
+
+
+def test_corrupt_db3_is_one_line(tmp_path):
+    """sqlite3 bags: a damaged page or a file that is not a database are one-line errors."""
+    import sqlite3
+
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    db = bag / "bag_0.db3"
+    con = sqlite3.connect(db)
+    con.execute("CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER, timestamp INTEGER, data BLOB)")
+    con.execute("CREATE INDEX ts ON messages(timestamp)")
+    con.executemany("INSERT INTO messages VALUES (?, 1, ?, ?)", [(i, i * 1000, os.urandom(200)) for i in range(5000)])
+    con.commit()
+    con.close()
+    check_bag(bag)  # intact
+    data = bytearray(db.read_bytes())
+    page = 4096
+    mid = (len(data) // page // 2) * page
+    data[mid:mid + 64] = bytes(range(64))  # a b-tree page header overwritten
+    db.write_bytes(bytes(data))
+    with pytest.raises(BagCorruptError) as info:
+        check_bag(bag)
+    assert "\n" not in str(info.value) and "bag_0.db3" in str(info.value)
+    db.write_bytes(b"not a database" * 100)
+    with pytest.raises(BagCorruptError, match="not a readable SQLite database|integrity") as info:
+        check_bag(bag)
+    assert "\n" not in str(info.value)

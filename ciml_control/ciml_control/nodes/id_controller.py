@@ -132,34 +132,6 @@ class IdControllerNode(Node):
         self.controller.steps = 0
         self.get_logger().info(f"controller warmed up in {1e3 * (time.perf_counter() - t0):.0f} ms")
 
-    def _build_controller(self, p: dict) -> IdController:
-        gains = FeedbackGains.default(self.robot, p["kp"], p["kd"], (p["base_kp_linear"], p["base_kp_angular"]),
-                                      (p["base_kd_linear"], p["base_kd_angular"]), p["joint_lin_kp"],
-                                      p["joint_lin_kd"])
-        return IdController(self.robot, gains, mu=p["mu"], f_min=p["f_min"], feedback_contacts=p["feedback_contacts"])
-
-    CONTROLLER_PARAMETERS = frozenset({"kp", "kd", "base_kp_linear", "base_kp_angular", "base_kd_linear",
-                                       "base_kd_angular", "joint_lin_kp", "joint_lin_kd", "mu", "f_min",
-                                       "feedback_contacts"})
-
-    def _apply_parameters(self, changes: dict) -> str | None:
-        """Run-time sets: timeouts and switches at the next tick; gains, cone and contact set by
-        rebuilding the controller (~20 ms, between two ticks of this single-threaded node)."""
-        params = {**self.params, **changes}
-        if self.CONTROLLER_PARAMETERS & changes.keys():
-            try:
-                controller = self._build_controller(params)
-            except (CimlError, ValueError) as err:
-                return f"controller not rebuilt: {err}"
-            self.controller = controller
-        if "max_variance_ratio" in changes:
-            self.trust = TrustLaw(self.robot, changes["max_variance_ratio"])
-        self.params = params
-        self.state_timeout, self.reference_timeout = params["state_timeout"], params["reference_timeout"]
-        self.model_error_timeout, self.use_model_error = params["model_error_timeout"], params["use_model_error"]
-        self.damping_gain = params["damping_gain"]
-        return None
-
     # --- inputs ------------------------------------------------------------------------
     def _convert(self, what: str, fn, msg):
         try:

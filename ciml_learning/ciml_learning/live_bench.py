@@ -315,6 +315,7 @@ def graph_rates(duration: float = 60.0, warmup: float = 10.0, arguments: dict[st
             result["bridge_diagnostics"] = bridge
         finally:
             result["shutdown_rc"] = launcher.stop()
+            result["exit_codes"] = {n.label: n.returncode for n in launcher.nodes}
             out.close()
             probe.close()
         tails = {}
@@ -324,7 +325,7 @@ def graph_rates(duration: float = 60.0, warmup: float = 10.0, arguments: dict[st
                     text = f.read()
             except OSError:
                 continue
-            if "Traceback" in text:
+            if "Traceback" in text or n.returncode != 0:
                 tails[n.label] = text[-2000:]
         result["tracebacks"] = tails
     return result

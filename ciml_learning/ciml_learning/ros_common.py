@@ -9,7 +9,7 @@ import os
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -21,6 +21,9 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from . import topics
 from .errors import CimlError
+
+if TYPE_CHECKING:
+    from .params import NodeSchema
 
 SENSOR_PUB_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 """Publishers of sensor topics (/joint_states, /base_state, /contact_state): reliable, so a
@@ -114,7 +117,8 @@ def declare(node: Node, name: str, default, description: str, lo: float | None =
     return node.declare_parameter(name, default, desc).value
 
 
-def declare_schema(node: Node, schema, apply: Callable[[dict[str, Any]], str | None] | None = None) -> dict[str, Any]:
+def declare_schema(node: Node, schema: NodeSchema,
+                   apply: Callable[[dict[str, Any]], str | None] | None = None) -> dict[str, Any]:
     """Declare every parameter of `schema` (a ciml_learning.params.NodeSchema) on `node`, with its
     description, range and read_only flag, and check the start values against the schema
     (choices included); return {name: value}.

@@ -59,10 +59,10 @@ def test_standing_start_in_either_order_then_trot(order):
                         qos={"/base_state": qos_profile_sensor_data})
     damping_pub = listener.node.create_publisher(TorqueCommand, "/torque_command", 10)
     base, cmds = listener.messages["/base_state"], listener.messages["/torque_command"]
-    # half real time: five processes at 250 Hz on a loaded 2-core machine otherwise miss the
-    # bridge's 50 ms command timeout now and then (then the bridge damps, as it must: a rate
-    # problem, measured by the live_graph_rates benchmark, not what this test is about)
-    bridge_args = ("mujoco_bridge", "-p", "scenario:=default_gap", "-p", "real_time_factor:=0.5")
+    # a third of real time: three processes at 250 Hz on a loaded 2-core machine otherwise miss
+    # the bridge's 50 ms command timeout now and then (then the bridge damps, as it must: a
+    # rate problem, measured by the live_graph_rates benchmark, not what this test is about)
+    bridge_args = ("mujoco_bridge", "-p", "scenario:=default_gap", "-p", "real_time_factor:=0.3")
     controller_args = ("id_controller", "-p", "use_sim_time:=true")
     nodes = []
     try:
@@ -86,7 +86,7 @@ def test_standing_start_in_either_order_then_trot(order):
             damping_pub.publish(cv.torque_command_msg(ROBOT, 0, damp))
             time.sleep(0.02)
         t_hold = _sim_time(base[-1])
-        assert listener.wait_for(lambda: _sim_time(base[-1]) > t_hold + 1.5, timeout=30)
+        assert listener.wait_for(lambda: _sim_time(base[-1]) > t_hold + 1.0, timeout=30)
         assert listener.wait_for(lambda: int(_values(listener, "mujoco_bridge").get("damping_ignored_while_holding", 0))
                                  >= 1, timeout=5), _values(listener, "mujoco_bridge")
         held = [m.pose.pose.position.z for m in base]
@@ -102,7 +102,7 @@ def test_standing_start_in_either_order_then_trot(order):
         assert listener.wait_for(lambda: any(m.mode == TorqueCommand.MODE_TORQUE for m in cmds), timeout=40)
         k0 = len(base)
         t0, x0 = _sim_time(base[-1]), base[-1].pose.pose.position.x
-        assert listener.wait_for(lambda: _sim_time(base[-1]) > t0 + 5.0, timeout=45)
+        assert listener.wait_for(lambda: _sim_time(base[-1]) > t0 + 4.0, timeout=45)  # settle, ramp, 1 s at speed
         time.sleep(1.2)  # one diagnostics period
         bridge = _values(listener, "mujoco_bridge")
         ctrl = _values(listener, "id_controller")
@@ -114,9 +114,9 @@ def test_standing_start_in_either_order_then_trot(order):
     low = next((m for m in base[k0:k1] if m.pose.pose.position.z < 0.45), None)
     assert low is None, (f"fell {_sim_time(low) - t0:.2f} s after the first torque command at x = "
                          f"{low.pose.pose.position.x - x0:.2f} m", bridge, ctrl)   # no fall
-    assert trot[-1].x - x0 > 0.3, trot[-1].x - x0            # it trotted forward (0.35 m/s after 1 s + ramp)
+    assert trot[-1].x - x0 > 0.3, trot[-1].x - x0            # it trotted forward (the reference: 1.1 m at 4 s)
     assert bridge["holding_standing_pose"] == "0" and bridge["damping_mode"] == "0", bridge
-    assert int(ctrl.get("commands", 0)) > 250, ctrl
+    assert int(ctrl.get("commands", 0)) > 500, ctrl          # ~250 per second of simulated time
 
 
 # --- b. model server refusals --------------------------------------------------------------------

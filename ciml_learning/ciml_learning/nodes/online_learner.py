@@ -8,7 +8,9 @@ if something new was learned, the model set is deep-copied on this thread (the o
 stall; its duration is reported on /diagnostics as snapshot_copy_ms) and written by a
 worker thread to model_dir/snapshot-NNNNNN (model_dir/latest → newest); once on disk, a
 ciml_msgs/ModelUpdate is published (model_dir = the snapshot directory, learner, samples
-learned, npz sha256). Subscription queues of `queue_depth` absorb the copy's stall.
+learned, the whole-model checksum: model.json's `checksum`, which the model server
+requires). Snapshots also carry probe_inputs.npy (64 learned inputs, in the manifest) for
+the server's bounds check. Subscription queues of `queue_depth` absorb the copy's stall.
 
 Rejected inputs are counted on /diagnostics and never learned: states or errors that do
 not convert (non-finite values, wrong joint/foot/error names, wrong sizes), states and

@@ -244,9 +244,11 @@ def noise_levels(layout: FeatureLayout, g: Grams, fallback: Grams | None = None)
     rms_y = np.sqrt(g.s / n)
     w0 = np.where(g.n > 0, 1.0 / np.maximum(rms_y, 1e-9) ** 2, 0.0)
     Gw, cw, _ = g.weighted(w0)
-    # the catalogue only: σ is what no catalogue effect explains
+    # the catalogue only: σ is what no catalogue effect explains; without the torque-sensor candidates,
+    # whose Φ̃ regressor τ_m carries the torque sensor's noise that is also in Φ̃ (Sᵀτ_m): an in-sample
+    # fit with them takes that noise for a model error and σ comes out far too small
     used = np.unique(np.concatenate([np.asarray(c.features) for c in layout.candidates + [layout.baseline]
-                                     if c.in_catalogue]))
+                                     if c.in_catalogue and c.kind != "sensor"]))
     Gw, cw = Gw[np.ix_(used, used)], cw[used]
     # ridge relative to each feature's scale: the full catalogue is collinear (lag per joint and all)
     diag = np.maximum(np.diag(Gw), 1e-300)

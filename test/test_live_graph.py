@@ -142,7 +142,9 @@ def test_start_orders_end_standing_then_walking(graph, order):
                     assert base is None or base[1] > STANDING_Z, f"{order}: base at {base[1]:.2f} m before the loop runs"
                 time.sleep(0.1)
     assert probe.wait_for(lambda: probe.first_torque_stamp is not None, STARTUP), f"{order}: no torque command"
-    base = probe.latest_base()
+    base = probe.base_at_first_torque  # None: the first command arrived before any /base_state
+    if base is None and probe.base_z:
+        base = (probe.base_x[0][1], probe.base_z[0][1])
     assert base is not None and base[1] > STANDING_Z, f"{order}: not standing when the controller took over: {base}"
     if order == "model_server_restarted":
         dx, zmin, seen = walks(probe, 3.0, 60.0)

@@ -136,6 +136,7 @@ class GraphProbe:
         self.n_commands = self.n_damping = 0
         self.first_torque_stamp: int | None = None
         self.first_torque_time: float | None = None
+        self.base_at_first_torque: tuple[float, float] | None = None
         # best effort takes both reliable and best-effort publishers (sensor topics are either)
         best_effort = qos_profile_sensor_data
         reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -168,6 +169,7 @@ class GraphProbe:
         stamp = cv.stamp_to_ns(msg.header.stamp)
         if msg.mode == 0 and self.first_torque_stamp is None:
             self.first_torque_stamp, self.first_torque_time = stamp, time.monotonic()
+            self.base_at_first_torque = self.latest_base()  # (x, z) when the controller took over
         if self.recording:
             self.n_commands += 1
             self.n_damping += msg.mode != 0

@@ -80,7 +80,7 @@ MIN_SUBSET_INFORMATION = 0.05
 """Subsets holding less than this fraction of an effect's information are left out of its spread."""
 BLOCK_SECONDS = 1.0
 BOOTSTRAP = 100
-MAX_EFFECTS = 24
+MAX_EFFECTS = 12
 GAP_AT_FLOOR = 0.02
 """A held-out gap above the noise floor smaller than this fraction of the nominal residual is none."""
 BIG = 1e20

@@ -90,7 +90,7 @@ def test_id_controller_waits_then_commands_limited_trusted_torque_and_damps_with
         huge[2] = 1e6   # a poisoned prediction: 1e6 N on the base
         ones_r, ones_a = np.ones(18, bool), np.ones(ROBOT.n_joints, bool)
         phases = {}     # joint-state stamp → the prediction's phase
-        for k in range(600):
+        for k in range(700):
             ns = time.time_ns()
             phases[ns] = "nominal"
             if 250 <= k < 375:  # confident prediction (variance 0): used
@@ -100,6 +100,8 @@ def test_id_controller_waits_then_commands_limited_trusted_torque_and_damps_with
                 phases[ns] = "uncertain"
                 pubs["/model_error/predicted"].publish(cv.model_error_msg(
                     ROBOT, ns, "test", phi, ones_r, gamma, ones_a, np.full(18, 1e8), np.full(ROBOT.n_joints, 1e6)))
+            elif k >= 600:  # the model server stops (restart, crash): the nominal model, never damping
+                phases[ns] = "server_gone"
             elif k >= 475:  # confident but beyond the robot's physics: clipped to m·g
                 phases[ns] = "huge"
                 pubs["/model_error/predicted"].publish(cv.model_error_msg(ROBOT, ns, "test", huge, ones_r,
@@ -168,6 +170,11 @@ def test_id_controller_waits_then_commands_limited_trusted_torque_and_damps_with
     clipped = IdController(ROBOT).compute(ref.q, ref.v, ref.contacts, ref, eps_clipped)
     assert not clipped.qp_failed and clipped.contact_forces[:, 2].sum() == pytest.approx(2 * mg, rel=1e-3)
     assert len(last("huge")) == 20 and all(np.allclose(ff, clipped.feedforward, atol=1e-3) for ff in last("huge"))
+    # without predictions (older than model_error_timeout, 0.1 s) the controller keeps commanding torque
+    # with the nominal model
+    gone = [m for m in cmds if phases.get(cv.stamp_to_ns(m.header.stamp)) == "server_gone"]
+    assert all(m.mode == TorqueCommand.MODE_TORQUE for m in gone)
+    assert len(gone) >= 40 and all(np.allclose(ff, expected.feedforward, atol=1e-3) for ff in last("server_gone"))
     assert all(m.mode == TorqueCommand.MODE_DAMPING for m in after)
     keys = {kv.key: kv.value for kv in diags}
     assert int(keys.get("rejected_joint_states", 0)) >= 1, keys

@@ -449,7 +449,7 @@ def rescore(out_dir: str) -> dict:
     results = []
     for i, c in sorted(old.items()):
         path = os.path.join(out_dir, f"case_{i:02d}", "diagnosis", "diagnosis.json")
-        if "error" in c or not os.path.isfile(path):
+        if not os.path.isfile(path):  # not diagnosed (yet): a failed case stays failed
             if "error" in c:
                 results.append(c)
             continue

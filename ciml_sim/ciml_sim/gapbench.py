@@ -33,6 +33,7 @@ from collections.abc import Sequence
 import numpy as np
 import yaml
 
+from ciml_learning.diagnosis.shrink import WORSE_TOLERANCE
 from ciml_learning.fileio import atomic_write_json, atomic_write_text
 
 from .scenario import OUT_OF_CATALOGUE_TYPES
@@ -259,7 +260,9 @@ def score_case(truth_effects: Sequence[dict], diagnosis: dict, all_joints: Seque
                                           "share": f.get("share")} for f in spurious],
            "shrink_ratio": shr.get("ratio"),
            "shrink_ratio_physical": shr.get("ratio_physical_per_dimension"),
-           "worsened_dimensions": [w["dimension"] for w in shr.get("worsened_dimensions", [])],
+           # from per_dimension with the diagnosis' own 1 % tolerance (shrink.WORSE_TOLERANCE), for any version
+           "worsened_dimensions": [n for n, e in shr.get("per_dimension", {}).items()
+                                   if e["rms_with_effects"] > e["rms_nominal"] * (1 + WORSE_TOLERANCE)],
            "noise_floor_share": diagnosis.get("noise_floor", {}).get("share_of_nominal"),
            "unexplained_share": diagnosis.get("unexplained_share"),
            "coverage": {"in_95": int(cov[0]), "in_68": int(cov[1]), "params": int(cov[2])},

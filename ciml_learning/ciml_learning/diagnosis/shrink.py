@@ -80,9 +80,9 @@ def _overall(rows: Rows, rbd_res: np.ndarray, act_res: np.ndarray, sigma: np.nda
     return float(np.sqrt(z / max(n, 1))), float(np.sqrt(phys / max(n, 1)))
 
 
-WORSE_TOLERANCE = 0.0
+WORSE_TOLERANCE = 0.01
 """A dimension is listed as made worse when its held-out RMS with the effects exceeds the nominal by more
-than this fraction (0: every increase is listed)."""
+than this fraction (1 %: changes in the last digits of a dimension the effects barely touch are not listed)."""
 
 
 def shrink(robot, rows: Rows, res: Residuals, sigma: np.ndarray, floor: np.ndarray | None = None) -> dict:

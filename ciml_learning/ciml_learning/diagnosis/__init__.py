@@ -3,7 +3,11 @@ it shrinks. Pure modules (no rclpy):
 
 - candidates: the effect catalogue (DESIGN §5) as regressors in the eq. (11) coordinates and in Γ;
 - features: regression rows (observed Φ̃' entries and Γ) and their Gram matrices;
-- identification: noise-normalised constrained fits, greedy selection on held-out data, bootstrap;
+- bounds: the physical range of every catalogue parameter (an estimate on a bound is "not identified");
+- identification: noise-normalised bounded fits, greedy selection on held-out data, the noise floor;
+- uncertainty: intervals that cover the truth (block bootstrap sized by the residual's autocorrelation,
+  held-out reproduction, the lag's sampling conversion, misspecification; docs/DIAGNOSIS.md);
+- reference: what distinguishes logs from reference logs of the same robot (`--reference`);
 - localization, shrink, report: the three answers; run: the whole diagnosis; commands: `ciml diagnose`;
 - effects: the identified effects as a model of ε (for `ciml closed-loop --model DIAG_DIR`).
 """

@@ -13,13 +13,13 @@ robustly over dimensions of the same kind (base forces, base torques, each foot 
 actuation): σ_d = clip(σ_d,own, ½ σ_pool, 2 σ_pool) with σ_pool the median of the pool, so an
 effect outside the catalogue that hits one joint or leg keeps its size relative to the others.
 
-Selection. Rigid-body and actuation candidates explain disjoint rows, so each kind is selected
-on its own. Starting from the baseline, each step refits every current candidate plus one new
-candidate on the identification data (bounds: friction, viscosity, lag, mass ≥ 0, mass scale
-> 0, gain > 0; proxsuite QP) and measures the normalised residual on held-out data. The
-candidate with the largest held-out reduction is accepted if that reduction is at least
-MIN_SHARE of the kind's nominal held-out residual (and MIN_NOISE_GAIN of its noise power), its
-parameters are not on a physical bound, and it is not negligible (relevance_function: at least
+Selection. Rigid-body candidates explain Φ̃' rows, actuation candidates Γ rows, torque-sensor
+candidates both; all compete in one loop, each against its own kind's threshold. Starting from the
+baseline, each step refits every current candidate plus one new candidate on the identification
+data (inside the physical bounds of bounds.py; proxsuite QP) and measures the normalised residual
+on held-out data. The candidate with the largest held-out reduction is accepted if that reduction
+is at least MIN_SHARE of its kind's nominal held-out residual (and MIN_NOISE_GAIN of its noise
+power), its parameters are not on a physical bound, and it is not negligible (relevance_function: at least
 MIN_RELEVANCE of the robot's own forces where it acts); a candidate with fewer parameters
 within PARSIMONY of the best wins a near-tie. After each acceptance, swaps of a selected effect
 for an unselected one are tried (an effect chosen before the others were modelled may be the
@@ -35,12 +35,12 @@ explains clearly more than every catalogue effect, i.e. when the catalogue's bes
 joint would be a stand-in. What it explains is reported as unexplained, localised at its joint
 (never as an effect); it never enters by a swap and has no consistency check.
 
-Shares. unexplained_share = held-out residual / nominal held-out residual (normalised sums of
-squares); the explained part 1 − unexplained_share is split among the effects in proportion
-to what removing each one costs on held-out data.
+Shares. unexplained_share = (held-out residual − noise floor) / (nominal held-out residual − noise
+floor) (normalised sums of squares; noise_floor: noise is not an unexplained effect); the explained
+part 1 − unexplained_share is split among the effects in proportion to what removing each one
+costs on held-out data. An estimate that ends on a non-null physical bound is "not identified".
 
-Uncertainty. Parameter standard deviations from a moving-block bootstrap over time (blocks of
-BLOCK_SECONDS), which respects the strong autocorrelation of low-passed signals.
+Uncertainty: parameter_uncertainty (uncertainty.py; docs/DIAGNOSIS.md).
 """
 from __future__ import annotations
 
@@ -78,7 +78,6 @@ OUT_OF_CATALOGUE_MARGIN = 0.15
 """The out-of-catalogue probe must explain this fraction more than the best catalogue effect."""
 MIN_SUBSET_INFORMATION = 0.05
 """Subsets holding less than this fraction of an effect's information are left out of its spread."""
-BLOCK_SECONDS = 1.0
 BOOTSTRAP = 100
 MAX_EFFECTS = 12
 GAP_AT_FLOOR = 0.02

@@ -251,6 +251,8 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     # (shares are of the gap above the noise floor, identification.Selection.unexplained_share)
     gap = sel.gap_ss if not sel.gap_at_noise_floor else np.inf
     shares = [sh + res.stiction_gain.get(c.label, 0.0) / gap for c, sh in zip(sel.effects, sel.shares)]
+    if sum(shares) > 1.0:  # the residual ended below the estimated noise floor: all of the gap is explained
+        shares = [sh / sum(shares) for sh in shares]
     found = list(zip(sel.effects, params_all[nb:], std_all[nb:], shares, sel.spread))
     effects = [_effect_entry(c, p, s, sh, sp) for c, p, s, sh, sp in found if c.in_catalogue]
     effects.sort(key=lambda e: -e["share"])

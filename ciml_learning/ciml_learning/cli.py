@@ -158,6 +158,9 @@ def build_parser() -> argparse.ArgumentParser:
     s = verb("diagnose", help="where the sim-to-real gap lies, which effect causes it, how far it shrinks")
     s.add_argument("--bag", type=ca.path, nargs="+", required=True)
     s.add_argument("--heldout", type=ca.path, nargs="+")
+    s.add_argument("--reference", type=ca.path, nargs="+", metavar="REF_BAG",
+                   help="logs of the same robot to compare with (e.g. the simulator's): also names what "
+                        "distinguishes --bag from them (effects in one only, parameters that differ)")
     s.add_argument("--out", type=ca.path, required=True, help="output directory (diagnosis.json, report.html)")
     s.add_argument("--publish", type=ca.finite(0, 3600, " s"), nargs="?", const=5.0, default=None, metavar="SECONDS",
                    help="then publish the summary once on /gap_diagnosis (ciml_msgs/GapDiagnosis, transient local) "

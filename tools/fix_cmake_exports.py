@@ -1,7 +1,7 @@
 """Rewrite the build-machine include folders baked into the ROS message wheels' CMake exports.
 
 The ``ros-*`` wheels were built under /opt/python/cp311-cp311; CMake refuses to
-generate while the include folders they name do not exist (ROS_WHEELS.md, step 3).
+generate while the include folders they name do not exist (docs/ARCHITECTURE.md §10).
 Idempotent: only files still naming the old folders are rewritten.
 """
 import glob

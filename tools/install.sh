@@ -39,7 +39,7 @@ if ! stamp_ok wheels "$h"; then
   "$PY" -m pip install -q --upgrade pip
   "$PY" -m pip install -q -r "$ROOT/requirements.txt" -c "$ROOT/constraints.txt"
   # The message wheels' exported CMake targets name include folders of the machine that
-  # built them; point them at this interpreter's and this venv's numpy (ROS_WHEELS.md, step 3).
+  # built them; point them at this interpreter's and this venv's numpy (docs/ARCHITECTURE.md §10).
   "$PY" "$ROOT/tools/fix_cmake_exports.py" "$VENV"
   stamp_set wheels "$h"
 fi

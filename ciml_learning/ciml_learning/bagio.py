@@ -4,7 +4,7 @@
   themselves (the installed share/ciml_msgs/msg, else the source tree): one source.
 - Writing: messages are rclpy objects serialised by rclpy (byte-identical to what the
   live graph publishes) and stored with rosbags' MCAP writer; no DDS is involved.
-- Reading: samples are ordered by header.stamp, never by receive time (DESIGN §7);
+- Reading: samples are ordered by header.stamp, never by receive time (docs/ARCHITECTURE.md §7);
   truncated or incomplete bags become one-line BagErrors. A robot log is read through
   its robot profile (loginputs.load_log): MCAP, db3 and ROS 1 bags, any layout.
 """

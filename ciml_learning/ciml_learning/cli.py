@@ -1,4 +1,4 @@
-"""`ciml`: the command line of CIML (DESIGN.md §4).
+"""`ciml`: the command line of CIML (docs/ARCHITECTURE.md §4).
 
 Each verb is a thin layer: parse arguments, call the library, write files atomically.
 Expected failures (CimlError) print one line and exit 1.

@@ -11,7 +11,7 @@ Combined, they give the model error the controller adds (eq. 17):
 
     ε(q, q̇, q̈) = J'ᵀ Φ̃'(x) − Sᵀ Γ(x, τ, τ̇) = [w; e] − Sᵀ Γ
 
-Why Γ from the torque (DESIGN.md §1 names q_i, q̇_i, q̈_i only): an actuator's lag and gain
+Why Γ from the torque (docs/ARCHITECTURE.md §1 names q_i, q̇_i, q̈_i only): an actuator's lag and gain
 are functions of the torque it delivers and its rate, Γ ≈ −T τ̇ + (g − 1) τ, not of the
 joint's state; at a reference the torque is the one it asks for, τ_ref and τ̇_ref of
 dynamics.ReferenceTorque (EpsilonFunction). Measured (results/EXPERIMENT.md, default gap):

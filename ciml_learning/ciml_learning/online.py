@@ -1,5 +1,5 @@
 """Online learning and model serving without ROS: the algorithms of the `online_learner`
-and `model_server` nodes (DESIGN.md §3), testable without rclpy.
+and `model_server` nodes (docs/ARCHITECTURE.md §3), testable without rclpy.
 
 Online learner (paper §III-D, LWPR learning at 250 Hz):
 

@@ -1,4 +1,4 @@
-"""Topic names and message types of the CIML graph (DESIGN.md §3) — defined once.
+"""Topic names and message types of the CIML graph (docs/ARCHITECTURE.md §3) — defined once.
 
 Live nodes, `ciml record` and the bag readers all take names from here, so a bag
 recorded headless has exactly the live graph's topics and types.

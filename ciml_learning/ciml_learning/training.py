@@ -1,7 +1,7 @@
 """Training and evaluation of model sets at scale: one independent model per output
 dimension (18 rigid-body + 12 actuation), run in parallel with joblib.
 
-Scaling out (DESIGN.md §8). fit_dimensions() calls ``joblib.Parallel(n_jobs=...)``
+Scaling out (docs/ARCHITECTURE.md §8). fit_dimensions() calls ``joblib.Parallel(n_jobs=...)``
 without naming a backend, so it runs on whatever joblib backend is active. Locally that
 is loky (processes; each worker's BLAS is limited to one thread). On a cluster, the
 same code runs unchanged inside a backend context:

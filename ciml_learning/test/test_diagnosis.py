@@ -5,7 +5,7 @@
   with only the four live topics;
 - an effect outside the catalogue ends up mostly unexplained and localised to its leg;
 - bad input gives a one-line error and exit 1;
-- diagnosis.json holds the DESIGN §6 contract and the model the controller can use.
+- diagnosis.json holds the docs/ARCHITECTURE.md §6 contract and the model the controller can use.
 """
 from __future__ import annotations
 

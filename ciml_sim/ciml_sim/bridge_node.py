@@ -1,8 +1,8 @@
-"""`mujoco_bridge`: the simulated robot on the live graph (DESIGN.md §3).
+"""`mujoco_bridge`: the simulated robot on the live graph (docs/ARCHITECTURE.md §3).
 
 Thin adapter around ciml_sim.plant.Plant (physics and HyQ's joint PD loop at 1 kHz).
 
-Timing: Python cannot wake at 1 kHz reliably (ROS_WHEELS.md), so a wall timer at the
+Timing: Python cannot wake at 1 kHz reliably (docs/ARCHITECTURE.md §10), so a wall timer at the
 publish rate (250 Hz) advances the physics by the 1 ms steps owed to wall-clock time
 (simulation time follows the wall clock × `real_time_factor`), publishing one sample
 per `1000 / publish_rate` steps, always on the same simulation-time grid. A late timer

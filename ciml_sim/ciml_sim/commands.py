@@ -1,4 +1,4 @@
-"""Implementations of the simulation `ciml` verbs: `record` and `closed-loop` (DESIGN §4).
+"""Implementations of the simulation `ciml` verbs: `record` and `closed-loop` (docs/ARCHITECTURE.md §4).
 
 Argument namespace in, exit code out; CimlErrors become one-line messages in ciml.cli.
 """

@@ -39,7 +39,7 @@ from ciml_learning.fileio import atomic_write_json, atomic_write_text
 from .scenario import OUT_OF_CATALOGUE_TYPES
 
 NOISE = {"q": 0.0005, "qd": 0.01, "tau": 0.5, "base_orientation": 0.001}
-"""The realistic sensor noise of DESIGN §5 (standard deviations)."""
+"""The realistic sensor noise of docs/ARCHITECTURE.md §5 (standard deviations)."""
 
 OUT_OF_CATALOGUE = OUT_OF_CATALOGUE_TYPES
 

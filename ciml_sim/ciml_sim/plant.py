@@ -1,6 +1,6 @@
 """The simulated robot: MuJoCo physics at 1 kHz, the joint PD loop, the scenario's effects.
 
-Where each effect acts (DESIGN §5), from command to motion:
+Where each effect acts (docs/ARCHITECTURE.md §5), from command to motion:
 
     command (u_ff, q_t, q̇_t, K_p, K_d, stamp t_c)  held until the next one
     → joint loop, every 1 ms (time s), on the *measured* q, q̇ (encoder offset and noise

@@ -1,4 +1,4 @@
-"""Scenarios: the unmodelled effects that make the simulation the "real robot" (DESIGN §5).
+"""Scenarios: the unmodelled effects that make the simulation the "real robot" (docs/ARCHITECTURE.md §5).
 
 A scenario is a YAML file, validated on load: an unknown type, joint or link, a
 missing, extra or out-of-range field gives a ScenarioError with one line naming the

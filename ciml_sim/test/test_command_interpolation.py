@@ -1,6 +1,6 @@
 """The joint loop's position target moves along the velocity target from the command's
 stamp (TorqueCommand.msg): the plant, the bag reader and the extraction agree on it, so
-that on a nominal robot the extracted model error is (almost) zero (DESIGN)."""
+that on a nominal robot the extracted model error is (almost) zero (docs/ARCHITECTURE.md §1)."""
 from __future__ import annotations
 
 import numpy as np
@@ -69,7 +69,7 @@ def test_bag_u_is_the_plants_u_with_the_moving_target(tmp_path):
 
 
 def test_nominal_walk_extracts_a_small_model_error(tmp_path):
-    """DESIGN: with no effect, the extracted error is only filtering and contact softness.
+    """With no effect, the extracted error is only filtering and contact softness.
 
     walk_35, 3 s, nominal scenario (sensor noise, no effect), seed 0: base-entry RMS of the
     RBD error on valid samples 0.52 N/Nm with the moving target; 1.61 with the target held

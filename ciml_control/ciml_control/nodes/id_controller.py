@@ -1,4 +1,4 @@
-"""`id_controller`: inverse-dynamics QP controller on the live graph (DESIGN.md §3).
+"""`id_controller`: inverse-dynamics QP controller on the live graph (docs/ARCHITECTURE.md §3).
 
 Thin adapter around ciml_control.controller.IdController. Each /joint_states sample
 (250 Hz from the robot) triggers one control step with the latest base state, contact

@@ -1,7 +1,7 @@
-"""The sim-to-real gap diagnosis (DESIGN §6): where the gap lies, which effect causes it, how far
+"""The sim-to-real gap diagnosis (docs/ARCHITECTURE.md §6): where the gap lies, which effect causes it, how far
 it shrinks. Pure modules (no rclpy):
 
-- candidates: the effect catalogue (DESIGN §5) as regressors in the eq. (11) coordinates and in Γ;
+- candidates: the effect catalogue (docs/ARCHITECTURE.md §5) as regressors in the eq. (11) coordinates and in Γ;
 - features: regression rows (observed Φ̃' entries and Γ) and their Gram matrices;
 - bounds: the physical range of every catalogue parameter (an estimate on a bound is "not identified");
 - identification: noise-normalised bounded fits, greedy selection on held-out data, the noise floor;

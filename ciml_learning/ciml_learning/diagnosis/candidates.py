@@ -1,4 +1,4 @@
-"""Candidate unmodelled effects (DESIGN §5) as physically parameterised regressors.
+"""Candidate unmodelled effects (docs/ARCHITECTURE.md §5) as physically parameterised regressors.
 
 Every candidate is linear (or linearised) in its parameters θ. A candidate of the rigid-body
 kind predicts a generalized force e (nv) — the model error Φ̃ of eq. (3),

@@ -1,4 +1,4 @@
-"""`ciml diagnose --bag BAG... [--heldout BAG...] [--reference REF_BAG...] --out DIR` (DESIGN §4, §6)."""
+"""`ciml diagnose --bag BAG... [--heldout BAG...] [--reference REF_BAG...] --out DIR` (docs/ARCHITECTURE.md §4, §6)."""
 from __future__ import annotations
 
 import argparse

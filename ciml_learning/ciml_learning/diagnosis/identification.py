@@ -689,7 +689,7 @@ def lag_time_constant(c: float, tick: float | None) -> tuple[float, float]:
 
 
 def physical_parameters(model: Model) -> list[dict]:
-    """Each candidate's parameters in the scenario's terms (DESIGN §5), e.g. {"value": 5.8}.
+    """Each candidate's parameters in the scenario's terms (docs/ARCHITECTURE.md §5), e.g. {"value": 5.8}.
 
     Actuation parameters of one joint are converted together: with a = 1 − 1/g, b = o/g,
     c = T/g (candidates.py), g = 1/(1 − a), o = b g, T = c g (c first corrected for

@@ -84,7 +84,7 @@ def collect(robot: RobotDescription, parts: list[tuple[object, Rows]]) -> list[D
 
 
 def localize(robot: RobotDescription, parts: list[tuple[object, Rows]], sigma: np.ndarray) -> list[dict]:
-    """The localization list of diagnosis.json (DESIGN §6), sorted by share, largest first."""
+    """The localization list of diagnosis.json (docs/ARCHITECTURE.md §6), sorted by share, largest first."""
     dims = collect(robot, parts)
     n_rbd = 6 + 3 * robot.n_feet
     leg_of_joint = {j: i for i, leg in enumerate(robot.leg_joints) for j in leg}

@@ -1,5 +1,5 @@
 """report.html: a self-contained page (plots embedded as base64 PNG) answering the three
-questions of DESIGN §6 — where the gap lies, which effect causes it, how far it shrinks."""
+questions of docs/ARCHITECTURE.md §6 — where the gap lies, which effect causes it, how far it shrinks."""
 from __future__ import annotations
 
 import base64

@@ -1,4 +1,4 @@
-"""The sim-to-real gap diagnosis end to end (DESIGN §6): bags in, diagnosis.json and report.html out.
+"""The sim-to-real gap diagnosis end to end (docs/ARCHITECTURE.md §6): bags in, diagnosis.json and report.html out.
 
 The diagnosis reads bags only through ciml_learning.pipeline.load_dataset, i.e. only the four
 sensor topics (/joint_states, /base_state, /contact_state, /torque_command): nothing under
@@ -13,7 +13,7 @@ selection on held-out data with the command-update sampling baseline in every mo
 bounds, relevance and consistency checks (identification.py) → block-bootstrap uncertainty →
 localisation of the error left after the baseline (localization.py) → held-out shrink, with
 the per-sample stiction estimate of identified Coulomb frictions (shrink.py) → diagnosis.json
-(DESIGN §6 keys plus `baseline`, `selection`, `model`) and report.html (report.py).
+(docs/ARCHITECTURE.md §6 keys plus `baseline`, `selection`, `model`) and report.html (report.py).
 """
 from __future__ import annotations
 

@@ -86,7 +86,7 @@ than this fraction (1 %: changes in the last digits of a dimension the effects b
 
 
 def shrink(robot, rows: Rows, res: Residuals, sigma: np.ndarray, floor: np.ndarray | None = None) -> dict:
-    """The `shrink` object of diagnosis.json (DESIGN §6) from held-out rows.
+    """The `shrink` object of diagnosis.json (docs/ARCHITECTURE.md §6) from held-out rows.
 
     Per dimension: the physical RMS [N or Nm] (rms_nominal, rms_with_effects, `unit`) next to the
     noise-normalised one (÷ σ_d), and the noise floor [N or Nm] (identification.noise_floor)

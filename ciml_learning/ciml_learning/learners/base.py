@@ -1,4 +1,4 @@
-"""The one learner contract (scikit-learn style, STYLE.md §4).
+"""The one learner contract (scikit-learn style: fit / predict / partial_fit).
 
 Every learner of CIML — LWPR and the sparse GP — looks the same to the model set, the
 CLI, the model server and the diagnosis:

@@ -3,7 +3,7 @@ inputs, hyper-parameters fitted on a subset, posterior on all data once.
 
 Why not GPy's SparseGPRegression on everything: at the paper's scale (54,000 samples,
 50-D inputs, 250 inducing inputs) one optimiser iteration takes ~15 s per output
-dimension (ROS_WHEELS.md), i.e. hours for the 18 rigid-body dimensions. The
+dimension (docs/ARCHITECTURE.md §10), i.e. hours for the 18 rigid-body dimensions. The
 hyper-parameters (kernel variance σ_f², ARD lengthscales ℓ, noise variance σ_n²) of a
 smooth model error are well determined by a few thousand samples, so:
 

@@ -24,7 +24,7 @@ from ciml_learning.live_bench import NOMINAL_RATES_HZ, GraphProbe
 pytestmark = [pytest.mark.slow, pytest.mark.ros]
 
 NODES = ("mujoco_bridge", "reference_generator", "id_controller", "model_server", "state_filter",
-         "error_extractor", "online_learner")
+         "error_extractor", "online_learner", "state_publisher")
 STARTUP = 180.0
 """[s] wall-clock bound for a node to come up (imports, numba caches; a shared 2-core machine)."""
 STANDING_Z = 0.5
@@ -87,7 +87,7 @@ def graph(tmp_path):
 
 
 def test_ciml_launch_brings_up_the_graph_and_sigint_stops_it(tmp_path):
-    """`ciml launch ciml_sim closed_loop.launch.yaml`: all seven nodes in the graph, sensors,
+    """`ciml launch ciml_sim closed_loop.launch.yaml`: all eight nodes in the graph, sensors,
     commands, filtered states and predictions flowing; one SIGINT → every node exits 0."""
     probe = rate_probe()
     probe.recording = True
@@ -110,7 +110,7 @@ def test_ciml_launch_brings_up_the_graph_and_sigint_stops_it(tmp_path):
             proc.communicate()
         probe.close()
     assert proc.returncode == 0, out[-3000:]
-    assert "all 7 nodes exited cleanly" in out
+    assert f"all {len(NODES)} nodes exited cleanly" in out
     assert "Traceback" not in out, out[out.index("Traceback") - 500:][:3000]
 
 
@@ -118,8 +118,8 @@ ORDERS = {
     # name: list of (nodes started together, seconds to wait before the next group)
     "bridge_first": [(("mujoco_bridge",), 8.0), (NODES[1:], 0.0)],
     "controller_first": [(("reference_generator", "id_controller"), 8.0),
-                         (("mujoco_bridge", "model_server", "state_filter", "error_extractor", "online_learner"), 0.0)],
-    "learner_late": [(NODES[:6], 15.0), (("online_learner",), 0.0)],
+                         (NODES[:1] + NODES[3:], 0.0)],
+    "learner_late": [(NODES[:6], 15.0), (NODES[6:], 0.0)],
     "model_server_restarted": [(NODES, 0.0)],
 }
 

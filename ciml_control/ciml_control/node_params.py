@@ -12,6 +12,10 @@ URDF = Param("urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
 REFERENCE_GENERATOR = NodeSchema("ciml_control", "reference_generator", "the full-body reference of a motion on /reference", (
     Param("motion", "stand", "Motion to generate", choices=MOTIONS, deploy="trot_35"),
     Param("rate", 250.0, "Publish rate", "Hz", 1.0, 1000.0, read_only=False),
+    Param("start_on_command", True, "Start the motion once the robot is under torque control (the first "
+          "MODE_TORQUE /torque_command); false: at the node's start"),
+    Param("start_delay", 1.0, "Standing time under the controller before the motion starts (node clock)", "s",
+          0.0, 60.0),
     Param("foot_height", 0.002, "Height of the foot frames above the ground when standing (sphere foot radius "
           "of the simulation)", "m", 0.0, 0.2),
     URDF,

@@ -6,6 +6,7 @@ Nodes stay thin adapters around pure modules (docs/ARCHITECTURE.md).
 from __future__ import annotations
 
 import os
+import signal
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
@@ -58,9 +59,13 @@ def _node_name(factory: Callable[[], Node]) -> str:
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, name: str | None = None) -> None:
     """rclpy.init → spin → clean shutdown (the ros2/demos skeleton), once for every node.
 
-    - SIGINT/SIGTERM: rclpy's signal handler shuts the context down; whatever the spin (or a
-      callback, or the node's construction) raises after that is the shutdown racing the
-      node, not an error: the process exits 0 without a traceback.
+    - SIGINT/SIGTERM: rclpy's signal handler wakes the executor and shuts the context down;
+      whatever the spin (or a callback, or the node's construction) raises after the signal is
+      the shutdown racing the node, not an error: the process exits 0 without a traceback.
+      The Python handler rclpy chains to only records the signal: Python's default SIGINT
+      handler raises KeyboardInterrupt wherever the interpreter is, and inside rclpy's
+      message conversion that surfaces as a pybind11 RuntimeError ("Unable to convert call
+      argument") while the context is still valid.
     - A bad parameter (wrong type, out of range, refused by the schema) or a CimlError while
       building the node (bad URDF, scenario, model folder): one logged line, exit status 1.
 
@@ -69,6 +74,9 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, nam
     """
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     label = name or _node_name(factory)
+    signalled: list[int] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):  # installed before rclpy.init, which chains to them
+        signal.signal(sig, lambda signum, _frame: signalled.append(signum))
     try:
         rclpy.init(args=args)
     except Exception as err:  # malformed --ros-args (rcl parses them here)
@@ -83,11 +91,11 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, nam
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ParameterException, CimlError) as err:
-        if context.ok():
+        if context.ok() and not signalled:
             rclpy.logging.get_logger(label).error(f"{_one_line(err)}")
             status = 1
     except Exception:
-        if context.ok():
+        if context.ok() and not signalled:
             raise
         # a signal shut the context down while spin or a callback was using it
     finally:

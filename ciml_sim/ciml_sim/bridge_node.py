@@ -10,6 +10,18 @@ is caught up (up to 20 ms); beyond that the debt is dropped and counted as an ov
 so the simulation slows down instead of bursting. The achieved physics rate and the
 p99 tick-period error are reported on /diagnostics.
 
+Lockstep (`lockstep`, on in the shipped launch file): under torque control the bridge
+publishes the next sample only once the command stamped with the last one has arrived,
+so simulation time waits for the controller and every sample gets its own command, as a
+controller running inside the simulator's loop does (Gazebo with ros2_control). Without
+it, a controller slower than real time on a loaded machine has each command applied for
+several samples (the catch-up above) and the robot falls, which is what a real robot
+would do; with it, sim time runs at most `real_time_factor` and as fast as the graph
+answers (docs/LIVE_GRAPH.md, rates). A controller silent for `lockstep_timeout` wall
+seconds releases the lockstep until its next command (counted `lockstep_timeouts`), so
+a dead controller still meets `command_timeout` and damping. A sample's base and contact
+state are published before its joint state, the controller's trigger.
+
 Topics: /joint_states, /base_state, /contact_state (reliable, depth 10: default-QoS readers match), /clock (sim time),
 /diagnostics; optional /sim/ ground truth (`publish_ground_truth`); subscribes
 /torque_command (reliable). Service ~/reset (std_srvs/Trigger).
@@ -70,6 +82,7 @@ class MujocoBridge(Node):
         scenario, self.seed, rate, urdf = p["scenario"], p["seed"], p["publish_rate"], p["urdf"]
         self.timeout, self.kd_safe, self.rtf = p["command_timeout"], p["damping_gain"], p["real_time_factor"]
         self.hold_at_start, self.publish_truth = p["hold_standing_until_command"], p["publish_ground_truth"]
+        self.lockstep, self.lockstep_timeout = p["lockstep"], p["lockstep_timeout"]
         self.robot = load_robot(urdf or None)
         self.scenario = resolve_scenario(scenario, self.robot) if scenario else nominal_scenario()
         self.steps_per_sample = max(1, int(round(1000.0 / rate)))
@@ -87,6 +100,10 @@ class MujocoBridge(Node):
         self._hold_command = self._standing_command()
         self._start_waiting("waiting for the first /torque_command")
         self.last_command_time = -np.inf
+        self._published_ns = -1   # stamp of the last published sample
+        self._answered_ns = -1    # newest stamp of a valid command
+        self._published_wall = 0.0
+        self._lockstep_released = False
         self._wall0 = time.monotonic()
         self._steps_done = 0  # physics steps accounted against the wall clock (dropped debt included)
         self.physics_steps = 0  # physics steps actually taken
@@ -94,7 +111,8 @@ class MujocoBridge(Node):
         self.tick_periods: deque[float] = deque(maxlen=20_000)  # wall seconds between ticks (recent)
         self.n_ticks = 0
         self._window_start = (self._wall0, 0)  # (wall time, physics steps) at the window's start
-        self.create_timer(self.steps_per_sample * 1e-3 / self.rtf, self.tick)
+        self.period = self.steps_per_sample * 1e-3 / self.rtf  # [s] wall clock per sample at real_time_factor
+        self.create_timer(self.period, self.tick)
         self.get_logger().info(
             f"mujoco_bridge: {self.robot.n_joints} joints, physics 1 kHz, publishing at "
             f"{1000.0 / self.steps_per_sample:g} Hz of simulation time, real-time factor {self.rtf:g}")
@@ -102,6 +120,7 @@ class MujocoBridge(Node):
     def _apply_parameters(self, changes: dict) -> str | None:
         """Run-time sets of the reconfigurable parameters (the others are read-only)."""
         self.timeout = changes.get("command_timeout", self.timeout)
+        self.lockstep_timeout = changes.get("lockstep_timeout", self.lockstep_timeout)
         self.publish_truth = changes.get("publish_ground_truth", self.publish_truth)
         if "damping_gain" in changes:
             self.kd_safe = changes["damping_gain"]
@@ -153,6 +172,8 @@ class MujocoBridge(Node):
             return
         self.commands_received += 1
         self.health.counts["commands_received"] = self.commands_received
+        self._answered_ns = max(self._answered_ns, cv.stamp_to_ns(msg.header.stamp))
+        self._lockstep_released = False
         self.last_command_time = self.plant.time
         if cmd.mode == TorqueCommand.MODE_DAMPING:
             if self.holding:
@@ -166,6 +187,10 @@ class MujocoBridge(Node):
             self.health.counts["damping_mode"] = 0
             self.health.counts["holding_standing_pose"] = 0
             self.health.set(OK, "torque control")
+        if self.lockstep and not (self.holding or self.damping) and self._answered_ns >= self._published_ns:
+            now = time.monotonic()
+            if now - self._published_wall >= self.period:  # the sample is due: no wait for the next tick
+                self._lockstep_tick(now)
 
     def on_reset(self, request, response):
         t = self.plant.time
@@ -186,6 +211,10 @@ class MujocoBridge(Node):
             self.tick_periods.append(now - self._last_tick)
             self.n_ticks += 1
         self._last_tick = now
+        if self.lockstep and not (self.holding or self.damping):
+            self._lockstep_tick(now)
+            self._stats(now)
+            return
         owed = int((now - self._wall0) * 1000.0 * self.rtf) - self._steps_done
         max_steps = int(MAX_CATCH_UP * 1000.0) + self.steps_per_sample
         if owed > max_steps:
@@ -201,6 +230,22 @@ class MujocoBridge(Node):
             return  # SIGTERM/SIGINT shut the context down during this tick: normal shutdown
         self._stats(now)
 
+    def _lockstep_tick(self, now: float) -> None:
+        """One sample per tick, once the last one's command has arrived (or the wait timed out)."""
+        if self._answered_ns < self._published_ns and not self._lockstep_released:
+            if now - self._published_wall < self.lockstep_timeout:
+                self.health.counts["lockstep_waits"] += 1
+                return
+            self._lockstep_released = True  # free-running until the next command
+            self.health.count("lockstep_timeouts", f"no command within {self.lockstep_timeout:g} s: free-running")
+        try:
+            self._sample()
+        except Exception:
+            if self.context.ok():
+                raise
+            return
+        self._steps_done = int((now - self._wall0) * 1000.0 * self.rtf)  # no debt when the lockstep ends
+
     def _sample(self) -> None:
         if not (self.damping or self.holding) and self.plant.time - self.last_command_time > self.timeout:
             self.health.count("stale_command_damping")
@@ -211,10 +256,11 @@ class MujocoBridge(Node):
         m = self.plant.measure()
         ns = int(round(m.time * 1e9))
         self.pub_clock.publish(Clock(clock=cv.stamp_msg(ns)))
-        self.pub_joints.publish(cv.joint_state_msg(self.robot, ns, m.q, m.qd, m.tau_measured))
         self.pub_base.publish(cv.odometry_msg(ns, m.base_position, m.base_orientation, m.base_linear_velocity,
                                               m.base_angular_velocity))
         self.pub_contacts.publish(cv.contact_state_msg(self.robot, ns, m.contacts))
+        self._published_ns, self._published_wall = ns, time.monotonic()
+        self.pub_joints.publish(cv.joint_state_msg(self.robot, ns, m.q, m.qd, m.tau_measured))  # the trigger: last
         if self.publish_truth:
             from ciml_msgs.msg import ContactForces, GeneralizedForce
 

@@ -11,7 +11,13 @@ MUJOCO_BRIDGE = NodeSchema("ciml_sim", "mujoco_bridge", "the simulated robot (Mu
     Param("command_timeout", 0.05, "Damping mode after this long without a valid /torque_command (simulation time)",
           "s", 0.004, 5.0, read_only=False),
     Param("damping_gain", 10.0, "Joint damping in damping mode", "Nm s/rad", 0.0, 200.0, read_only=False),
-    Param("real_time_factor", 1.0, "Simulation seconds per wall-clock second", "", 0.05, 20.0),
+    Param("real_time_factor", 1.0, "Simulation seconds per wall-clock second (the most, with lockstep)", "",
+          0.05, 20.0),
+    Param("lockstep", False, "Under torque control, publish the next sample only once the command stamped with "
+          "the last one has arrived (simulation time waits for the controller: every sample gets its command "
+          "on a slow machine); false: free-running against the wall clock, as a real robot"),
+    Param("lockstep_timeout", 0.5, "Wall-clock wait for a command in lockstep; then free-running until the next "
+          "command (a dead controller still meets command_timeout)", "s", 0.01, 10.0, read_only=False),
     Param("hold_standing_until_command", True, "Hold the standing pose (joint PD + gravity compensation) after start "
           "and reset until the first torque command; false: damp the joints instead"),
     Param("publish_ground_truth", False, "Also publish the simulation-only /sim/ topics (true v̇, contact and "

@@ -82,9 +82,12 @@ class IdControllerNode(Node):
         self.model_error = None
         self.compute_times: deque = deque(maxlen=1000)
         self.pub = self.create_publisher(TorqueCommand, topics.TORQUE_COMMAND, COMMAND_QOS)
-        self.create_subscription(JointState, topics.JOINT_STATES, self.on_joints, STATE_QOS)
+        # base and contacts first: rclpy's executor takes ready subscriptions in creation order, and
+        # the robot driver publishes a sample's base and contact state before its joint state (the
+        # trigger), so the control step sees the whole sample, not the previous base state
         self.create_subscription(Odometry, topics.BASE_STATE, self.on_base, STATE_QOS)
         self.create_subscription(ContactState, topics.CONTACT_STATE, self.on_contacts, STATE_QOS)
+        self.create_subscription(JointState, topics.JOINT_STATES, self.on_joints, STATE_QOS)
         self.create_subscription(RobotReference, topics.REFERENCE, self.on_reference, COMMAND_QOS)
         self.create_subscription(ModelError, topics.MODEL_ERROR_PREDICTED, self.on_model_error, COMMAND_QOS)
         self.create_timer(1.0 / rate, self.watchdog)

@@ -3,14 +3,17 @@
 Thin adapter around ciml_control.references: at `rate` Hz it samples the motion at the
 time elapsed since the motion started (node clock: simulation time with use_sim_time)
 and publishes ciml_msgs/RobotReference (qᵈ, q̇ᵈ, q̈ᵈ and the contact schedule).
-The motion starts when the first subscriber (the controller) is matched; until then
+The motion starts `start_delay` seconds after the robot comes under torque control (the
+first MODE_TORQUE /torque_command), so it starts from the standing pose whatever the
+order in which the nodes start and whoever subscribes first (a dashboard, a recorder or
+the learner must not start it while the robot driver still holds the robot); until then
 the node publishes the motion's first sample, the standing pose.
 """
 from __future__ import annotations
 
 import sys
 
-from ciml_msgs.msg import RobotReference
+from ciml_msgs.msg import RobotReference, TorqueCommand
 from rclpy.node import Node
 
 from ciml_learning import topics
@@ -32,7 +35,14 @@ class ReferenceGeneratorNode(Node):
         self.reference = make_reference(self.robot, motion, standing_configuration(self.robot, foot_height))
         self.health = Health(self)
         self.pub = self.create_publisher(RobotReference, topics.REFERENCE, COMMAND_QOS)
+        self.start_delay_ns = int(p["start_delay"] * 1e9)
         self.start_ns: int | None = None
+        self.command_sub = None
+        if p["start_on_command"]:
+            self.command_sub = self.create_subscription(TorqueCommand, topics.TORQUE_COMMAND, self.on_command,
+                                                        COMMAND_QOS)
+        else:
+            self.start_ns = self.get_clock().now().nanoseconds + self.start_delay_ns
         self.timer = self.create_timer(1.0 / rate, self.tick)
         self.get_logger().info(f"publishing {motion} on {topics.REFERENCE} at {rate:.0f} Hz")
 
@@ -44,12 +54,19 @@ class ReferenceGeneratorNode(Node):
             self.get_logger().info(f"publishing at {changes['rate']:g} Hz")
         return None
 
+    def on_command(self, msg: TorqueCommand) -> None:
+        if self.start_ns is None and msg.mode == TorqueCommand.MODE_TORQUE:
+            self.start_ns = self.get_clock().now().nanoseconds + self.start_delay_ns
+            self.get_logger().info(f"the robot is under torque control: the motion starts in "
+                                   f"{self.start_delay_ns * 1e-9:g} s")
+
     def tick(self) -> None:
         now = self.get_clock().now().nanoseconds
-        if self.start_ns is None and self.pub.get_subscription_count() > 0:
-            self.start_ns = now
+        if self.start_ns is not None and self.command_sub is not None:  # started: commands no longer needed
+            self.destroy_subscription(self.command_sub)
+            self.command_sub = None
         try:
-            point = self.reference.sample(0.0 if self.start_ns is None else (now - self.start_ns) * 1e-9)
+            point = self.reference.sample(0.0 if self.start_ns is None else max(0.0, (now - self.start_ns) * 1e-9))
         except CimlError as err:  # e.g. an unreachable foot target: publish nothing
             self.health.count("reference_errors", str(err), level=ERROR)  # ERROR while it lasts
             return

@@ -16,35 +16,45 @@ ROBOT = load_robot()
 
 
 @pytest.mark.ros
-def test_reference_generator_publishes_reference():
-    from ciml_msgs.msg import RobotReference
+def test_reference_generator_stands_until_torque_control_then_runs_the_motion():
+    from ciml_msgs.msg import RobotReference, TorqueCommand
 
     listener = Listener({"/reference": RobotReference})
-    node = start_node("reference_generator", "-p", "motion:=trot_35")
+    refs = listener.messages["/reference"]
+    command = listener.node.create_publisher(TorqueCommand, "/torque_command", 10)
+    node = start_node("reference_generator", "-p", "motion:=trot_35", "-p", "start_delay:=0.5")
+    q_stand = standing_configuration(ROBOT, 0.002)
+    n = ROBOT.n_joints
     try:
-        ok = listener.wait_for(lambda: len(listener.messages["/reference"]) >= 400, timeout=30)  # past the settle phase
+        # subscribers alone (this listener) do not start the motion, nor does a damping command
+        assert listener.wait_for(lambda: len(refs) >= 250 and command.get_subscription_count() >= 1, timeout=30), stop(node)
+        command.publish(cv.torque_command_msg(ROBOT, 0, cv.TorqueCommandArrays(
+            1, np.zeros(n), np.zeros(n), q_stand[7:], np.zeros(n), np.zeros(n), np.full(n, 10.0))))
+        time.sleep(0.3)
+        standing = len(refs)
+        # the robot comes under torque control: the motion starts start_delay later
+        command.publish(cv.torque_command_msg(ROBOT, 0, cv.TorqueCommandArrays(
+            0, np.zeros(n), np.zeros(n), q_stand[7:], np.zeros(n), np.full(n, 300.0), np.full(n, 8.0))))
+        ok = listener.wait_for(lambda: len(refs) >= standing + 500, timeout=30)
     finally:
         log = stop(node)
         listener.close()
-    msgs = listener.messages["/reference"]
     assert ok, log
-    points = [reference_point(ROBOT, m) for m in msgs]
+    points = [reference_point(ROBOT, m) for m in refs]
     assert all(p.motion == "trot_35" for p in points)
-    q_stand = standing_configuration(ROBOT, 0.002)
-    # the motion starts (at the standing pose) once a subscriber is there
-    assert np.allclose(points[0].q, q_stand, atol=1e-3)
+    assert all(np.allclose(p.q, q_stand, atol=1e-3) for p in points[:standing])
     stamps = np.array([p.t for p in points])
     assert np.all(np.diff(stamps) > 0)
     rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
     assert 150 < rate < 300  # 250 Hz nominal on a shared machine
-    # the samples are the motion's reference at its phase in some gait cycle k (the exact
-    # start instant is unknown here: the listener may see a few samples before the node
-    # sees the subscription and starts the motion clock)
+    # the first sample off the standing pose comes ≥ start_delay after the torque command
+    moving = next(k for k, p in enumerate(points) if not np.allclose(p.q, q_stand, atol=1e-6))
+    assert moving > standing and stamps[moving] - stamps[standing - 1] >= 0.5 - 0.02
+    # the samples are the motion's reference at its phase in some gait cycle k
     ref = make_reference(ROBOT, "trot_35", q_stand)
     p = points[-1]
-    assert p.t - points[0].t > ref.t0 + 0.1
-    cycles = int((p.t - points[0].t - ref.t0) / ref.period) + 2
-    matches = [k for k in range(cycles)
+    cycles = int((p.t - points[moving].t - ref.t0) / ref.period) + 2
+    matches = [k for k in range(max(cycles, 1))
                if np.allclose(p.q, (e := ref.sample(ref.t0 + (k + p.phase) * ref.period)).q, atol=1e-6)
                and np.array_equal(p.contacts, e.contacts)]
     assert matches, "the last reference sample is not the motion's reference at its phase"

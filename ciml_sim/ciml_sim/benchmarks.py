@@ -1,0 +1,80 @@
+"""Benchmarks of ciml_sim (`ciml bench`, registered in setup.py under the `ciml.benchmarks` entry points).
+
+Each function runs with its defaults as the benchmark's settings and returns one JSON-able dict.
+Compare numbers from one run only: the machines are shared and noisy.
+"""
+from __future__ import annotations
+
+import os
+import random
+import time
+
+import numpy as np
+import rclpy
+from ciml_msgs.msg import TorqueCommand
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+
+from ciml_control.standing import StandingController
+from ciml_learning import conversions as cv
+from ciml_learning import topics
+from ciml_learning.ros_common import COMMAND_QOS, SENSOR_QOS
+
+from .bridge_node import MujocoBridge
+
+
+def rate_benchmark(seconds: float = 8.0, publish_rate: float = 250.0) -> dict:
+    """The bridge with ROS I/O: it publishes its sensors and a commander node sends a
+    standing TorqueCommand back at 250 Hz (one process, own DDS domain, loopback only).
+    Reports the achieved physics rate (target 1000 Hz of simulation time per wall second)
+    and the tick-period error (p50/p99) of the publish timer."""
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=random.SystemRandom().randint(1, 101))
+    try:
+        bridge = MujocoBridge(context=ctx, parameter_overrides=[Parameter("publish_rate", value=publish_rate)])
+        robot = bridge.robot
+        q0 = bridge.plant.standing_configuration()
+        c = StandingController(robot).compute(q0, np.ones(robot.n_feet, dtype=bool))
+        arrays = cv.TorqueCommandArrays(0, c.feedforward, c.feedback_linearization, c.q_target, c.qd_target, c.kp, c.kd)
+        commander = rclpy.create_node("bench_commander", context=ctx)
+        pub = commander.create_publisher(TorqueCommand, topics.TORQUE_COMMAND, COMMAND_QOS)
+        received = [0]
+        commander.create_subscription(JointState, topics.JOINT_STATES, lambda m: received.__setitem__(0, received[0] + 1),
+                                      SENSOR_QOS)
+        commander.create_timer(0.004, lambda: pub.publish(cv.torque_command_msg(robot, 0, arrays)))
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(bridge)
+        ex.add_node(commander)
+        t_end = time.monotonic() + 1.0
+        while time.monotonic() < t_end:  # discovery, first commands
+            ex.spin_once(timeout_sec=0.01)
+        wall0, steps0, ticks0, cmd0 = time.monotonic(), bridge.physics_steps, bridge.n_ticks, bridge.commands_received
+        sim0 = bridge.plant.time
+        while time.monotonic() < wall0 + seconds:
+            ex.spin_once(timeout_sec=0.01)
+        wall = time.monotonic() - wall0
+        p = np.asarray(list(bridge.tick_periods)[-(bridge.n_ticks - ticks0):])
+        nominal = bridge.steps_per_sample * 1e-3
+        err = np.abs(p - nominal) * 1e3
+        base_z = float(bridge.plant.data.qpos[2])
+        out = {
+            "publish_rate_hz": 1000.0 / bridge.steps_per_sample,
+            "target_physics_rate_hz": 1000.0,
+            "achieved_physics_rate_hz": round((bridge.physics_steps - steps0) / wall, 1),
+            "sim_time_per_wall_second": round((bridge.plant.time - sim0) / wall, 3),
+            "tick_period_nominal_ms": nominal * 1e3,
+            "tick_period_p50_ms": round(float(np.percentile(p, 50)) * 1e3, 3),
+            "tick_period_error_p50_ms": round(float(np.percentile(err, 50)), 3),
+            "tick_period_error_p99_ms": round(float(np.percentile(err, 99)), 3),
+            "realtime_overruns": int(bridge.health.counts.get("realtime_overruns", 0)),
+            "commands_received_per_s": round((bridge.commands_received - cmd0) / wall, 1),
+            "joint_states_received": received[0],
+            "stale_command_damping": int(bridge.health.counts.get("stale_command_damping", 0)),
+            "still_standing": base_z > 0.5,
+            "seconds": seconds,
+        }
+        return out
+    finally:
+        rclpy.try_shutdown(context=ctx)

@@ -35,7 +35,7 @@ register("id_controller_step", "ciml_control.controller", "compute_benchmark", m
 register("id_controller_dds_latency", "ciml_control.benchmarks", "dds_latency_benchmark", duration_s=5.0)
 register("sim_headless_speed", "ciml_sim.recorder", "speed_benchmark", motion="trot_35", duration=4.0)
 register("sim_bridge_rate", "ciml_sim.benchmarks", "rate_benchmark", seconds=8.0, publish_rate=250.0)
-register("diagnosis_50k", "ciml_learning.diagnosis.run", "benchmark", n_samples=50_000)
+register("diagnosis_50k", "ciml_sim.benchmarks", "diagnosis_benchmark", n_samples=50_000)
 register("live_graph_rates", "ciml_learning.live_bench", "graph_rates", duration=60.0)
 register("live_online_learning", "ciml_learning.live_bench", "online_learning_effort", duration=60.0)
 

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import os
 import random
+import shutil
+import tempfile
 import time
 
 import numpy as np
@@ -19,9 +21,14 @@ from sensor_msgs.msg import JointState
 from ciml_control.standing import StandingController
 from ciml_learning import conversions as cv
 from ciml_learning import topics
+from ciml_learning.bagio import BagWriter
+from ciml_learning.diagnosis.run import diagnose
+from ciml_learning.robot import load_robot
 from ciml_learning.ros_common import COMMAND_QOS, SENSOR_QOS
 
 from .bridge_node import MujocoBridge
+from .recorder import run_headless
+from .scenario import load_scenario, scenario_dir
 
 
 def rate_benchmark(seconds: float = 8.0, publish_rate: float = 250.0) -> dict:
@@ -78,3 +85,27 @@ def rate_benchmark(seconds: float = 8.0, publish_rate: float = 250.0) -> dict:
         return out
     finally:
         rclpy.try_shutdown(context=ctx)
+
+
+def diagnosis_benchmark(n_samples: int = 50_000, seconds: float = 20.0, motion: str = "walk_35") -> dict:
+    """Diagnosis of n_samples (250 Hz) end to end: bag reading, filtering, extraction, regressors,
+    selection, bootstrap, report. One simulated bag of the default gap scenario (this package's
+    recorder, not timed) is given repeatedly, 80 % as identification and 20 % as held-out bags."""
+    robot = load_robot()
+    scenario = load_scenario(os.path.join(scenario_dir(), "default_gap.yaml"), robot)
+    tmp = tempfile.mkdtemp(prefix="ciml_diag_bench_")
+    try:
+        bag = os.path.join(tmp, "bag")
+        with BagWriter(bag) as w:
+            run_headless(robot, scenario, motion, seconds, 1, writer=w, ground_truth=False, progress=False)
+        per_bag = int(round(seconds * 250))
+        copies = max(2, int(round(n_samples / per_bag)))
+        n_ho = max(1, copies // 5)
+        t0, c0 = time.perf_counter(), time.process_time()
+        result = diagnose(robot, [bag] * (copies - n_ho), [bag] * n_ho, os.path.join(tmp, "out"), progress=False)
+        elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
+        return {"samples": copies * per_bag, "valid_samples": result["data"]["samples"] + result["data"]["heldout_samples"],
+                "diagnosis_s": round(elapsed, 2), "diagnosis_cpu_s": round(cpu, 2), "target_s": 120.0,
+                "effects": [e["type"] for e in result["effects"]]}
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)

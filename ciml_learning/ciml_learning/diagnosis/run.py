@@ -396,36 +396,3 @@ def _check_finite(obj, path: str = "") -> None:
             _check_finite(v, f"{path}[{i}]")
     elif isinstance(obj, float) and not np.isfinite(obj):
         raise DiagnosisError(f"non-finite value at {path or 'result'}; the data may be degenerate")
-
-
-def benchmark(n_samples: int = 50_000, seconds: float = 20.0, motion: str = "walk_35") -> dict:
-    """Diagnosis of n_samples (250 Hz) end to end: bag reading, filtering, extraction, regressors,
-    selection, bootstrap, report. One simulated bag of the default gap scenario (ciml_sim's
-    recorder, not timed) is given repeatedly, 80 % as identification and 20 % as held-out bags."""
-    import shutil
-    import tempfile
-
-    from ciml_sim.recorder import run_headless
-    from ciml_sim.scenario import load_scenario, scenario_dir
-
-    from ..bagio import BagWriter
-    from ..robot import load_robot
-
-    robot = load_robot()
-    scenario = load_scenario(os.path.join(scenario_dir(), "default_gap.yaml"), robot)
-    tmp = tempfile.mkdtemp(prefix="ciml_diag_bench_")
-    try:
-        bag = os.path.join(tmp, "bag")
-        with BagWriter(bag) as w:
-            run_headless(robot, scenario, motion, seconds, 1, writer=w, ground_truth=False, progress=False)
-        per_bag = int(round(seconds * 250))
-        copies = max(2, int(round(n_samples / per_bag)))
-        n_ho = max(1, copies // 5)
-        t0, c0 = time.perf_counter(), time.process_time()
-        result = diagnose(robot, [bag] * (copies - n_ho), [bag] * n_ho, os.path.join(tmp, "out"), progress=False)
-        elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
-        return {"samples": copies * per_bag, "valid_samples": result["data"]["samples"] + result["data"]["heldout_samples"],
-                "diagnosis_s": round(elapsed, 2), "diagnosis_cpu_s": round(cpu, 2), "target_s": 120.0,
-                "effects": [e["type"] for e in result["effects"]]}
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)

@@ -26,5 +26,10 @@ setup(
             "reference_generator = ciml_control.nodes.reference_generator:main",
             "id_controller = ciml_control.nodes.id_controller:main",
         ],
+        # `ciml bench` benchmarks of this package (ciml_learning.bench)
+        "ciml.benchmarks": [
+            "id_controller_step = ciml_control.benchmarks:id_controller_step",
+            "id_controller_dds_latency = ciml_control.benchmarks:dds_latency_benchmark",
+        ],
     },
 )

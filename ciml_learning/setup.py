@@ -31,5 +31,24 @@ setup(
             "model_server = ciml_learning.nodes.model_server:main",
             "state_publisher = ciml_learning.nodes.state_publisher:main",
         ],
+        # `ciml` verbs and benchmarks of this package (ciml_learning.cliargs.Verb; ciml_learning.bench)
+        "ciml.verbs": [
+            "extract = ciml_learning.verbs:EXTRACT",
+            "train = ciml_learning.verbs:TRAIN",
+            "evaluate = ciml_learning.verbs:EVALUATE",
+            "diagnose = ciml_learning.verbs:DIAGNOSE",
+            "play = ciml_learning.verbs:PLAY",
+            "bench = ciml_learning.verbs:BENCH",
+            "launch = ciml_learning.verbs:LAUNCH",
+            "inspect = ciml_learning.verbs:INSPECT",
+        ],
+        "ciml.benchmarks": [
+            "extraction_throughput = ciml_learning.benchmarks:extraction_throughput",
+            "lwpr_cross_2d = ciml_learning.benchmarks:lwpr_cross_2d",
+            "lwpr_online_30dims = ciml_learning.benchmarks:lwpr_online_30dims",
+            "train_lwpr_paper_size = ciml_learning.benchmarks:train_lwpr_paper_size",
+            "train_sgpr_paper_size = ciml_learning.benchmarks:train_sgpr_paper_size",
+            "online_nodes_per_sample = ciml_learning.benchmarks:online_nodes_per_sample",
+        ],
     },
 )

@@ -26,5 +26,18 @@ setup(
         "console_scripts": [
             "mujoco_bridge = ciml_sim.bridge_node:main",
         ],
+        # `ciml` verbs and benchmarks of this package (ciml_learning.cliargs.Verb; ciml_learning.bench)
+        "ciml.verbs": [
+            "record = ciml_sim.verbs:RECORD",
+            "closed-loop = ciml_sim.verbs:CLOSED_LOOP",
+            "gap-bench = ciml_sim.verbs:GAP_BENCH",
+        ],
+        "ciml.benchmarks": [
+            "sim_headless_speed = ciml_sim.benchmarks:sim_headless_speed",
+            "sim_bridge_rate = ciml_sim.benchmarks:rate_benchmark",
+            "diagnosis_50k = ciml_sim.benchmarks:diagnosis_benchmark",
+            "live_graph_rates = ciml_sim.benchmarks:live_graph_rates",
+            "live_online_learning = ciml_sim.benchmarks:live_online_learning",
+        ],
     },
 )

@@ -23,9 +23,15 @@ from ciml_learning import topics
 from ciml_learning.robot import load_robot
 from ciml_learning.ros_common import COMMAND_QOS, SENSOR_PUB_QOS
 
+from .controller import compute_benchmark
 from .conversions import reference_msg
 from .nodes.id_controller import MODE_TORQUE
 from .references import make_reference, standing_configuration
+
+
+def id_controller_step() -> dict:
+    """The controller's compute() per step, trot_35 (ciml_control.controller.compute_benchmark)."""
+    return compute_benchmark(motion="trot_35", n_steps=2000)
 
 
 def dds_latency_benchmark(duration_s: float = 5.0, rate: float = 250.0) -> dict:

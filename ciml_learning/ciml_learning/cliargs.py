@@ -6,6 +6,8 @@
 - jobs: an integer; cap_jobs() checks it is -1 (all cores) or positive and bounds it by the
   cores this process may use, saying so when it does.
 - path: a non-empty path of valid text (no NUL, no undecodable bytes), at most PATH_MAX.
+
+Verb: what a package registers for each of its verbs (entry point group `ciml.verbs`).
 """
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ import math
 import os
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass
 
 PATH_MAX = 4096
 
@@ -94,6 +97,26 @@ def path(text: str) -> str:
 
 path.__name__ = "path"
 jobs.__name__ = "jobs"
+
+
+@dataclass(frozen=True)
+class Verb:
+    """One `ciml` verb. The package that implements it registers it in its setup.py as an entry
+    point of the group `ciml.verbs` (name: the verb; value: "package.module:OBJECT", this object),
+    as ros2cli's verbs are; `ciml` lists the verbs of the packages installed, so a package
+    installed alone brings its own verbs and never needs a package above it."""
+
+    help: str
+    """one line in `ciml --help`"""
+    arguments: Callable[[argparse.ArgumentParser], None]
+    """adds the verb's own options to its parser (--robot/--urdf/--feet are added by `ciml`)"""
+    run: str
+    """"package.module:function" taking the parsed arguments and returning the exit code; imported
+    only when the verb runs (keeps `ciml --help` fast); in the registering package"""
+    epilog: str = ""
+    """help text after the options: paragraphs (wrapped) and `example:` lines (kept whole)"""
+    order: int = 1000
+    """place in `ciml --help` (lower first; ties by name)"""
 
 
 class OneLineParser(argparse.ArgumentParser):

@@ -38,7 +38,8 @@ def test_robot_and_urdf_after_the_verb_and_before_it_are_kept(tmp_path):
     assert args.robot is None and profile_from_args(args).name == "hyq"
 
 
-@pytest.mark.parametrize("verb", ["extract", "train", "evaluate", "diagnose", "inspect", "record", "play"])
+# record (registered by ciml_sim): test/test_cli_registry.py
+@pytest.mark.parametrize("verb", ["extract", "train", "evaluate", "diagnose", "inspect", "play"])
 def test_each_verb_help_says_what_the_input_holds_and_shows_an_example(verb, capsys):
     with pytest.raises(SystemExit):
         main([verb, "--help"])

@@ -20,15 +20,31 @@ from sensor_msgs.msg import JointState
 
 from ciml_control.standing import StandingController
 from ciml_learning import conversions as cv
-from ciml_learning import topics
+from ciml_learning import live_bench, topics
 from ciml_learning.bagio import BagWriter
 from ciml_learning.diagnosis.run import diagnose
 from ciml_learning.robot import load_robot
 from ciml_learning.ros_common import COMMAND_QOS, SENSOR_QOS
 
 from .bridge_node import MujocoBridge
-from .recorder import run_headless
+from .recorder import run_headless, speed_benchmark
 from .scenario import load_scenario, scenario_dir
+
+
+def sim_headless_speed() -> dict:
+    """Headless simulation speed, trot_35 on default_gap (ciml_sim.recorder.speed_benchmark)."""
+    return speed_benchmark(motion="trot_35", duration=4.0)
+
+
+def live_graph_rates() -> dict:
+    """The launch file's whole graph for 60 s: rates, CPU, exit codes (ciml_learning.live_bench; it
+    starts this package's launch file, so the benchmark is registered here)."""
+    return live_bench.graph_rates(duration=60.0)
+
+
+def live_online_learning() -> dict:
+    """The online learner's effort on the live graph for 60 s (ciml_learning.live_bench)."""
+    return live_bench.online_learning_effort(duration=60.0)
 
 
 def rate_benchmark(seconds: float = 8.0, publish_rate: float = 250.0) -> dict:

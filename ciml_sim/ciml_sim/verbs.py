@@ -1,0 +1,55 @@
+"""The `ciml` verbs of ciml_sim (registered in setup.py, entry point group `ciml.verbs`):
+record, closed-loop and gap-bench simulate, so they live with the simulator."""
+from __future__ import annotations
+
+import argparse
+
+from ciml_learning import cliargs as ca
+from ciml_learning.cliargs import Verb
+
+
+def _record(s: argparse.ArgumentParser) -> None:
+    s.add_argument("--scenario", type=ca.path, required=True, help="scenario YAML (unmodelled effects)")
+    s.add_argument("--motion", required=True)
+    s.add_argument("--duration", type=float, default=20.0, help="[s] (0, 3600]")
+    s.add_argument("--seed", type=ca.integer(0, 2**32 - 1), default=0)
+    s.add_argument("--out", type=ca.path, required=True, help="bag directory to create")
+    s.add_argument("--no-ground-truth", action="store_true", help="leave the /sim/ topics out")
+
+
+def _closed_loop(s: argparse.ArgumentParser) -> None:
+    s.add_argument("--scenario", type=ca.path, required=True)
+    s.add_argument("--motion", required=True)
+    s.add_argument("--model", type=ca.path, required=True, help="MODEL_DIR, a diagnosis DIR, or 'nominal'")
+    s.add_argument("--duration", type=float, default=None, help="[s] (0, 3600] (default: 10 gait cycles)")
+    s.add_argument("--seed", type=ca.integer(0, 2**32 - 1), default=0)
+    s.add_argument("--out", type=ca.path, required=True, help="result .json")
+    s.add_argument("--report", type=ca.path, metavar="DIAG_DIR",
+                   help="also add the result to the closed-loop comparison of this diagnosis report")
+
+
+def _gap_bench(s: argparse.ArgumentParser) -> None:
+    s.add_argument("--out", type=ca.path, required=True)
+    s.add_argument("--cases", nargs="+", type=ca.integer(1, 10_000), help="run only these case numbers (1-based)")
+    s.add_argument("--jobs", type=ca.jobs, default=1,
+                   help="cases run in parallel (joblib; at most the cores available)")
+    s.add_argument("--scale", type=ca.finite(0.01, 100), default=1.0, help="scale every recording's duration")
+
+
+RECORD = Verb(
+    help="simulate a motion headless and write an MCAP bag", arguments=_record,
+    run="ciml_sim.commands:record", order=10,
+    epilog="Writes what a robot logs (CIML's own topics) plus /sim/ ground truth unless --no-ground-truth.\n"
+           "example: ciml record --scenario default_gap --motion trot_35 --duration 20 --seed 1 --out bags/t1")
+
+CLOSED_LOOP = Verb(
+    help="run a motion in simulation with a model and report tracking metrics", arguments=_closed_loop,
+    run="ciml_sim.commands:closed_loop", order=50,
+    epilog="Simulates the robot (MuJoCo) with the scenario's effects under the controller.\n"
+           "example: ciml closed-loop --scenario default_gap --motion trot_35 --model model/ --out r.json")
+
+GAP_BENCH = Verb(
+    help="score the diagnosis on scenarios with withheld effects", arguments=_gap_bench,
+    run="ciml_sim.gapbench:gap_bench_command", order=70,
+    epilog="Simulates scenarios with withheld effects and scores the diagnosis on them.\n"
+           "example: ciml gap-bench --out out/gap_bench --cases 1 2 --jobs 2")

@@ -1,0 +1,72 @@
+"""The shipped graph, ciml_sim/launch/closed_loop.launch.yaml, read by `ciml launch`
+(ciml_learning.launch_file): defaults, arguments, the ros2 launch YAML format, node command
+lines, one-line errors. (Moved from ciml_learning/test/test_launch_file.py: the file belongs to
+ciml_sim; the launch subset itself is tested there.)"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import yaml
+
+from ciml_learning import launch_file as lf
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SHIPPED = os.path.join(ROOT, "ciml_sim", "launch", "closed_loop.launch.yaml")
+
+
+def _share(pkg: str) -> str:
+    return f"/prefix/share/{pkg}"
+
+
+def test_shipped_file_defaults_and_arguments():
+    desc = lf.load(SHIPPED, {}, find_share=_share)
+    names = [n.label for n in desc.nodes]
+    assert names == ["mujoco_bridge", "reference_generator", "id_controller", "model_server", "state_filter",
+                     "error_extractor", "online_learner", "state_publisher"]
+    bridge = dict(desc.nodes[0].parameters)
+    assert bridge["scenario"] == "/prefix/share/ciml_sim/config/scenarios/default_gap.yaml"
+    assert bridge["real_time_factor"] == 1.0 and isinstance(bridge["real_time_factor"], float)
+    assert bridge["seed"] == 0 and isinstance(bridge["seed"], int)
+    assert dict(desc.nodes[2].parameters)["use_sim_time"] is True
+
+    desc = lf.load(SHIPPED, {"online_learning": "false", "motion": "walk_30", "use_model_error": "False"},
+                   find_share=_share)
+    assert "online_learner" not in [n.label for n in desc.nodes]
+    assert dict(desc.nodes[1].parameters)["motion"] == "walk_30"
+    assert dict(desc.nodes[2].parameters)["use_model_error"] is False
+
+
+def test_shipped_file_is_the_ros2_yaml_launch_format():
+    """Only keys that ros2 launch's YAML frontend knows (launch_yaml + launch_ros)."""
+    doc = yaml.safe_load(open(SHIPPED))
+    allowed = {"arg": {"name", "default", "description"}, "node": {"pkg", "exec", "name", "param", "if", "unless",
+                                                                  "namespace", "remap", "ros_args", "args"}}
+    for entry in doc["launch"]:
+        (kind, body), = entry.items()
+        assert set(body) <= allowed[kind], (kind, body)
+        for p in body.get("param", []):
+            assert set(p) == {"name", "value"}
+
+
+def test_command_line_of_a_node():
+    desc = lf.load(SHIPPED, {"model_dir": "/tmp/m x"}, find_share=_share)
+    learner = next(n for n in desc.nodes if n.label == "online_learner")
+    args = learner.ros_arguments()
+    assert args[:3] == ["--ros-args", "-r", "__node:=online_learner"]
+    assert "model_dir:='/tmp/m x'" not in args  # a path with a space needs no YAML quotes
+    assert "model_dir:=/tmp/m x" in args
+    server = desc.nodes[3].ros_arguments()
+    assert "model_dir:=''" in server  # the empty string stays a string for rcl's YAML reading
+
+
+def test_cli_errors_exit_1_with_one_line(tmp_path):
+    ciml = os.path.join(sys.prefix, "bin", "ciml")
+    for argv in (["launch", str(tmp_path / "missing.yaml")], ["launch", SHIPPED, "nope:=1"],
+                 ["launch", SHIPPED, "motion"]):
+        r = subprocess.run([ciml, *argv], capture_output=True, text=True, timeout=60)
+        assert r.returncode == 1, r
+        assert len(r.stderr.strip().splitlines()) == 1 and r.stderr.startswith("ciml launch: error:"), r.stderr
+    r = subprocess.run([ciml, "launch", "--show-args", SHIPPED], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and "online_learning" in r.stdout and "scenario" in r.stdout

@@ -1,16 +1,16 @@
 """state_filter + error_extractor on the live graph agree with the offline pipeline."""
 from __future__ import annotations
 
-import subprocess
 import os
+import subprocess
 
 import numpy as np
 import pytest
+from rosutil import BIN, Listener, start_node, stop
+from synthetic import write_synthetic_bag
 
 from ciml_learning.pipeline import load_dataset
 from ciml_learning.robot import load_robot
-from rosutil import BIN, Listener, start_node, stop
-from synthetic import write_synthetic_bag
 
 ROBOT = load_robot()
 

@@ -17,10 +17,10 @@ import time
 
 import numpy as np
 import pytest
+from rosutil import Listener, start_node, stop
 
 from ciml_learning import conversions as cv
 from ciml_learning.robot import load_robot
-from rosutil import Listener, start_node, stop
 
 ROBOT = load_robot()
 
@@ -157,10 +157,11 @@ def _good_model(path) -> dict:
 @pytest.mark.ros
 @pytest.mark.slow
 def test_model_server_refuses_poisoned_and_unchecksummed_models(tmp_path):
-    from ciml_learning.online import PROBE_FILE, load_served_model
-    from ciml_learning.ros_common import COMMAND_QOS
     from ciml_msgs.msg import ModelError, ModelUpdate, RobotReference
     from diagnostic_msgs.msg import DiagnosticArray
+
+    from ciml_learning.online import PROBE_FILE, load_served_model
+    from ciml_learning.ros_common import COMMAND_QOS
 
     good = _good_model(tmp_path / "online")
     saved = good["saved"]

@@ -16,6 +16,8 @@ import time
 
 import numpy as np
 import pytest
+from rosutil import BIN, Listener, start_node, stop
+from synthetic import write_synthetic_bag
 
 from ciml_learning.dynamics import ReferenceState, ReferenceTorque
 from ciml_learning.extraction import learning_inputs
@@ -23,8 +25,6 @@ from ciml_learning.models import ModelSet, read_metadata
 from ciml_learning.online import STAMPS_FILE, predict_at_reference, served_model
 from ciml_learning.pipeline import load_dataset
 from ciml_learning.robot import load_robot
-from rosutil import BIN, Listener, start_node, stop
-from synthetic import write_synthetic_bag
 
 ROBOT = load_robot()
 CALIBRATION = 0
@@ -67,10 +67,11 @@ def _both(pred) -> np.ndarray:
 @pytest.mark.ros
 @pytest.mark.slow
 def test_online_model_from_replay_matches_offline_partial_fit(tmp_path):
-    from ciml_learning import conversions as cv
-    from ciml_learning.ros_common import COMMAND_QOS
     from ciml_msgs.msg import ModelError, ModelUpdate, RobotState
     from diagnostic_msgs.msg import DiagnosticArray
+
+    from ciml_learning import conversions as cv
+    from ciml_learning.ros_common import COMMAND_QOS
 
     bag = tmp_path / "bag"
     write_synthetic_bag(ROBOT, bag, seconds=4.0)
@@ -174,8 +175,9 @@ def test_online_model_from_replay_matches_offline_partial_fit(tmp_path):
 
 
 def _reference_msg(stamp_ns: int, q, v, a):
-    from ciml_learning import conversions as cv
     from ciml_msgs.msg import RobotReference
+
+    from ciml_learning import conversions as cv
 
     zeros = np.zeros(ROBOT.n_joints)
     state = cv.robot_state_msg(ROBOT, stamp_ns, q, v, a, zeros, zeros, zeros, np.ones(ROBOT.n_feet, bool), True)
@@ -213,9 +215,10 @@ def _trained_model(model_dir) -> ModelSet:
 @pytest.mark.ros
 @pytest.mark.slow
 def test_model_server_nominal_hot_swap_refusal_and_nan(tmp_path):
-    from ciml_learning.ros_common import COMMAND_QOS
     from ciml_msgs.msg import ModelError, ModelUpdate, RobotReference
     from diagnostic_msgs.msg import DiagnosticArray
+
+    from ciml_learning.ros_common import COMMAND_QOS
 
     good = tmp_path / "model_a"
     ms = _trained_model(good)

@@ -11,7 +11,6 @@ import sys
 import time
 
 import pytest
-
 from rosutil import BIN, Listener, start_node, stop
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -387,8 +386,9 @@ def test_plotjuggler_layout_parses_and_references_existing_topics():
 
 
 def test_diagnostic_aggregator_covers_every_node_once():
-    import yaml
     from importlib.metadata import distribution
+
+    import yaml
 
     with open(os.path.join(CONFIG, "diagnostic_aggregator.yaml"), encoding="utf-8") as f:
         params = yaml.safe_load(f)["analyzers"]["ros__parameters"]

@@ -22,6 +22,7 @@ import os
 import sys
 
 import numpy as np
+from experiment import NEW_MOTIONS, ROOT, SCENARIO, TRAIN_MOTIONS  # tools/ is the script's own folder
 
 from ciml_control.references import default_duration
 from ciml_learning.models import N_BASE, ModelSet, joint_state_names, load_epsilon_function, rbd_input_names
@@ -29,7 +30,6 @@ from ciml_learning.pipeline import load_dataset
 from ciml_learning.robot import load_robot
 from ciml_sim.recorder import run_headless
 from ciml_sim.scenario import resolve_scenario
-from experiment import NEW_MOTIONS, ROOT, SCENARIO, TRAIN_MOTIONS  # tools/ is the script's own folder
 
 
 def variant_inputs(robot, variant: str) -> dict[str, tuple[str, ...]]:

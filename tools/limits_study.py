@@ -21,16 +21,17 @@ import os
 import sys
 
 import numpy as np
+from experiment import NEW_MOTIONS, ROOT, SCENARIO, TRAIN_MOTIONS  # tools/ is the script's own folder
 
+from ciml_control.references import default_duration
 from ciml_learning.diagnosis import load_effect_model
 from ciml_learning.dynamics import ReferenceTorque, selection_matrix
 from ciml_learning.filters import delay_samples, derivative_taps
 from ciml_learning.models import N_BASE, EpsilonFunction, ModelSet
 from ciml_learning.robot import load_robot
 from ciml_sim.plant import Plant
-from ciml_sim.recorder import CONTROL_RATE, default_duration, make_reference, run_headless
+from ciml_sim.recorder import CONTROL_RATE, make_reference, run_headless
 from ciml_sim.scenario import resolve_scenario
-from experiment import NEW_MOTIONS, ROOT, SCENARIO, TRAIN_MOTIONS  # tools/ is the script's own folder
 
 VARIANTS = ("rbd_true", "act_true", "base_true", "legs_true", "zero_phase")
 MOTIONS = ",".join(TRAIN_MOTIONS + NEW_MOTIONS)

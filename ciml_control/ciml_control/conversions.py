@@ -7,8 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ciml_learning.conversions import (ConversionError, _finite, _vector, header_msg, robot_reference_arrays,
-                                       stamp_to_ns)
+from ciml_learning.conversions import ConversionError, _finite, _vector, header_msg, robot_reference_arrays, stamp_to_ns
 from ciml_learning.robot import RobotDescription
 
 from .references import ReferencePoint

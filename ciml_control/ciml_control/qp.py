@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-
 from functools import lru_cache
 
 import numpy as np

@@ -5,12 +5,12 @@ import time
 
 import numpy as np
 import pytest
+from rosutil import Listener, start_node, stop
 
 from ciml_control.conversions import reference_msg, reference_point
 from ciml_control.references import make_reference, standing_configuration
 from ciml_learning import conversions as cv
 from ciml_learning.robot import load_robot
-from rosutil import Listener, start_node, stop
 
 ROBOT = load_robot()
 
@@ -161,8 +161,8 @@ def test_id_controller_waits_then_commands_limited_trusted_torque_and_damps_with
     assert len(last("nominal")) == 20 and all(np.allclose(ff, expected.feedforward, atol=1e-3)
                                               for ff in last("nominal"))
     # with the prediction: the feedforward of the QP with ε = J'ᵀ Φ̃' − Sᵀ Γ (eq. 17) at the reference
-    from ciml_learning.extraction import combined_error
     from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
+    from ciml_learning.extraction import combined_error
     from ciml_learning.projection import contact_invariant_basis
 
     basis = contact_invariant_basis(RigidBodyDynamics(ROBOT).foot_jacobians(ref.q), ROBOT.leg_joints)

@@ -3,11 +3,11 @@ import numpy as np
 import pytest
 
 from ciml_control.conversions import model_error_arrays, reference_msg, reference_point
-from ciml_learning.extraction import combined_error
 from ciml_control.references import make_reference, standing_configuration
 from ciml_learning import conversions as cv
 from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
 from ciml_learning.errors import CimlError
+from ciml_learning.extraction import combined_error
 from ciml_learning.projection import contact_invariant_basis
 from ciml_learning.robot import load_robot
 

@@ -11,11 +11,10 @@ from .errors import CimlError
 def train(args: argparse.Namespace) -> int:
     """`ciml train --bag BAG... --learner lwpr|sgpr --out MODEL_DIR [--jobs N]`."""
     from .cli import profile_from_args, robot_from_args
-    from .training import train_from_bags
-
     from .cliargs import cap_jobs
     from .fileio import check_out_dir
     from .models import is_model_dir
+    from .training import train_from_bags
 
     if args.jobs == 0 or args.jobs < -1:
         raise CimlError(f"--jobs must be a positive number of processes or -1 (all cores), got {args.jobs}")

@@ -4,7 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ciml_learning import bagio, conversions as cv, topics
+from ciml_learning import bagio, topics
+from ciml_learning import conversions as cv
 from ciml_learning.bagio import BagError, BagWriter
 from ciml_learning.robot import load_robot
 

@@ -15,6 +15,7 @@ import yaml
 from ciml_learning import launch_file as lf
 from ciml_learning.launcher import Launcher
 
+
 def _share(pkg: str) -> str:
     return f"/prefix/share/{pkg}"
 

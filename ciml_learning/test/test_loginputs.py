@@ -9,7 +9,6 @@ import pytest
 sys.path.insert(0, os.path.dirname(__file__))
 
 from foreign_bags import (  # noqa: E402
-    FEET,
     GO1_PROFILE,
     KD,
     KP,

@@ -12,7 +12,6 @@ from ciml_learning.dynamics import ReferenceState, ReferenceTorque, RigidBodyDyn
 from ciml_learning.extraction import combined_error, learning_inputs
 from ciml_learning.models import (
     FORMAT_VERSION,
-    model_checksum,
     MODEL_JSON,
     MODEL_NPZ,
     EpsilonFunction,
@@ -20,6 +19,7 @@ from ciml_learning.models import (
     ModelSet,
     ModelSetError,
     load_epsilon_function,
+    model_checksum,
     rbd_output_names,
 )
 from ciml_learning.projection import contact_invariant_basis

@@ -14,9 +14,23 @@ from ciml_learning.conversions import ConversionError
 from ciml_learning.dynamics import ReferenceState, ReferenceTorque
 from ciml_learning.extraction import dynamics_batch, learning_inputs
 from ciml_learning.models import ModelFileError, ModelSet, ModelSetError
-from ciml_learning.online import (ERROR, LATEST, NOMINAL, STATE, STAMPS_FILE, ErrorSample, LatestOnlyWorker,
-                                  OnlineLearner, SnapshotWriter, StampPairer, StateSample, load_served_model,
-                                  model_error_sample, nominal_prediction, predict_at_reference)
+from ciml_learning.online import (
+    ERROR,
+    LATEST,
+    NOMINAL,
+    STAMPS_FILE,
+    STATE,
+    ErrorSample,
+    LatestOnlyWorker,
+    OnlineLearner,
+    SnapshotWriter,
+    StampPairer,
+    StateSample,
+    load_served_model,
+    model_error_sample,
+    nominal_prediction,
+    predict_at_reference,
+)
 from ciml_learning.projection import contact_invariant_bases, generalized_rbd_error, leg_coupling
 from ciml_learning.robot import load_robot
 

@@ -62,8 +62,7 @@ from ciml_learning import conversions as cv
 from ciml_learning import topics
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import load_robot
-from ciml_learning.ros_common import (COMMAND_QOS, OK, SENSOR_PUB_QOS, WARN, Health, declare_schema,
-                                      run_node)
+from ciml_learning.ros_common import COMMAND_QOS, OK, SENSOR_PUB_QOS, WARN, Health, declare_schema, run_node
 
 from .node_params import MUJOCO_BRIDGE
 from .plant import Plant

@@ -59,8 +59,8 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from ciml_learning.errors import CimlError
 from ciml_control.references import standing_configuration
+from ciml_learning.errors import CimlError
 from ciml_learning.robot import RobotDescription
 
 from . import joint_loop

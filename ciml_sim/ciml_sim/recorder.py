@@ -39,12 +39,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ciml_control.controller import IdController
+from ciml_control.references import MOTIONS, make_reference
+from ciml_control.trust import TrustedEpsilonFunction
 from ciml_learning import conversions as cv
 from ciml_learning import topics
 from ciml_learning.errors import CimlError
-from ciml_control.controller import IdController
-from ciml_control.references import MOTIONS, default_duration, make_reference
-from ciml_control.trust import TrustedEpsilonFunction
 from ciml_learning.robot import RobotDescription
 
 from . import joint_loop

@@ -18,7 +18,6 @@ import sys
 from dataclasses import dataclass, field
 from typing import Any
 
-
 from ciml_learning.diagnosis.candidates import EFFECT_TYPES as DIAGNOSIS_EFFECT_TYPES
 from ciml_learning.diagnosis.candidates import MEASUREMENT_TYPES as DIAGNOSIS_MEASUREMENT_TYPES
 from ciml_learning.errors import CimlError

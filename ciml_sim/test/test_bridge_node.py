@@ -7,9 +7,9 @@ import time
 
 import numpy as np
 import pytest
+from rosutil import Listener, start_node, stop
 
 from ciml_learning.robot import load_robot
-from rosutil import Listener, start_node, stop
 
 ROBOT = load_robot()
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from ciml_learning import conversions as cv
-from ciml_learning.bagio import BagWriter, load_sensor_log, read_messages
 from ciml_learning import topics
+from ciml_learning.bagio import BagWriter, load_sensor_log, read_messages
 from ciml_learning.pipeline import load_dataset
 from ciml_learning.robot import load_robot
 from ciml_sim.plant import Plant

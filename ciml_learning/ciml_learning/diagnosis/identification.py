@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .bounds import physical_violation
-from .candidates import N_ACT, Candidate, FeatureLayout
+from .candidates import Candidate, FeatureLayout
 from .features import Grams, Rows
 
 MIN_SHARE = 0.005

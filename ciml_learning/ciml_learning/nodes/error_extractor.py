@@ -13,8 +13,8 @@ from .. import conversions as cv
 from .. import topics
 from ..errors import CimlError
 from ..extraction import extract
-from ..robot import load_robot
 from ..node_params import ERROR_EXTRACTOR
+from ..robot import load_robot
 from ..ros_common import COMMAND_QOS, Health, declare_schema, run_node
 
 

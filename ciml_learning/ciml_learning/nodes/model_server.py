@@ -29,11 +29,11 @@ from rclpy.node import Node
 
 from .. import conversions as cv
 from .. import topics
-from ..errors import CimlError
 from ..dynamics import ReferenceState, ReferenceTorque
+from ..errors import CimlError
+from ..node_params import MODEL_SERVER
 from ..online import LatestOnlyWorker, ServedModel, load_served_model, predict_at_reference
 from ..robot import load_robot
-from ..node_params import MODEL_SERVER
 from ..ros_common import COMMAND_QOS, Health, declare_schema, run_node
 
 

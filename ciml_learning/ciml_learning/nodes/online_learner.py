@@ -41,11 +41,21 @@ from .. import topics
 from ..errors import CimlError
 from ..learning_gate import GateConfig, LearningGate
 from ..models import ModelSet
-from ..online import (ERROR, STATE, LatestOnlyWorker, OnlineLearner, SnapshotWriter, StampPairer, StateSample,
-                      model_error_sample, warm_up)
-from ..robot import load_robot
 from ..node_params import ONLINE_LEARNER
-from ..ros_common import COMMAND_QOS, ERROR as DIAG_ERROR, OK, WARN, Health, declare_schema, run_node
+from ..online import (
+    ERROR,
+    STATE,
+    LatestOnlyWorker,
+    OnlineLearner,
+    SnapshotWriter,
+    StampPairer,
+    StateSample,
+    model_error_sample,
+    warm_up,
+)
+from ..robot import load_robot
+from ..ros_common import COMMAND_QOS, OK, WARN, Health, declare_schema, run_node
+from ..ros_common import ERROR as DIAG_ERROR
 
 DEFAULT_MODEL_DIR = os.path.join("~", ".ros", "ciml", "online_model")
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 from collections import deque
 
 import numpy as np
-
 from ciml_msgs.msg import ContactState, RobotState, TorqueCommand
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -26,12 +25,10 @@ from .. import conversions as cv
 from .. import topics
 from ..errors import CimlError
 from ..filters import OnlineStateFilter
-from ..stamps import measure_rate
-from ..robot import load_robot
 from ..node_params import STATE_FILTER
+from ..robot import load_robot
 from ..ros_common import COMMAND_QOS, SENSOR_QOS, Health, declare_schema, run_node
-
-
+from ..stamps import measure_rate
 
 RATE_SAMPLES = 32
 """Joint samples whose stamps set the filter's rate when the `rate` parameter is 0."""

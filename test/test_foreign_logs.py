@@ -28,8 +28,8 @@ sys.path.insert(0, os.path.dirname(__file__))
 import foreign_layouts as fl  # noqa: E402
 
 try:  # the reading path of the robot profile (loginputs) and the diagnosis taking a profile
-    from ciml_learning.profile import load_profile, profile_from_dict  # noqa: F401
     from ciml_learning.loginputs import load_log  # noqa: F401
+    from ciml_learning.profile import load_profile, profile_from_dict  # noqa: F401
     HAVE_PROFILES = True
 except ImportError:  # pragma: no cover - only before the profile reader exists
     HAVE_PROFILES = False

@@ -138,7 +138,7 @@ def test_force_effect_regressors_match_sim_ground_truth(bags):
 
 def test_link_mass_regressor_matches_sim_ground_truth(bags):
     ds, idx, lay, E, jac, A, theta, cands, gt, truth = regressors(bags["other"], OTHER_EFFECTS)
-    e, cand = OTHER_EFFECTS[0], cands[0]
+    cand = cands[0]
     f_true = gt("/sim/effect/" + labels(OTHER_EFFECTS)[0])
     th = np.zeros(lay.n_features)
     th[list(cand.features)] = theta[list(cand.features)]

@@ -108,7 +108,8 @@ def test_standing_start_in_either_order_then_trot(order):
         ctrl = _values(listener, "id_controller")
         k1 = len(base)   # the window ends here: stopping the nodes (reference first) ends the trot
     finally:
-        logs = [stop(p) for p in reversed(nodes)]
+        for p in reversed(nodes):
+            stop(p)
         listener.close()
     trot = [m.pose.pose.position for m in base[k0:k1]]
     low = next((m for m in base[k0:k1] if m.pose.pose.position.z < 0.45), None)

@@ -197,7 +197,10 @@ def write_document(args, results, train_s, figures, bags, wall_s) -> None:
         dims = [d for d in ev["dimensions"] if d["samples"]]
         base = [d for d in dims if d["name"].startswith("base_")]
         act = [d for d in dims if d["kind"] == "actuation"]
-        better = (lambda ds: f"{sum(d['rmse_learned'] < d['rmse_nominal'] for d in ds)} / {len(ds)}")
+
+        def better(ds):
+            return f"{sum(d['rmse_learned'] < d['rmse_nominal'] for d in ds)} / {len(ds)}"
+
         red = ev["summary"]
         lines.append(f"| {learner.upper()} | {better(base)} | {better(act)} | "
                      f"{100 * red['rbd'].get('reduction', float('nan')):.0f} % / "

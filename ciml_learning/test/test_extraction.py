@@ -32,8 +32,8 @@ def random_state(rng, spread=0.35):
         quat = pin.Quaternion(pin.rpy.rpyToMatrix(*rng.uniform(-0.3, 0.3, 3))).coeffs()
         q = np.concatenate([rng.uniform(-1, 1, 3), quat, qj])
         J = RigidBodyDynamics(ROBOT).foot_jacobians(q)
-        if all(np.linalg.svd(J[i][:, 6 + np.array(l)], compute_uv=False)[-1] > 2 * DEFAULT_GAMMA
-               for i, l in enumerate(ROBOT.leg_joints)):
+        if all(np.linalg.svd(J[i][:, 6 + np.array(leg)], compute_uv=False)[-1] > 2 * DEFAULT_GAMMA
+               for i, leg in enumerate(ROBOT.leg_joints)):
             return q, rng.normal(size=ROBOT.nv)
     raise AssertionError("no well-conditioned state found")
 

@@ -149,7 +149,9 @@ def test_dropped_samples_are_bridged_alike_online_and_offline():
     assert off.invalid_counts["bridged_gap_window"] > 0
     # interpolation is exact for a linear signal: a bridged gap leaves a ramp's filtered value intact
     ramp = np.arange(n) / FS
-    q2 = np.zeros((n, 19)); q2[:, 6] = 1.0; q2[:, 7:] = ramp[:, None]
+    q2 = np.zeros((n, 19))
+    q2[:, 6] = 1.0
+    q2[:, 7:] = ramp[:, None]
     v2 = np.ones((n, 18))
     lin = filter_state_log(np.arange(n)[keep] / FS, q2[keep], v2[keep], v2[keep, :12], v2[keep, :12], np.ones((keep.sum(), 4), bool))
     k = int(np.flatnonzero(np.isclose(lin.t, 101 / FS))[0])

@@ -423,7 +423,10 @@ def table(cases: list[dict]) -> str:
             if "reference" in c:
                 named += " (differences: " + ", ".join(c["reference"]["differences"]) + ")"
         rel = [r["param_rel_error"] for r in c.get("effects", []) if r["param_rel_error"] is not None]
-        fmt = (lambda x: "" if x is None else f"{x:.2f}")
+
+        def fmt(x):
+            return "" if x is None else f"{x:.2f}"
+
         cv = c.get("coverage", {})
         cov = f"{cv['in_95']}/{cv['params']} / {cv['in_68']}/{cv['params']}" if cv.get("params") else ""
         lines.append(f"| {c['case']} | {true} | {named} | {fmt(max(rel) if rel else None)} | {cov} "

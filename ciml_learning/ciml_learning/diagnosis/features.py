@@ -114,7 +114,10 @@ def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples:
     if bar is not None:
         bar.close()
     n_r = layout.n_rbd
-    cat = (lambda parts, shape, dt: np.concatenate(parts) if parts else np.zeros(shape, dt))
+
+    def cat(parts, shape, dt):
+        return np.concatenate(parts) if parts else np.zeros(shape, dt)
+
     return Rows(
         layout=layout,
         samples=samples,

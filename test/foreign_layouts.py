@@ -26,6 +26,13 @@ samples. Each writer returns the matching robot profile (a dict, docs/ROBOT_PROF
 The command convention (what CIML's reader expects of an effort array): the array stamped
 t_{k−1} is the torque that acts over (t_{k−1}, t_k], so the sample at t_k pairs with it —
 written here as the native log's u_k (the joint loop's total torque at t_k) at t_{k−1}.
+
+From the command line (e.g. to try `ciml inspect` on a log in another robot's layout):
+
+    python test/foreign_layouts.py unitree NATIVE_BAG OUT_BAG --robot go1.yaml [--storage mcap|sqlite3|ros1]
+
+NATIVE_BAG: a `ciml record` bag with its /sim/ ground truth (the foot forces come from it);
+`--rate HZ` resamples it (`resample`), default: the native rate.
 """
 from __future__ import annotations
 
@@ -312,5 +319,38 @@ def without_command(profile: dict) -> dict:
     return p
 
 
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    from ciml_learning.profile import load_profile, with_overrides
+
+    ap = argparse.ArgumentParser(description="Rewrite a native CIML recording in another robot's layout.")
+    ap.add_argument("layout", choices=("unitree", "ros2_control"))
+    ap.add_argument("native_bag")
+    ap.add_argument("out_bag")
+    ap.add_argument("--robot", help="robot profile of the native bag (URDF, feet; default HyQ)")
+    ap.add_argument("--urdf")
+    ap.add_argument("--feet", help="A,B,C,D")
+    ap.add_argument("--storage", choices=STORAGES, default="mcap")
+    ap.add_argument("--no-command", action="store_true", help="leave the command topic out")
+    ap.add_argument("--rate", type=float, help="resample to this rate [Hz] (default: the native rate)")
+    a = ap.parse_args(argv)
+    prof = with_overrides(load_profile(a.robot), a.urdf, a.feet.split(",") if a.feet else None)
+    robot = prof.robot()
+    log = read_native(robot, a.native_bag)
+    if a.rate:
+        log = resample(log, a.rate)
+    if a.layout == "unitree":
+        write_unitree(robot, log, a.out_bag, storage=a.storage, command=not a.no_command)
+    else:
+        write_ros2_control(robot, log, a.out_bag, storage=a.storage, command=not a.no_command)
+    print(f"wrote {a.out_bag} ({a.layout} layout, {a.storage})")
+    return 0
+
+
 __all__ = ["NativeLog", "read_native", "resample", "decimate", "write_unitree", "write_ros2_control",
            "native_profile", "write_profile", "without_command", "unitree_joint_order", "STORAGES"]
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

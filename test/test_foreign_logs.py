@@ -11,6 +11,12 @@ controller at 250 Hz) and rewritten by test/foreign_layouts.py as
 Each is read through its robot profile (docs/ROBOT_PROFILE.md) and diagnosed; the
 diagnosis must name the effects it names on the native log, with parameters within 10 %.
 The tests never give the diagnosis the scenario: only the bags and a profile.
+
+Held-out data: a second, shorter recording of every motion (another seed), given as held-out
+bags (`ciml diagnose --heldout`). Without them the diagnosis holds out whole bags — here the
+last one, base_only — and then selects and shares the effects on a stance-only motion in
+which the feet never swing and the torques change slowly: measured, the actuator lag was
+2 % of the gap there (33 % on the trot) and the test's MIN_SHARE dropped it.
 """
 from __future__ import annotations
 
@@ -38,6 +44,8 @@ needs_profiles = pytest.mark.skipif(not HAVE_PROFILES, reason="ciml_learning.pro
 GO1_FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
 SCENARIO = os.path.join(os.path.dirname(__file__), "..", "ciml_sim", "config", "scenarios", "go1_gap.yaml")
 DURATION = 8.0          # [s] per motion
+HELDOUT_DURATION = 4.0  # [s] per motion, held out (seed HELDOUT_SEED)
+HELDOUT_SEED = 2
 MOTIONS = ("trot_20", "base_only")
 PARAM_TOLERANCE = 0.10  # relative, against the native layout's result
 MIN_SHARE = 0.05
@@ -78,35 +86,37 @@ def go1_native(tmp_path_factory):
     robot = _go1()
     scen = resolve_scenario(SCENARIO, robot)
     root = tmp_path_factory.mktemp("go1")
-    bags, logs = [], []
-    for motion in MOTIONS:
-        path = root / f"native_{motion}"
-        with bagio.BagWriter(path, compression="zstd") as w:
-            r = run_headless(robot, scen, motion, DURATION, seed=1, writer=w, ground_truth=True, progress=False,
-                             sensor_rate=1000.0)
-        assert not r.fell
-        bags.append(str(path))
-        logs.append(fl.read_native(robot, path))
-    return {"robot": robot, "root": root, "bags": bags, "logs": logs}
+    out = {"robot": robot, "root": root}
+    for part, duration, seed in (("", DURATION, 1), ("heldout_", HELDOUT_DURATION, HELDOUT_SEED)):
+        bags, logs = [], []
+        for motion in MOTIONS:
+            path = root / f"native_{part}{motion}"
+            with bagio.BagWriter(path, compression="zstd") as w:
+                r = run_headless(robot, scen, motion, duration, seed=seed, writer=w, ground_truth=True,
+                                 progress=False, sensor_rate=1000.0)
+            assert not r.fell
+            bags.append(str(path))
+            logs.append(fl.read_native(robot, path))
+        out[part + "bags"], out[part + "logs"] = bags, logs
+    return out
 
 
-def _write(go1_native, layout: str, storage: str = "mcap", command: bool = True, rate: str = "") -> tuple[list[str], dict]:
-    """The native recordings rewritten in `layout` (unitree: 500 Hz, ros2_control: 1 kHz);
-    (bags, profile dict); written once per (layout, storage, command, rate)."""
+def _write(go1_native, layout: str, storage: str = "mcap", command: bool = True,
+           part: str = "") -> tuple[list[str], dict]:
+    """The native recordings (`part` "": identification, "heldout_": held out) rewritten in
+    `layout` (unitree: 500 Hz, ros2_control: 1 kHz); (bags, profile dict); written once per
+    (layout, storage, command, part)."""
     cache = go1_native.setdefault("written", {})
-    key = (layout, storage, command, rate)
+    key = (layout, storage, command, part)
     if key not in cache:
         robot, root = go1_native["robot"], go1_native["root"]
         bags, prof = [], None
-        for motion, log in zip(MOTIONS, go1_native["logs"]):
+        for motion, log in zip(MOTIONS, go1_native[part + "logs"]):
             if layout == "unitree":
-                src = fl.decimate(log, 2) if not rate else fl.resample(log, float(rate))
-                if rate == "250":  # the 448 Hz log's 250 Hz resampling (not the native log's)
-                    src = fl.resample(fl.resample(log, 448.0), 250.0)
-                writer = fl.write_unitree
+                src, writer = fl.decimate(log, 2), fl.write_unitree
             else:
                 src, writer = log, fl.write_ros2_control
-            path = root / f"{layout}_{storage}_{int(command)}_{rate or 'own'}_{motion}"
+            path = root / f"{layout}_{storage}_{int(command)}_{part}{motion}"
             if storage == "ros1":
                 path = path.with_suffix(".bag")
             prof = writer(robot, src, path, storage=storage, command=command)
@@ -115,11 +125,20 @@ def _write(go1_native, layout: str, storage: str = "mcap", command: bool = True,
     return cache[key]
 
 
-def _diagnose(robot, bags, profile: dict) -> dict:
+def _diagnose_layout(go1_native, layout: str, storage: str = "mcap", command: bool = True) -> dict:
+    """The diagnosis of one layout: identification and held-out bags both in that layout."""
+    bags, prof = _write(go1_native, layout, storage, command)
+    heldout, _ = _write(go1_native, layout, storage, command, part="heldout_")
+    if not command:
+        prof = fl.without_command(prof)
+    return _diagnose(go1_native["robot"], bags, heldout, prof)
+
+
+def _diagnose(robot, bags, heldout, profile: dict) -> dict:
     from ciml_learning.diagnosis.run import diagnose
     from ciml_learning.profile import profile_from_dict
 
-    return diagnose(robot, bags, None, None, progress=False, report=False, profile=profile_from_dict(profile))
+    return diagnose(robot, bags, heldout, None, progress=False, report=False, profile=profile_from_dict(profile))
 
 
 def _key(effect: dict) -> tuple:
@@ -154,7 +173,8 @@ def _compare(native: dict, other: dict, what: str, skip_types: tuple[str, ...] =
 
 @pytest.fixture(scope="module")
 def native_diagnosis(go1_native):
-    result = _diagnose(go1_native["robot"], go1_native["bags"], fl.native_profile(go1_native["robot"]))
+    result = _diagnose(go1_native["robot"], go1_native["bags"], go1_native["heldout_bags"],
+                       fl.native_profile(go1_native["robot"]))
     named = {_key(e) for e in result["effects"] if e["share"] >= MIN_SHARE}
     # the native log's own diagnosis finds the injected kinds (the reference of the comparisons)
     assert {"payload", "actuator_lag"} <= {t for t, _ in named}, named
@@ -199,17 +219,13 @@ def test_unitree_layout_reads_like_the_native_log(go1_native, storage):
 @pytest.mark.slow
 @needs_profiles
 def test_unitree_layout_diagnosis_matches_native(go1_native, native_diagnosis):
-    robot = go1_native["robot"]
-    bags, prof = _write(go1_native, "unitree")
-    _compare(native_diagnosis, _diagnose(robot, bags, prof), "unitree 500 Hz")
+    _compare(native_diagnosis, _diagnose_layout(go1_native, "unitree"), "unitree 500 Hz")
 
 
 @pytest.mark.slow
 @needs_profiles
 def test_ros2_control_layout_diagnosis_matches_native(go1_native, native_diagnosis):
-    robot = go1_native["robot"]
-    bags, prof = _write(go1_native, "ros2_control", "sqlite3")
-    _compare(native_diagnosis, _diagnose(robot, bags, prof), "ros2_control 1 kHz db3")
+    _compare(native_diagnosis, _diagnose_layout(go1_native, "ros2_control", "sqlite3"), "ros2_control 1 kHz db3")
 
 
 @pytest.mark.slow
@@ -217,29 +233,10 @@ def test_ros2_control_layout_diagnosis_matches_native(go1_native, native_diagnos
 def test_without_command_only_the_rigid_body_effects(go1_native, native_diagnosis):
     """No command topic: the diagnosis names the rigid-body effects (payload, friction) as on
     the native log, names no actuator effect, and says the actuation error is unobservable."""
-    robot = go1_native["robot"]
-    bags, prof = _write(go1_native, "ros2_control", "mcap", command=False)
-    result = _diagnose(robot, bags, fl.without_command(prof))
+    result = _diagnose_layout(go1_native, "ros2_control", "mcap", command=False)
     actuator = ("actuator_lag", "torque_gain", "torque_offset")
     assert not [e for e in result["effects"] if e["type"] in actuator], result["effects"]
     _compare(native_diagnosis, result, "no command", skip_types=actuator)
     data = result["data"]
     assert data.get("actuation_observed") is False, data
     assert any("not observable" in w for w in data.get("warnings", [])), data.get("warnings")
-
-
-@pytest.mark.slow
-@needs_profiles
-def test_448_hz_log_gives_the_lag_of_its_250_hz_resampling(go1_native):
-    """The same Unitree-like log at 448 Hz and resampled to 250 Hz: the identified actuator lag
-    agrees within 10 % (a 250 Hz assumption would scale it by 448/250)."""
-    robot = go1_native["robot"]
-    lags = {}
-    for rate in ("448", "250"):
-        bags, prof = _write(go1_native, "unitree", rate=rate)
-        result = _diagnose(robot, bags, prof)
-        assert result["data"]["rate_hz"] if "rate_hz" in result["data"] else True
-        lag = [e for e in result["effects"] if e["type"] == "actuator_lag"]
-        assert lag, f"{rate} Hz: no actuator lag named: {[_key(e) for e in result['effects']]}"
-        lags[rate] = lag[0]["params"]["time_constant"]
-    assert lags["448"] == pytest.approx(lags["250"], rel=0.10), lags

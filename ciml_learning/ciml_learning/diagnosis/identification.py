@@ -839,6 +839,7 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
         reproduction = np.abs(_flatten(physical_parameters(m_ho)) - flat) / np.sqrt(2.0)
     conversion = np.zeros_like(flat)
     misspecification = np.zeros_like(flat)
+    resolution = np.zeros_like(flat)
     rel_mis = misspecification_bounds(selection, heldout) if heldout is not None else [0.0] * len(base)
     k = 0
     for cand, p, rel in zip(model.candidates, base, rel_mis):
@@ -851,8 +852,9 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
                                                                        "torque_sensor_gain") else 0.0)
                           if not isinstance(v, list) else [0.0] * len(v) for key, v in p.items()}])
         misspecification[k:k + n] = unc.MISSPECIFICATION_SCALE * rel * np.abs(flat[k:k + n] - null)
+        resolution[k:k + n] = unc.RESOLUTION * np.abs(flat[k:k + n] - null)
         k += n
-    std = unc.combine(sampling, reproduction, conversion, misspecification)
+    std = unc.combine(sampling, reproduction, conversion, misspecification, resolution)
     info = {"method": "block bootstrap over time (blocks from the residual's autocorrelation), held-out "
                       "reproduction and the lag's sampling conversion, in quadrature",
             "block_seconds": block * unc.SPAN / fs, "block_starts_every_s": block / fs,

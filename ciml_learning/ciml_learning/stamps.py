@@ -91,15 +91,19 @@ def measure_rate(t: np.ndarray) -> StampReport:
                        irregular_fraction=irregular)
 
 
-def resample(t: np.ndarray, x: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+def resample(t: np.ndarray, x: np.ndarray, rate_hz: float, start: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Linear interpolation of x (N × …) onto a uniform grid of `rate_hz` inside [t0, t_end].
 
+    The grid starts at `start` (default: the first stamp t0; a later start shifts its phase).
     For comparing a log with its explicit resampling; the pipeline itself filters at the
     log's own rate instead of resampling.
     """
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float)
-    grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate_hz)) + 1) / rate_hz
+    t0 = t[0] if start is None else float(start)
+    if not t[0] <= t0 <= t[-1]:
+        raise ValueError(f"resample: start {t0} outside the stamps [{t[0]}, {t[-1]}]")
+    grid = t0 + np.arange(int(np.floor((t[-1] - t0) * rate_hz + 1e-9)) + 1) / rate_hz
     flat = x.reshape(len(t), -1)
     out = np.stack([np.interp(grid, t, flat[:, k]) for k in range(flat.shape[1])], axis=1)
     return grid, out.reshape((len(grid),) + x.shape[1:])

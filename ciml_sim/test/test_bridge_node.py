@@ -188,3 +188,55 @@ def test_bridge_command_handling_in_process():
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=ctx)
+
+
+@pytest.mark.ros
+def test_lockstep_waits_for_each_samples_command_then_releases_a_silent_controller():
+    """lockstep:=true: under torque control each sample waits for the command stamped with the
+    previous one; a controller that answers every sample gets one command per sample; one that
+    goes silent stalls simulated time for lockstep_timeout, then the bridge runs free and damps."""
+    from ciml_learning import conversions as cv
+
+    graph = _Graph()
+    answered: list[int] = []
+
+    def answer(msg) -> None:  # a controller: one command per joint sample, stamped with it
+        if graph.answering:
+            cmd = _command()
+            cmd.header.stamp = msg.header.stamp
+            graph.commands.publish(cmd)
+            answered.append(cv.stamp_to_ns(msg.header.stamp))
+
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+
+    graph.answering = False
+    graph.node.create_subscription(JointState, "/joint_states", answer,
+                                   QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+    proc = start_node("mujoco_bridge", "-p", "lockstep:=true", "-p", "lockstep_timeout:=1.0",
+                      "-p", "command_timeout:=0.1")
+    log = ""
+    try:
+        assert graph.wait_for(lambda: len(graph.get("/joint_states")) >= 20, 30)  # holding: free-running
+        graph.answering = True
+        assert graph.wait_for(lambda: len(answered) >= 400, 60)
+        graph.answering = False
+        n_answered = len(answered)
+        # every sample after the first command was answered before the next one came: no gaps
+        stamps = np.array(answered[-300:])
+        assert np.all(np.diff(stamps) == 4_000_000), np.unique(np.diff(stamps))
+        # silent controller: simulated time stands still for lockstep_timeout (1 s wall) ...
+        t_silent = time.monotonic()
+        clock0 = cv.stamp_to_ns(graph.get("/clock")[-1].clock)
+        time.sleep(0.6)
+        assert cv.stamp_to_ns(graph.get("/clock")[-1].clock) - clock0 <= 8_000_000
+        # ... then the bridge runs free, meets command_timeout and damps, and says so
+        assert graph.wait_for(lambda: any(s.message.startswith("damping mode") for s in graph.bridge_status()), 30)
+        values = _values(graph.bridge_status()[-1])
+        assert int(values["lockstep_timeouts"]) >= 1 and int(values["lockstep_waits"]) >= 1
+        assert time.monotonic() - t_silent >= 1.0
+        assert n_answered >= 400
+    finally:
+        log = stop(proc)
+        graph.close()
+    assert "Traceback" not in log, log

@@ -65,8 +65,14 @@ def commanded_torque(
     u = u_ff + u_fb,lin + K_p (q_target + q̇_target·Δ − q) + K_d (q̇_target − q̇), clipped
     to ±limits, where Δ = `elapsed` [s] is the time since the command's header stamp:
     between commands the joint loop follows the position target along the velocity
-    target. The plant's 1 kHz loop (ciml_sim.plant) and the learning side (Γ = τ − u,
-    eq. 14) both use this.
+    target.
+
+    This is the joint-loop law's one definition (the specification). The learning side
+    (Γ = τ − u, eq. 14: loginputs, the state_filter node) calls it. The plant's 1 kHz loop
+    runs a compiled copy for speed (ciml_sim.joint_loop.command_coefficients and
+    actuation: the same u in coefficient form c − K_p q − K_d q̇ + ċ Δ, then the
+    actuator effects); ciml_sim/test/test_joint_loop_law.py asserts the compiled u equals
+    this function on random inputs.
     """
     u = (
         feedforward

@@ -8,6 +8,10 @@ called by address (`mj_function`) on the very mjModel/mjData the Python bindings
 so the bindings see every step. `actuation` is the same law for one reading; the plant
 uses it wherever it needs u and τ (one law, one place).
 
+The commanded torque u is a compiled copy of ciml_learning.conversions.commanded_torque,
+the law's specification (what the learning side computes Γ = τ − u with), written in
+coefficient form (`command_coefficients`, then `actuation`) so that the 1 kHz loop does
+four multiply-adds per joint; test_joint_loop_law asserts the two agree on random inputs.
 test_effects checks the compiled loop against the plant's documented law written out
 step by step in Python, and measure()'s u and τ against those the next step applies.
 A MuJoCo fatal error inside the compiled loop (none is expected: the model's memory is
@@ -70,6 +74,10 @@ def actuation(q: np.ndarray, qd: np.ndarray, encoder_offset: np.ndarray, noise_q
 
         q_m = q + offset (+ noise),  q̇_m = q̇ (+ noise)
         u = clip(c − K_p q_m − K_d q̇_m + ċ (t − t_c), ±limits),   c = u_ff + K_p q_t + K_d q̇_t
+
+    u is a compiled copy of ciml_learning.conversions.commanded_torque (the specification;
+    test_joint_loop_law asserts they agree on random inputs); the lag, gain and offset are
+    the scenario's actuator effects (the "reality" after the law):
         lag_out = lag + α (u − lag)   (backward-Euler first-order lag; u without lag)
         τ = g · lag_out + o           (lag_out without gain/offset)
 
@@ -126,7 +134,8 @@ def run_joint_loop(mj_step: int, mj_step2: int, model: int, data: int, n: int, r
 def command_coefficients(u_ff: np.ndarray, q_target: np.ndarray, qd_target: np.ndarray, kp: np.ndarray,
                          kd: np.ndarray, damping_mode: bool, c: np.ndarray, c_rate: np.ndarray,
                          kp_out: np.ndarray, kd_out: np.ndarray) -> int:
-    """A TorqueCommand as the joint loop's coefficients (see `actuation`):
+    """A TorqueCommand as the joint loop's coefficients (see `actuation`; with it, a compiled
+    copy of ciml_learning.conversions.commanded_torque, tested equal to it):
     c = u_ff + K_p q_t + K_d q̇_t, ċ = K_p q̇_t, K_p, K_d; in damping mode c = ċ = K_p = 0.
     Returns 0, or 1 for a non-finite value, 2 for a negative gain (nothing written)."""
     n = u_ff.shape[0]

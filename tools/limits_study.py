@@ -26,6 +26,7 @@ from experiment import NEW_MOTIONS, ROOT, SCENARIO, TRAIN_MOTIONS  # tools/ is t
 from ciml_control.references import default_duration
 from ciml_learning.diagnosis import load_effect_model
 from ciml_learning.dynamics import ReferenceTorque, selection_matrix
+from ciml_learning.extraction import combined_error
 from ciml_learning.filters import delay_samples, derivative_taps
 from ciml_learning.models import N_BASE, EpsilonFunction, ModelSet
 from ciml_learning.robot import load_robot
@@ -53,7 +54,7 @@ def epsilon_function(variant: str, robot, model_set: ModelSet, truth, reference)
             keep = {"rbd_true": slice(0, 0), "base_true": slice(N_BASE, None), "legs_true": slice(0, N_BASE)}[variant]
             true_rbd[keep] = rbd[keep]  # the learned part that stays
             rbd = true_rbd
-        return rbd - S.T @ gamma
+        return combined_error(None, rbd, gamma, S)
 
     return eps
 

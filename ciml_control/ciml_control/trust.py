@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ciml_learning.dynamics import selection_matrix
+from ciml_learning.extraction import combined_error
 from ciml_learning.models import default_scaling
 from ciml_learning.physical_bounds import physical_bounds
 from ciml_learning.robot import RobotDescription
@@ -101,7 +102,7 @@ class TrustLaw:
             prior = np.linalg.inv(basis.T) ** 2 @ prior
         rbd_t, gated_rbd = self.gate(rbd, rbd_variance, prior)
         gamma_t, gated_act = self.gate(gamma, gamma_variance, self.prior_variance["actuation"])
-        eps = (rbd_t if basis is None else basis.T @ rbd_t) - self.S.T @ gamma_t
+        eps = combined_error(basis, rbd_t, gamma_t, self.S)
         eps, clipped = self.clip(eps)
         return TrustedEpsilon(eps, np.concatenate([gated_rbd, gated_act]), clipped)
 

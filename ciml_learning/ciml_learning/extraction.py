@@ -61,9 +61,16 @@ def actuation_error(tau_measured: np.ndarray, u_commanded: np.ndarray) -> np.nda
     return np.asarray(tau_measured, dtype=float) - np.asarray(u_commanded, dtype=float)
 
 
-def combined_error(basis: np.ndarray, phi_prime: np.ndarray, gamma: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """ε = J'ᵀ Φ̃' − Sᵀ Γ, eq. (17): the generalized-force error the controller adds."""
-    return basis.T @ phi_prime - S.T @ gamma
+def combined_error(basis: np.ndarray | None, rbd: np.ndarray, gamma: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """ε = J'ᵀ Φ̃' − Sᵀ Γ, eq. (17): the generalized-force error the controller adds, so that
+    M q̈ + h + ε = Sᵀu + J_cᵀλ.
+
+    The one home of eq. (17): the controller's trust law, the model set's ε, the identified
+    effects' ε and the benchmarks call it. basis: J' (nv × nv, projection.contact_invariant_basis)
+    with rbd = Φ̃' (nv); or None with rbd = Φ̃ = J'ᵀΦ̃' already generalized (what a model set
+    learns and an identified effect gives). gamma: Γ (n_j); S: dynamics.selection_matrix.
+    """
+    return (rbd if basis is None else basis.T @ rbd) - S.T @ gamma
 
 
 def _operator_blocks(foot_jacobians: np.ndarray, basis: np.ndarray, contacts: np.ndarray):

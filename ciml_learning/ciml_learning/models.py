@@ -96,6 +96,7 @@ from typing import Any
 import numpy as np
 
 from .errors import CimlError
+from .extraction import combined_error
 from .learners import Learner, LearnerError, learner_class
 
 FORMAT_VERSION = 5
@@ -791,7 +792,7 @@ class EpsilonFunction:
         eps = var = np.zeros(nv)
         if out is not None:
             rbd, rbd_var, gamma, gamma_var = out
-            eps = rbd - self._S.T @ gamma
+            eps = combined_error(None, rbd, gamma, self._S)  # the set learns Φ̃ = J'ᵀΦ̃'
             var = rbd_var + self._S.T @ gamma_var
         if out is None or not (np.all(np.isfinite(eps)) and np.all(np.isfinite(var))):
             self.n_nonfinite += 1

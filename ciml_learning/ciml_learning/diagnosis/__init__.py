@@ -56,6 +56,7 @@ def load_epsilon_function(robot: RobotDescription, diagnosis_dir: str) -> Callab
     A non-finite result is replaced by zeros (the nominal model), never returned.
     """
     from ..dynamics import ReferenceTorque, selection_matrix
+    from ..extraction import combined_error
 
     model = load_effect_model(robot, diagnosis_dir)
     S = selection_matrix(robot)
@@ -66,7 +67,7 @@ def load_epsilon_function(robot: RobotDescription, diagnosis_dir: str) -> Callab
         eps = model.rbd_force(q, v, a)
         if model.has_actuation:
             tau, tau_dot = reference_torque(ref, eps)
-            eps = eps - S.T @ model.actuation_error(tau, tau_dot)
+            eps = combined_error(None, eps, model.actuation_error(tau, tau_dot), S)
         if not np.all(np.isfinite(eps)):
             return np.zeros(robot.nv)
         return eps

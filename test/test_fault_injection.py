@@ -26,7 +26,7 @@ from ciml_learning.fileio import FAULT_ENV
 from ciml_learning.mcap_check import BagCorruptError, check_bag, seal_mcap, verify_mcap
 from ciml_learning.models import MODEL_JSON, MODEL_NPZ, ModelFileError, ModelSet
 from ciml_learning.robot import load_robot
-from ciml_learning.training import fit_arguments, synthetic_training_set
+from ciml_learning.synthetic import fit_arguments, synthetic_training_set
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BAG = os.path.join(ROOT, "bags", "nominal_stand")

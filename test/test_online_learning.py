@@ -201,8 +201,8 @@ def _reference_states(n: int):
 
 
 def _trained_model(model_dir) -> ModelSet:
-    """A small LWPR model set learned from a known synthetic error (training module data)."""
-    from ciml_learning.training import fit_arguments, synthetic_training_set
+    """A small LWPR model set learned from a known synthetic error (ciml_learning.synthetic)."""
+    from ciml_learning.synthetic import fit_arguments, synthetic_training_set
 
     data = fit_arguments(synthetic_training_set(ROBOT, 1500, seed=3))
     ms = ModelSet.for_robot(ROBOT, "lwpr")

@@ -217,37 +217,3 @@ def extract(
         generalized_observed=generalized_mask,
         leg_coupling=leg_coupling(basis, robot.leg_joints),
     )
-
-
-def throughput_benchmark(n_samples: int = 50_000, seed: int = 0) -> dict:
-    """Filter + extraction throughput on a synthetic log of n_samples at 250 Hz (one core)."""
-    import time
-
-    from .filters import filter_state_log
-    from .robot import load_robot
-
-    robot = load_robot()
-    rng = np.random.default_rng(seed)
-    t = np.arange(n_samples) / 250.0
-    q0 = pin.neutral(robot.model)
-    q0[2] = 0.6
-    q0[7:] = np.tile([0.0, 0.7, -1.4], robot.n_feet)
-    q = np.tile(q0, (n_samples, 1))
-    q[:, 7:] += 0.2 * np.sin(2 * np.pi * 1.3 * t)[:, None] + 0.001 * rng.standard_normal((n_samples, robot.n_joints))
-    v = rng.standard_normal((n_samples, robot.nv)) * 0.1
-    tau = rng.standard_normal((n_samples, robot.n_joints)) * 20
-    u = tau + rng.standard_normal((n_samples, robot.n_joints))
-    phase = (t * 2.0) % 1.0
-    contacts = np.stack([phase < 0.5, phase >= 0.5, phase >= 0.5, phase < 0.5], axis=1)
-    t0 = time.perf_counter()
-    flog = filter_state_log(t, q, v, tau, u, contacts)
-    t1 = time.perf_counter()
-    extract(robot, flog.q, flog.v, flog.a, flog.tau, flog.u, flog.contacts, flog.t, flog.valid, tau_dot=flog.tau_dot)
-    t2 = time.perf_counter()
-    return {
-        "samples": n_samples,
-        "filter_s": round(t1 - t0, 3),
-        "extraction_s": round(t2 - t1, 3),
-        "samples_per_s": round(n_samples / (t2 - t0), 1),
-        "target_samples_per_s": 20_000,
-    }

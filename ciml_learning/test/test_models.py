@@ -24,8 +24,8 @@ from ciml_learning.models import (
 )
 from ciml_learning.projection import contact_invariant_basis
 from ciml_learning.robot import example_robot_data_dir, load_robot
-from ciml_learning.training import fit_arguments as fit_args
-from ciml_learning.training import relative_rmse, synthetic_training_set
+from ciml_learning.synthetic import fit_arguments as fit_args
+from ciml_learning.synthetic import relative_rmse, synthetic_training_set
 
 ROBOT = load_robot()
 SMALL_SGPR = {"n_inducing": 15, "n_hyper_samples": 200, "max_iters": 3}

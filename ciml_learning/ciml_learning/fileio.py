@@ -179,15 +179,22 @@ def _makedirs(parent: str, what: str, path: str) -> None:
         raise OutputError(f"{what} {path}: cannot create {parent} ({err.strerror or err})") from None
 
 
+def _lstat(full: str, path: str, what: str) -> os.stat_result | None:
+    """lstat of an --out path; None when it does not exist; other errors as one OutputError line."""
+    try:
+        return os.lstat(full)
+    except FileNotFoundError:
+        return None
+    except OSError as err:
+        raise OutputError(f"{what} {path}: {err.strerror or err}") from None
+
+
 def check_out_file(path: str, what: str = "--out") -> str:
     """`path` may be written as a file: absent or a regular file (never a device, link or folder)."""
     full = check_out_parent(path, what)
-    try:
-        st = os.lstat(full)
-    except FileNotFoundError:
+    st = _lstat(full, path, what)
+    if st is None:
         return full
-    except OSError as err:
-        raise OutputError(f"{what} {path}: {err.strerror or err}") from None
     if not stat.S_ISREG(st.st_mode):
         raise OutputError(f"{what} {path} is {_describe(st.st_mode)}; refusing to replace it (give a file path)")
     return full
@@ -196,12 +203,9 @@ def check_out_file(path: str, what: str = "--out") -> str:
 def check_out_dir(path: str, is_ours: Callable[[str], bool], kind: str, what: str = "--out") -> str:
     """`path` may be (re)placed as a `kind` directory: absent, empty, or one `is_ours` recognises."""
     full = check_out_parent(path, what)
-    try:
-        st = os.lstat(full)
-    except FileNotFoundError:
+    st = _lstat(full, path, what)
+    if st is None:
         return full
-    except OSError as err:
-        raise OutputError(f"{what} {path}: {err.strerror or err}") from None
     if not stat.S_ISDIR(st.st_mode):
         raise OutputError(f"{what} {path} is {_describe(st.st_mode)}, not a {kind} directory; refusing to replace it")
     try:

@@ -14,8 +14,7 @@ Combined, they give the model error the controller adds (eq. 17):
 Why Γ from the torque (docs/ARCHITECTURE.md §1 names q_i, q̇_i, q̈_i only): an actuator's lag and gain
 are functions of the torque it delivers and its rate, Γ ≈ −T τ̇ + (g − 1) τ, not of the
 joint's state; at a reference the torque is the one it asks for, τ_ref and τ̇_ref of
-dynamics.ReferenceTorque (EpsilonFunction). Measured (results/EXPERIMENT.md, default gap):
-feedback effort on new motions 47 % → 54 % below nominal (LWPR), 41 % → 54 % (SGPR).
+dynamics.ReferenceTorque (EpsilonFunction).
 
 Why the generalized coordinates, not the contact-invariant ones of eq. (11): J' puts a leg's
 joint-space error into the base entries of Φ̃' as −J_i,baseᵀ B_i⁻ᵀ e_i (projection.leg_coupling),
@@ -28,12 +27,10 @@ inertia) and every joint's velocity q̇: its target w = (J'ᵀΦ̃')_base + Σ_s
 back the stance legs' joint errors with the learned leg models ê (the swing legs' are in
 J'ᵀΦ̃' already), and what the leg models miss of a stance joint's error reaches the base
 through the contact, mostly as a function of that joint's velocity (joint friction: the
-leg models learn it in swing, at other positions and accelerations). Only the velocities:
-format 2 read all 50 inputs for the base and learned the training gaits. Measured
-(results/EXPERIMENT.md, LWPR, default gap): feedback effort 58 % → 64 % below nominal on the
-training motions, 36 % → 47 % on new ones (format 2: foot forces, the base from all 50
-inputs); the joint velocities as base inputs: 62.9 % → 65.2 % and 54.7 % → 56.1 % (training
-set A there; 59.2 % → 60.6 % and 53.7 % → 55.0 % on set B).
+leg models learn it in swing, at other positions and accelerations).
+
+The measurements behind these choices (feedback effort with and without each) and the
+earlier formats they replaced: results/MODEL_HISTORY.md.
 
 Observed mask: the base rows are observed in every valid sample, a leg joint's row while its
 leg swings (extraction.ExtractionResult.generalized_observed); each model learns only from
@@ -98,6 +95,7 @@ import numpy as np
 from .errors import CimlError
 from .extraction import combined_error
 from .learners import Learner, LearnerError, learner_class
+from .parallel import fit_dimensions
 
 FORMAT_VERSION = 5
 """5: model.json carries a manifest and its own checksum; 4: the actuation models take τ and τ̇
@@ -389,7 +387,7 @@ class ModelSet:
     # ------------------------------------------------------------------ learning
     def fit(self, X, rbd_error, rbd_observed, actuation_error, valid=None, leg_coupling=None, n_jobs: int = 1,
             progress: bool = False, calibrate: bool = True) -> "ModelSet":
-        """Learn every dimension from scratch, in parallel (training.fit_dimensions): the leg
+        """Learn every dimension from scratch, in parallel (parallel.fit_dimensions): the leg
         joints and the actuators first, then the base wrench with the stance legs' learned
         errors added back (base_wrench_targets).
 
@@ -398,8 +396,6 @@ class ModelSet:
         valid: (N,) bool; leg_coupling: C (N × 6 × n_j, projection.leg_coupling; None: no
         coupling). Returns self.
         """
-        from .training import fit_dimensions
-
         X, rbd_error, rbd_observed, actuation_error, valid, C = self._check_data(
             X, rbd_error, rbd_observed, actuation_error, valid, leg_coupling)
         self.models_ = [None] * self.n_outputs

@@ -25,7 +25,8 @@ records them, without ground truth, into DIR/case_NN/{train,heldout}_K), per cas
      position and velocity (``<joint>_qpos``, ``<joint>_qvel``), the toolbox's default residual
      (measured − predicted at the measured stamps, normalised per signal);
    - optimiser: ``sysid.optimize`` (the toolbox's default "mujoco" least squares, finite
-     differences), interval: ``sysid.calculate_intervals`` on the residual and Jacobian at the
+     differences with step ``--fd-step``: at the default 1.5e-8 the payload's CoM never moves),
+     interval: ``sysid.calculate_intervals`` on the residual and Jacobian at the
      optimum (95 % and 68 %).
 
    Families (what the user had to specify):
@@ -152,7 +153,7 @@ def family_of(effect: dict, robot, kp: np.ndarray, kd: np.ndarray) -> Family:
     if t == "payload":
         def apply(spec, v):
             b = spec.body("base").add_body()
-            b.name, b.pos = "payload", list(v[1:4])
+            b.name, b.pos, b.ipos = "payload", [0.0, 0.0, 0.0], list(v[1:4])  # the mass at ipos of the base frame
             b.mass, b.inertia, b.explicitinertial = float(v[0]), [1e-9, 1e-9, 1e-9], True
         return Family(t, "base", ["mass", "com_x", "com_y", "com_z"], np.array([1.0, 0.0, 0.0, 0.0]),
                       np.array([0.0, -0.5, -0.5, -0.5]), np.array([60.0, 0.5, 0.5, 0.5]), apply,
@@ -275,13 +276,9 @@ def ciml_answer(diagnosis: dict, effect: dict, fam: Family) -> dict:
             out = {"named": True, "value": [float(_part(e["params"], n)) for n in fam.names],
                    "confidence": e.get("confidence"), "share": e.get("share"),
                    "other_effects": [label(o) for o in diagnosis["effects"] if o is not e]}
-            for key in ("interval_95", "interval_68"):
-                iv = {k: (v if k != "com" else None) for k, v in e[key].items()}
-                lo = [float(e[key]["com"][0]["xyz".index(n[-1])]) if n.startswith("com_") else float(iv[n][0])
-                      for n in fam.names]
-                hi = [float(e[key]["com"][1]["xyz".index(n[-1])]) if n.startswith("com_") else float(iv[n][1])
-                      for n in fam.names]
-                out[key] = [lo, hi]
+            for key in ("interval_95", "interval_68"):  # {"mass": [lo, hi], "com": [[lo, hi] per axis]}
+                pairs = [_part(e[key], n) for n in fam.names]
+                out[key] = [[float(p[0]) for p in pairs], [float(p[1]) for p in pairs]]
             return out
     return {"named": False, "effects": [label(o) for o in diagnosis.get("effects", [])],
             "unexplained_share": diagnosis.get("unexplained_share")}
@@ -310,7 +307,8 @@ def run_sysid(robot, bags: list[str], effect: dict, args) -> tuple[dict, Family]
     params = sysid.ParameterDict({"theta": sysid.Parameter("theta", fam.nominal, fam.lower, fam.upper)})
     residual_fn = sysid.build_residual_fn(models_sequences=[seqs], build_model=build, n_threads=args.threads)
     t_setup = time.perf_counter() - t0
-    opt, result = sysid.optimize(params, residual_fn, optimizer="mujoco", verbose=False, max_iters=args.max_iters)
+    opt, result = sysid.optimize(params, residual_fn, optimizer="mujoco", verbose=False, max_iters=args.max_iters,
+                                 eps=args.fd_step)
     x = opt["theta"].value.copy()
     res, _, _ = residual_fn(x, opt)
     _, half95 = sysid.calculate_intervals(res, result.jac, alpha=T95)
@@ -367,6 +365,9 @@ def main() -> int:
     p.add_argument("--windows", type=int, default=6, help="windows per training bag")
     p.add_argument("--max-iters", type=int, default=30)
     p.add_argument("--threads", type=int, default=1, help="rollout threads of mujoco.sysid")
+    p.add_argument("--fd-step", type=float, default=1e-4,
+                   help="finite-difference step of the optimiser (its default, 1.5e-8, leaves the payload's CoM "
+                        "at its start: the rollouts of CoM 0 and 1e-8 m are bit-identical)")
     p.add_argument("--check", action="store_true", help="also the residual of the nominal and true parameters")
     p.add_argument("--no-ciml", action="store_true", help="skip the CIML diagnosis (sysid only)")
     p.add_argument("--probe", action="store_true", help="try sysid.body_inertia_param(InertiaType.Mass) and exit")

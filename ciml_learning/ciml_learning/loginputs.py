@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from .pairing import age_limit_ns, is_strict, partner_indices
 from .profile import CONTACT_STATE, JOINT_STATE, ODOMETRY, TORQUE_COMMAND, RobotProfile, load_profile
 from .robot import RobotDescription
 from .stamps import count_zero_stamps, measure_rate
@@ -176,16 +177,6 @@ def read_topics(path: str | os.PathLike, wanted: dict[str, tuple[str, str, str]]
             rej.add(role, topic, "header.stamp is zero", int((~nonzero).sum()))
         out[topic] = _Topic(role, topic, stamps[order], [items[i][1] for i in order], report)
     return out
-
-
-def _hold_index(src_t: np.ndarray, t: np.ndarray, max_age_ns: int, strict: bool = False) -> np.ndarray:
-    """For each t, the latest src sample at or before t (strictly before with `strict`);
-    −1 if there is none or it is older than max_age."""
-    idx = np.searchsorted(src_t, t, side="left" if strict else "right") - 1
-    ok = idx >= 0
-    ok[ok] &= (t[ok] - src_t[idx[ok]]) <= max_age_ns
-    idx[~ok] = -1
-    return idx
 
 
 class _Rejections:
@@ -413,7 +404,7 @@ def _read_base(spec, tops, rej, warnings: list[str]):
             return x
         t, prow = _convert(ptop, rej, pconv)
         tt, trow = _convert(ttop, rej, tconv)
-        idx = _hold_index(tt, t, int(0.05e9))
+        idx = partner_indices(tt, t, int(0.05e9))  # a twist at or before each pose
         ok = idx >= 0
         if not ok.any():
             raise _bag_error(f"base ({ttop.topic}): no twist within 0.05 s of any pose on {ptop.topic}")
@@ -549,10 +540,10 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
              max_age_s: float = 0.02):
     """Read one bag through the profile into a bagio.SensorLog (no /sim/ topic is read).
 
-    Samples are taken at the joint-state stamps; each other role is the latest message
-    at or before the stamp (the command strictly before it: a command stamped t was
-    computed from the sample at t and acts after it), at most max(max_age_s, 2.5 of that
-    topic's periods) old. Malformed messages are dropped and counted by role and reason.
+    Samples are taken at the joint-state stamps; each other role is paired by the pairing
+    module's rule: the latest message at or before the stamp (the command strictly before
+    it: a command stamped t was computed from the sample at t and acts after it), at most
+    max(max_age_s, 2.5 of that topic's periods) old. Malformed messages are dropped and counted by role and reason.
     Stamps: every topic is ordered by its stamps (messages that arrived out of order are
     sorted, not refused, and reported in stamp_report); of joint-state messages sharing a
     stamp the last is used and the others are counted in `rejected`.
@@ -585,10 +576,6 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     warnings: list[str] = []
     sources: dict[str, str] = {}
 
-    def age(top_t: np.ndarray) -> int:
-        rate = measure_rate(top_t * 1e-9).rate_hz
-        return int(max(max_age_s, 2.5 / rate if np.isfinite(rate) else 0.0) * 1e9)
-
     # joint states (the sample instants)
     jtop = tops[js["topic"]]
     jr = _JointReader(robot, profile, jtop.topic, need_effort=profile.torque_source != "none")
@@ -619,9 +606,11 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     ok = np.ones(n, dtype=bool)
     stale: dict[str, int] = {}
 
-    def hold(role: str, topic: str, src_t: np.ndarray, strict: bool = False) -> np.ndarray:
-        idx = _hold_index(src_t, tj, age(src_t), strict=strict)
-        _require(role, topic, idx, src_t, tj, age(src_t) * 1e-9, "before" if strict else "at or before")
+    def hold(role: str, topic: str, src_t: np.ndarray) -> np.ndarray:
+        """Each joint sample's partner of `role` (pairing: the rule and its age limit)."""
+        strict, limit = is_strict(role), age_limit_ns(max_age_s, src_t)
+        idx = partner_indices(src_t, tj, limit, strict=strict)
+        _require(role, topic, idx, src_t, tj, limit * 1e-9, "before" if strict else "at or before")
         stale[role] = int((idx < 0).sum())
         return idx
 
@@ -659,7 +648,7 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     u = tau.copy()
     if cmd_spec is not None:
         cmd = _Command(robot, profile, cmd_spec, tops, rej)
-        iu = hold("command", cmd.topic, cmd.t, strict=True)
+        iu = hold("command", cmd.topic, cmd.t)
         ok &= iu >= 0
         for k in np.flatnonzero(iu >= 0):
             u[k] = cmd.u(iu[k], qj[k], qdj[k], (tj[k] - cmd.t[iu[k]]) * 1e-9)

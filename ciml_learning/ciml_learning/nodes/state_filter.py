@@ -1,9 +1,10 @@
 """`state_filter`: raw sensor topics → /filtered_state (paper §III-C, online filter).
 
 Thin adapter around ciml_learning.filters.OnlineStateFilter. Each /joint_states sample
-is paired with the latest base state and contact state at or before it and the latest
-command strictly before it (the one the measured torque was produced under); stale
-partners, wrong joint names, non-finite values and out-of-order stamps are rejected
+is paired by ciml_learning.pairing's rule, as a log is read offline: the latest base state
+and contact state at or before it and the latest command strictly before it (the one the
+measured torque was produced under), at most max(max_age, 2.5 of that topic's periods) old;
+stale partners, wrong joint names, non-finite values and out-of-order stamps are rejected
 and counted on /diagnostics. Output is aligned to the filter's delay (≈ 60 ms at any rate).
 
 The filters are designed for the rate of /joint_states: the `rate` parameter, or (0, the
@@ -26,20 +27,13 @@ from .. import topics
 from ..errors import CimlError
 from ..filters import OnlineStateFilter
 from ..node_params import STATE_FILTER
+from ..pairing import is_strict, partner
 from ..robot import load_robot
 from ..ros_common import COMMAND_QOS, SENSOR_QOS, Health, declare_schema, run_node
 from ..stamps import measure_rate
 
 RATE_SAMPLES = 32
 """Joint samples whose stamps set the filter's rate when the `rate` parameter is 0."""
-
-
-def _latest(history, stamp: int, strict: bool = False):
-    """Latest (stamp, value) in history at or before (strictly before) stamp, else None."""
-    for s, value in reversed(history):
-        if s < stamp or (s == stamp and not strict):
-            return s, value
-    return None
 
 
 class StateFilterNode(Node):
@@ -116,10 +110,9 @@ class StateFilterNode(Node):
                 self.health.count("stale_or_missing_partner", "no fresh base state, contact state or command")
                 continue
             self.pending.popleft()
-            base = _latest(self.base, stamp)
-            contacts = _latest(self.contacts, stamp)
-            command = _latest(self.commands, stamp, strict=True)
-            if any(p is None or stamp - p[0] > max_age for p in (base, contacts, command)):
+            base, contacts, command = (partner(history, stamp, self.max_age, is_strict(role)) for role, history in (
+                ("base", self.base), ("contacts", self.contacts), ("command", self.commands)))
+            if any(p is None for p in (base, contacts, command)):
                 self.health.count("stale_or_missing_partner", "no fresh base state, contact state or command")
                 continue
             self.process(stamp, joints, base[1], contacts[1], command[1], command[0])

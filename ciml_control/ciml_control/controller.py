@@ -76,19 +76,22 @@ class IdController:
         self.limits = np.ascontiguousarray(robot.torque_limits, dtype=float)
         self.dyn_des = RigidBodyDynamics(robot)  # the fallback torque after a QP failure
         self.qp = FeedforwardQP()
-        # the compiled step's state: Pinocchio models in the core, buffers, the cache key of
-        # the terms at the reference (qᵈ, q̇ᵈ, valid flag)
-        self._functions = native.function_table()
+        # the compiled step's records (kernels.ControlWorkspace, ControlParameters): Pinocchio
+        # models in the core, buffers, the cache key of the terms at the reference (qᵈ, q̇ᵈ, valid flag)
         self._core_des, self._core_meas = native.Dynamics(robot), native.Dynamics(robot)
         nv, nf = robot.nv, robot.n_feet
-        self._key = np.zeros(robot.nq + nv + 1)
-        self._des = (np.zeros((nv, nv)), np.zeros(nv), np.zeros((nf, 3, nv)))
-        self._meas = (np.zeros((nv, nv)), np.zeros(nv), np.zeros((nf, 3, nv)))
-        self._H = np.eye(robot.n_joints)  # W_u = I
-        self._g = np.zeros(robot.n_joints)
-        self._cone = friction_cone_matrix(mu)
+        self.workspace = kernels.ControlWorkspace(
+            functions=native.function_table(), dyn_des=self._core_des.handle, dyn_meas=self._core_meas.handle,
+            qp=self.qp._solvers.handle, key=np.zeros(robot.nq + nv + 1),
+            M_des=np.zeros((nv, nv)), h_des=np.zeros(nv), J_des=np.zeros((nf, 3, nv)),
+            M_meas=np.zeros((nv, nv)), h_meas=np.zeros(nv), J_meas=np.zeros((nf, 3, nv)))
         self._kp_lin = np.ascontiguousarray(self.gains.kp_lin, dtype=float)
         self._kd_lin = np.ascontiguousarray(self.gains.kd_lin, dtype=float)
+        self.parameters = kernels.ControlParameters(
+            H=np.eye(robot.n_joints), g=np.zeros(robot.n_joints), limits=self.limits,  # W_u = I
+            cone=friction_cone_matrix(mu), f_min=float(f_min), rank_tol=RANK_TOL, qp_tolerance=self.qp.tolerance,
+            kp_lin=self._kp_lin, kd_lin=self._kd_lin, feedback_rank_tol=CONTACT_RANK_TOL,
+            feedback_measured=feedback_contacts == "measured")
         self._zeros = np.zeros(nv)  # ε of the nominal model (private, only read)
         self.qp_failures = 0
         self.epsilon_rejections = 0
@@ -105,15 +108,9 @@ class IdController:
         q, v = arg(ref.q), arg(ref.v)
         if q.shape != (self.robot.nq,) or v.shape != (self.robot.nv,):
             raise ControllerInputError("reference sizes do not match the robot")
-        kernels.desired_terms(self._functions, self._core_des.handle, q, v, self._key, *self._des)
-        return self._des
-
-    def compiled_state(self) -> tuple:
-        """The controller's handles, buffers and parameters in the order of the arguments of
-        kernels.control_step before the state (shared, updated in place)."""
-        return (self._functions, self._core_des.handle, self._core_meas.handle, self.qp._solvers.handle, self._key,
-                *self._des, *self._meas, self._H, self._g, self.limits, self._cone, float(self.f_min), RANK_TOL,
-                self.qp.tolerance, self._kp_lin, self._kd_lin, CONTACT_RANK_TOL, self.feedback_contacts == "measured")
+        w = self.workspace
+        kernels.desired_terms(w.functions, w.dyn_des, q, v, w.key, w.M_des, w.h_des, w.J_des)
+        return w.M_des, w.h_des, w.J_des
 
     def _check(self, q, v, contacts, ref: ReferencePoint):
         """Sizes (finiteness is checked in the compiled step)."""
@@ -144,8 +141,9 @@ class IdController:
         if eps_rejected:
             eps = self._zeros
         u_ff, u_lin, forces = np.empty(r.n_joints), np.empty(r.n_joints), np.empty((r.n_feet, 3))
+        inputs = kernels.ControlInput(q, v, contacts, ref_q, ref_v, ref_a, ref_contacts, eps)
         flags, status, _, unrealizable, worst = kernels.control_step(
-            *self.compiled_state(), q, v, contacts, ref_q, ref_v, ref_a, ref_contacts, eps, u_ff, u_lin, forces)
+            self.workspace, self.parameters, inputs, kernels.ControlOutputBuffers(u_ff, u_lin, forces))
         if flags & kernels.STATE_NON_FINITE:
             raise ControllerInputError("non-finite measured state")
         if flags & kernels.REFERENCE_NON_FINITE:

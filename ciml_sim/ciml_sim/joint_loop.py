@@ -28,6 +28,7 @@ import glob
 import math
 import os
 from functools import lru_cache
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
@@ -35,7 +36,14 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
-from ciml_control.kernels import all_finite, control_step
+from ciml_control.kernels import (
+    ControlInput,
+    ControlOutputBuffers,
+    ControlParameters,
+    ControlWorkspace,
+    all_finite,
+    control_step,
+)
 
 
 @lru_cache(maxsize=None)
@@ -258,25 +266,104 @@ def fallen(qpos: np.ndarray, min_base_height: float, cos_tilt: float) -> bool:
     return qpos[2] < min_base_height or 1.0 - 2.0 * (x * x + y * y) / n2 < cos_tilt
 
 
+class PlantState(NamedTuple):
+    """The plant as `closed_loop` reads and updates it (Plant.compiled_state(); arrays shared
+    with the Plant and its MjData and updated in place; the scalars come back through
+    ClosedLoopResult and Plant.compiled_done). Units SI, joint order of the robot."""
+
+    mj_step: int              # addresses of MuJoCo's C functions (mj_function)
+    mj_step2: int
+    mj_forward: int
+    mj_rne_post_constraint: int
+    model: int                # mjModel* and mjData* of the Python bindings
+    data: int
+    qpos: np.ndarray          # MjData.qpos (quaternion w, x, y, z), qvel
+    qvel: np.ndarray
+    qj: np.ndarray            # the joints' views of qpos, qvel, ctrl
+    vj: np.ndarray
+    ctrl: np.ndarray
+    xmat_base: np.ndarray     # the base body's rotation (MjData.xmat row, 9)
+    cfrc_ext: np.ndarray      # MjData.cfrc_ext
+    foot_bodies: np.ndarray   # body ids of the feet (int)
+    imu_tilt: np.ndarray      # IMU mounting tilt (w, x, y, z; empty for none)
+    noise_std: np.ndarray     # sensor noise: orientation, torque, position, twist
+    noisy: bool               # encoder noise drawn (enc_q, enc_qd hold a block)
+    enc_q: np.ndarray         # encoder noise block (physics steps × n_j), row enc_i next
+    enc_qd: np.ndarray
+    enc_i: int
+    meas_noise: np.ndarray    # sensor noise draws (samples × draws per sample; 0 columns: none), row meas_i next
+    meas_i: int
+    encoder_offset: np.ndarray
+    limits: np.ndarray        # torque limits of the joint loop
+    has_lag: bool             # actuator lag: α per joint and the lag state (updated)
+    alpha: np.ndarray
+    lag: np.ndarray
+    has_gain: bool            # actuator gain and offset
+    gain: np.ndarray
+    offset: np.ndarray
+    c: np.ndarray             # the held command's coefficients (command_coefficients, updated)
+    c_rate: np.ndarray
+    has_rate: bool
+    stamp: float              # the held command's stamp [s]
+    kp_cmd: np.ndarray        # the held command's gains (updated)
+    kd_cmd: np.ndarray
+    u: np.ndarray             # the last physics step's commanded torque u and actuator torque τ (out)
+    tau: np.ndarray
+    dt: float                 # physics step [s]
+    contact_threshold: float  # normal force of a contact [N]
+    sensor: np.ndarray        # torque-sensor gain, offset, ripple amplitude and period per joint (0 rows: ideal)
+
+
+class ReferenceRows(NamedTuple):
+    """The reference on the control grid: row k is tick k (recorder.ReferenceGrid.arrays)."""
+
+    q: np.ndarray             # qᵈ (ticks × nq)
+    v: np.ndarray             # q̇ᵈ (ticks × nv)
+    a: np.ndarray             # q̈ᵈ (ticks × nv)
+    contacts: np.ndarray      # contact schedule (ticks × n_feet, bool)
+
+
+class ClosedLoopLogs(NamedTuple):
+    """Per-tick logs of the paper metrics written by closed_loop (row k: tick k)."""
+
+    t: np.ndarray             # sample time [s]
+    effort: np.ndarray        # ‖u_fb‖ = ‖PD part + u_fb,lin‖ [Nm]
+    qpos: np.ndarray          # true MuJoCo qpos
+    q_ref: np.ndarray         # qᵈ
+
+
+class ClosedLoopResult(NamedTuple):
+    """Where closed_loop stopped and the plant scalars it advanced (Plant.compiled_done)."""
+
+    k: int                    # the first tick not run
+    why: int                  # CLOSED_LOOP_DONE, _FELL or _HANDBACK
+    meas_i: int               # sensor-noise row after the last tick run
+    stamp: float              # the last command's stamp and rate flag
+    has_rate: bool
+
+
 @njit(cache=True)
-def closed_loop(plant, control, kp, kd, ref_q, ref_v, ref_a, ref_contacts, k0, k1, t, steps_per_tick, min_base_height,
-                cos_tilt, t_log, effort_log, qpos_log, q_ref_log):
+def closed_loop(plant: PlantState, work: ControlWorkspace, par: ControlParameters, kp: np.ndarray, kd: np.ndarray,
+                refs: ReferenceRows, k0: int, k1: int, t: float, steps_per_tick: int, min_base_height: float,
+                cos_tilt: float, logs: ClosedLoopLogs) -> ClosedLoopResult:
     """Ticks k0 … k1−1 of the headless closed loop (ciml_sim.recorder.run_headless) without
     leaving compiled code: at each tick the plant's sample (`actuation` and `sense`, as
     Plant.measure), the controller's step (ciml_control.kernels.control_step, nominal
     model), the logs of the paper metrics, the command (`command_coefficients`, as
     Plant.set_command) and `steps_per_tick` physics steps (`run_joint_loop`, as Plant.step).
-    The same functions, in the same order, as the step-by-step path; `plant` and `control`
-    are Plant.compiled_state() and IdController.compiled_state(), kp and kd the joint PD
-    gains of the commands, ref_* the reference on the control grid (rows k).
+    The same functions, in the same order, as the step-by-step path; `plant` is
+    Plant.compiled_state(), `work` and `par` IdController.workspace and .parameters, kp
+    and kd the joint PD gains of the commands, refs the reference on the control grid.
 
-    Returns (k, why, meas_i, stamp, has_rate): the first tick not run, why it stopped
-    (CLOSED_LOOP_*), the measurement-noise block position after the last tick run, the last
-    command's stamp and rate flag (Plant.compiled_done takes them back)."""
-    (mj_step, mj_step2, mj_forward, mj_rne, model, data, qpos, qvel, qj, vj, ctrl, xmat_base, cfrc_ext, foot_bodies,
-     imu_tilt, noise_std, noisy, enc_q, enc_qd, enc_i, meas_noise, meas_i, encoder_offset, limits, has_lag, alpha,
-     lag, has_gain, gain, offset, c, c_rate, has_rate, stamp, kp_cmd, kd_cmd, u, tau, dt, contact_threshold,
-     sensor) = plant
+    Returns where it stopped, why (CLOSED_LOOP_*), and the plant's scalars it advanced: the
+    measurement-noise block position after the last tick run, the last command's stamp and
+    rate flag (Plant.compiled_done takes them back)."""
+    p = plant
+    qpos, qj, vj, ctrl, foot_bodies = p.qpos, p.qj, p.vj, p.ctrl, p.foot_bodies
+    noisy, enc_q, enc_qd, enc_i, meas_noise, meas_i = p.noisy, p.enc_q, p.enc_qd, p.enc_i, p.meas_noise, p.meas_i
+    c, c_rate, has_rate, stamp, kp_cmd, kd_cmd = p.c, p.c_rate, p.has_rate, p.stamp, p.kp_cmd, p.kd_cmd
+    ref_q, ref_v, ref_a, ref_contacts = refs.q, refs.v, refs.a, refs.contacts
+    t_log, effort_log, qpos_log, q_ref_log = logs.t, logs.effort, logs.qpos, logs.q_ref
     nj = qj.shape[0]
     nf = foot_bodies.shape[0]
     nv = nj + 6
@@ -290,15 +377,15 @@ def closed_loop(plant, control, kp, kd, ref_q, ref_v, ref_a, ref_contacts, k0, k
     for k in range(k0, k1):
         if (noisy and enc_i + steps_per_tick > enc_q.shape[0]) or (meas_noise.shape[1] > 0
                                                                     and meas_i >= meas_noise.shape[0]):
-            return k, CLOSED_LOOP_HANDBACK, meas_i, stamp, has_rate
+            return ClosedLoopResult(k, CLOSED_LOOP_HANDBACK, meas_i, stamp, has_rate)
         # the sample (Plant.measure)
-        actuation(qj, vj, encoder_offset, enc_q[enc_i] if noisy else no_noise, enc_qd[enc_i] if noisy else no_noise,
-                  t, c, c_rate, has_rate, stamp, kp_cmd, kd_cmd, limits, has_lag, alpha, lag, has_gain, gain, offset,
-                  q_m, qd_m, u_now, lag_now, tau_now)
+        actuation(qj, vj, p.encoder_offset, enc_q[enc_i] if noisy else no_noise,
+                  enc_qd[enc_i] if noisy else no_noise, t, c, c_rate, has_rate, stamp, kp_cmd, kd_cmd, p.limits,
+                  p.has_lag, p.alpha, p.lag, p.has_gain, p.gain, p.offset, q_m, qd_m, u_now, lag_now, tau_now)
         ctrl[:] = tau_now
-        sense(mj_forward, mj_rne, model, data, qpos, qvel, xmat_base, cfrc_ext, foot_bodies, imu_tilt, noise_std,
-              meas_noise[meas_i] if meas_noise.shape[1] > 0 else no_noise, tau_now, contact_threshold, quat, pos,
-              lin, ang, tau_meas, forces, contacts, sensor)
+        sense(p.mj_forward, p.mj_rne_post_constraint, p.model, p.data, qpos, p.qvel, p.xmat_base, p.cfrc_ext,
+              foot_bodies, p.imu_tilt, p.noise_std, meas_noise[meas_i] if meas_noise.shape[1] > 0 else no_noise,
+              tau_now, p.contact_threshold, quat, pos, lin, ang, tau_meas, forces, contacts, p.sensor)
         q[:3] = pos  # the measured configuration (recorder.measured_configuration)
         q[3:7] = quat
         q[7:] = q_m
@@ -306,10 +393,10 @@ def closed_loop(plant, control, kp, kd, ref_q, ref_v, ref_a, ref_contacts, k0, k
         v[3:6] = ang
         v[6:] = qd_m
         # the controller (IdController.compute, nominal model)
-        flags, status, _, _, _ = control_step(*control, q, v, contacts, ref_q[k], ref_v[k], ref_a[k],
-                                              ref_contacts[k], eps, u_ff, u_lin, planned)
-        if flags != 0 or status != 0 or not (all_finite(u_ff) and all_finite(u_lin)):
-            return k, CLOSED_LOOP_HANDBACK, meas_i, stamp, has_rate
+        step = control_step(work, par, ControlInput(q, v, contacts, ref_q[k], ref_v[k], ref_a[k], ref_contacts[k], eps),
+                            ControlOutputBuffers(u_ff, u_lin, planned))
+        if step.flags != 0 or step.status != 0 or not (all_finite(u_ff) and all_finite(u_lin)):
+            return ClosedLoopResult(k, CLOSED_LOOP_HANDBACK, meas_i, stamp, has_rate)
         # the tick is committed from here: noise consumed, logs written
         if meas_noise.shape[1] > 0:
             meas_i += 1
@@ -323,7 +410,7 @@ def closed_loop(plant, control, kp, kd, ref_q, ref_v, ref_a, ref_contacts, k0, k
         qpos_log[k] = qpos
         q_ref_log[k] = ref_q[k]
         if fallen(qpos, min_base_height, cos_tilt):
-            return k + 1, CLOSED_LOOP_FELL, meas_i, stamp, has_rate
+            return ClosedLoopResult(k + 1, CLOSED_LOOP_FELL, meas_i, stamp, has_rate)
         # the command (Plant.set_command, stamped with the sample's time) and the physics (Plant.step)
         command_coefficients(total, ref_q[k, 7:], ref_v[k, 6:], kp, kd, False, c, c_rate, kp_cmd, kd_cmd)
         stamp = t
@@ -331,12 +418,12 @@ def closed_loop(plant, control, kp, kd, ref_q, ref_v, ref_a, ref_contacts, k0, k
         for j in range(nj):
             if c_rate[j] != 0.0:
                 has_rate = True
-        run_joint_loop(mj_step, mj_step2, model, data, steps_per_tick, True, t, dt, qj, vj, ctrl, encoder_offset,
-                       enc_q[enc_i:enc_i + steps_per_tick] if noisy else enc_q,
+        run_joint_loop(p.mj_step, p.mj_step2, p.model, p.data, steps_per_tick, True, t, p.dt, qj, vj, ctrl,
+                       p.encoder_offset, enc_q[enc_i:enc_i + steps_per_tick] if noisy else enc_q,
                        enc_qd[enc_i:enc_i + steps_per_tick] if noisy else enc_qd, c, c_rate, has_rate, stamp,
-                       kp_cmd, kd_cmd, limits, has_lag, alpha, lag, has_gain, gain, offset, u, tau)
+                       kp_cmd, kd_cmd, p.limits, p.has_lag, p.alpha, p.lag, p.has_gain, p.gain, p.offset, p.u, p.tau)
         for _ in range(steps_per_tick):
-            t += dt
+            t += p.dt
         if noisy:
             enc_i += steps_per_tick
-    return k1, CLOSED_LOOP_DONE, meas_i, stamp, has_rate
+    return ClosedLoopResult(k1, CLOSED_LOOP_DONE, meas_i, stamp, has_rate)

@@ -467,7 +467,7 @@ class Plant:
         Python between steps (Stribeck friction, springs, torque ripple)."""
         return not self._extra
 
-    def compiled_state(self) -> tuple:
+    def compiled_state(self) -> joint_loop.PlantState:
         """The plant's state and parameters as joint_loop.closed_loop reads and updates
         them (arrays shared, updated in place); compiled_done() takes the scalars back."""
         m, d = self.model, self.data
@@ -481,12 +481,17 @@ class Plant:
             meas, meas_i = self._meas_noise, self._meas_noise_i
         else:
             meas, meas_i = np.empty((0, self._meas_noise_len)), 0
-        return (self._mj_step, self._mj_step2, self._mj_forward, self._mj_rne_post_constraint, m._address,
-                d._address, d.qpos, d.qvel, self._qj, self._vj, self._ctrl, self._xmat_base, d.cfrc_ext,
-                self._foot_bodies, self._imu_tilt, self._noise_std, self._encoder_noisy, enc_q, enc_qd, i, meas,
-                meas_i, self.encoder_offset, self.limits, self._has_lag, self._alpha, self._lag, self._has_gain,
-                self.gain, self.offset, self._c, self._c_rate, self._has_rate, self._stamp, self._kp, self._kd,
-                self.u, self.tau, float(m.opt.timestep), CONTACT_THRESHOLD, self._sensor)
+        return joint_loop.PlantState(
+            mj_step=self._mj_step, mj_step2=self._mj_step2, mj_forward=self._mj_forward,
+            mj_rne_post_constraint=self._mj_rne_post_constraint, model=m._address, data=d._address,
+            qpos=d.qpos, qvel=d.qvel, qj=self._qj, vj=self._vj, ctrl=self._ctrl, xmat_base=self._xmat_base,
+            cfrc_ext=d.cfrc_ext, foot_bodies=self._foot_bodies, imu_tilt=self._imu_tilt, noise_std=self._noise_std,
+            noisy=self._encoder_noisy, enc_q=enc_q, enc_qd=enc_qd, enc_i=i, meas_noise=meas, meas_i=meas_i,
+            encoder_offset=self.encoder_offset, limits=self.limits, has_lag=self._has_lag, alpha=self._alpha,
+            lag=self._lag, has_gain=self._has_gain, gain=self.gain, offset=self.offset, c=self._c,
+            c_rate=self._c_rate, has_rate=self._has_rate, stamp=self._stamp, kp_cmd=self._kp, kd_cmd=self._kd,
+            u=self.u, tau=self.tau, dt=float(m.opt.timestep), contact_threshold=CONTACT_THRESHOLD,
+            sensor=self._sensor)
 
     def compiled_done(self, physics_steps: int, meas_i: int, stamp: float, has_rate: bool) -> None:
         """After joint_loop.closed_loop: the steps it ran, the measurement-noise position,

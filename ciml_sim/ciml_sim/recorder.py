@@ -205,7 +205,7 @@ def run_headless(
     # a tick it hands back (QP failure, a noise block to draw) runs in python_tick.
     compiled = epsilon_fn is None and sample_writer is None and plant.compiles_closed_loop
     if compiled:
-        control = controller.compiled_state()
+        work, par = controller.workspace, controller.parameters
         gains = (np.ascontiguousarray(controller.gains.kp, dtype=float),
                  np.ascontiguousarray(controller.gains.kd, dtype=float))
 
@@ -256,8 +256,8 @@ def run_headless(
             if compiled:
                 t0 = time.perf_counter()
                 k_end, why, meas_i, stamp, has_rate = joint_loop.closed_loop(
-                    plant.compiled_state(), control, *gains, *refs, k, count, plant.time, PHYSICS_STEPS_PER_TICK,
-                    fall_height, cos_tilt, *logs)
+                    plant.compiled_state(), work, par, *gains, joint_loop.ReferenceRows(*refs), k, count, plant.time,
+                    PHYSICS_STEPS_PER_TICK, fall_height, cos_tilt, joint_loop.ClosedLoopLogs(*logs))
                 fell = why == joint_loop.CLOSED_LOOP_FELL
                 plant.compiled_done((k_end - k - fell) * PHYSICS_STEPS_PER_TICK, meas_i, stamp, has_rate)
                 controller.steps += k_end - k

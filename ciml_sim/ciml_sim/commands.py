@@ -74,9 +74,10 @@ def record(args: argparse.Namespace) -> int:
     writer = BagWriter(args.out, compression="zstd")
     with writer:
         result = run_headless(robot, scenario, args.motion, args.duration, args.seed, writer=writer,
-                              ground_truth=not args.no_ground_truth, progress=True)
+                              ground_truth=not args.no_ground_truth, progress=True, sensor_rate=args.sensor_rate)
     metrics = result.metrics()
     summary = {"out": args.out, "motion": args.motion, "duration_s": metrics["duration_s"],
+               "sensor_rate_hz": args.sensor_rate,
                "samples": metrics["samples"], "fell": metrics["fell"], "ground_truth": not args.no_ground_truth,
                "real_time_factor": metrics["real_time_factor"], "messages": sum(writer.counts.values())}
     print(json.dumps(summary))

@@ -15,6 +15,9 @@ def _record(s: argparse.ArgumentParser) -> None:
     s.add_argument("--seed", type=ca.integer(0, 2**32 - 1), default=0)
     s.add_argument("--out", type=ca.path, required=True, help="bag directory to create")
     s.add_argument("--no-ground-truth", action="store_true", help="leave the /sim/ topics out")
+    s.add_argument("--sensor-rate", type=float, choices=(250.0, 500.0, 1000.0), default=250.0, metavar="HZ",
+                   help="rate of the sensor topics (250, 500 or 1000 Hz; the controller and its "
+                        "/torque_command stay at 250 Hz), for logs at a robot's own rate")
 
 
 def _closed_loop(s: argparse.ArgumentParser) -> None:

@@ -12,6 +12,13 @@ P_c = Q_u Q_uᵀ and (P_c Sᵀ)⁺ P_c = (Q_uᵀ Sᵀ)⁺ Q_uᵀ, which is what 
 
 The joint PD itself is not computed here: its targets (qᵈ, q̇ᵈ of the joints) and gains
 go to the robot's 1 kHz joint loop in the TorqueCommand.
+
+The gains (FeedbackGains) and CONTACT_RANK_TOL are the controller's. The specification of
+eq. 24 is ciml_control.specification.feedback_linearization (literal pinv, tested equal to
+the compiled step in test_specification); `feedback_linearization` here calls the compiled
+kernel the product path runs (kernels.projected_pinv_apply, also inside
+kernels.control_step), for tests and tools; `PDCommand` / `joint_pd_command` are not on the
+product path (IdController.compute fills the command's targets and gains itself).
 """
 from __future__ import annotations
 

@@ -1,4 +1,14 @@
-"""Feedforward inverse-dynamics QP (paper eq. 18–21; Righetti et al., IJRR 2013).
+"""Feedforward inverse-dynamics QP (paper eq. 18–21; Righetti et al., IJRR 2013): the
+Python interface to the compiled QP the controller runs.
+
+The specification of the controller is ciml_control.specification (eq. 18–24 in numpy; the
+compiled path is tested against it in test_specification). This module does not restate
+it: `build_feedforward_qp` returns the very matrices of the compiled step
+(kernels.feedforward_matrices) and `FeedforwardQP.solve` runs its solve
+(kernels.solve_feedforward), for tests and tools that want the problem as data; the product
+path (IdController.compute → kernels.control_step) calls the kernels directly. The
+constants here (DEFAULT_MU, DEFAULT_F_MIN, RANK_TOL, friction_cone_matrix) are the
+controller's.
 
 With the model error ε (eq. 17) the rigid-body dynamics at the desired state read
 

@@ -7,6 +7,10 @@
 - u_fb,lin: `ciml_control.feedback.feedback_linearization` at the measured state, eq. (24).
 - PD targets and gains for the robot's 1 kHz joint loop.
 
+The step runs compiled (kernels.control_step, its inputs and outputs named by the records
+kernels.ControlWorkspace / ControlParameters / ControlInput / ControlOutputBuffers); its
+specification is ciml_control.specification (eq. 18–24 in numpy, test_specification).
+
 Safety (documented contract of `compute`):
 - Non-finite q, v or reference → `ControllerInputError` (a CimlError); no output is made,
   the caller commands damping (the id_controller node does, and counts it).
@@ -165,53 +169,3 @@ class IdController:
             kp=self.gains.kp.copy(), kd=self.gains.kd.copy(), contact_forces=forces,
             qp_failed=qp_failed, epsilon_rejected=eps_rejected, unrealizable=float(unrealizable),
             qp_error=qp_error, timings={"step_s": time.perf_counter() - t0})
-
-
-def compute_benchmark(motion: str = "trot_35", n_steps: int = 2000, seed: int = 0, model_dir: str | None = None) -> dict:
-    """p50/p99 of one control step as the id_controller node runs it: the model error ε at
-    the reference (eq. 17: contact-invariant basis at qᵈ and a Φ̃', Γ prediction — from
-    `model_dir` via ciml_learning.models.load_epsilon_function if given, else a fixed
-    prediction) plus IdController.compute() (QP included), along a reference with a
-    perturbed measured state. Reference samples are precomputed (the node receives them
-    on /reference). Target p99 ≤ 1 ms (budget at 250 Hz: 4 ms)."""
-    import pinocchio as pin
-
-    from ciml_learning.dynamics import selection_matrix
-    from ciml_learning.extraction import combined_error
-    from ciml_learning.projection import contact_invariant_basis
-    from ciml_learning.robot import load_robot
-
-    from .references import make_reference, standing_configuration
-
-    robot = load_robot()
-    q_stand = standing_configuration(robot, 0.002)
-    ref = make_reference(robot, motion, q_stand)
-    rng = np.random.default_rng(seed)
-    ts = 1.0 + np.arange(n_steps) / 250.0
-    points = [ref.sample(t) for t in ts]
-    ctrl = IdController(robot)
-    S = selection_matrix(robot)
-    phi = rng.normal(0.0, 5.0, len(robot.rbd_error_names))
-    gamma = rng.normal(0.0, 2.0, robot.n_joints)
-    if model_dir is not None:
-        from ciml_learning.models import load_epsilon_function
-
-        epsilon_fn = load_epsilon_function(robot, model_dir)
-    else:
-        def epsilon_fn(p):  # the contact Jacobians at qᵈ from the controller's pass at the reference
-            basis = contact_invariant_basis(ctrl.desired_terms(p)[2], robot.leg_joints)
-            return combined_error(basis, phi, gamma, S)
-    for p in points[:50]:  # warm-up
-        ctrl.compute(p.q, p.v, p.contacts, p, epsilon_fn(p))
-    times = []
-    for p in points:
-        q = pin.integrate(robot.model, p.q, 0.005 * rng.standard_normal(robot.nv))
-        v = p.v + 0.05 * rng.standard_normal(robot.nv)
-        t0 = time.perf_counter()
-        ctrl.compute(q, v, p.contacts, p, epsilon_fn(p))
-        times.append(time.perf_counter() - t0)
-    t = np.array(times) * 1e6
-    return {"motion": motion, "steps": n_steps, "model": model_dir or "fixed prediction",
-            "p50_us": round(float(np.percentile(t, 50)), 1), "p99_us": round(float(np.percentile(t, 99)), 1),
-            "max_us": round(float(t.max()), 1),
-            "qp_failures": ctrl.qp_failures, "target_p99_us": 1000.0}

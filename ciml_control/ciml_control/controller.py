@@ -96,6 +96,7 @@ class IdController:
             cone=friction_cone_matrix(mu), f_min=float(f_min), rank_tol=RANK_TOL, qp_tolerance=self.qp.tolerance,
             kp_lin=self._kp_lin, kd_lin=self._kd_lin, feedback_rank_tol=CONTACT_RANK_TOL,
             feedback_measured=feedback_contacts == "measured")
+        self._records = (*self.workspace, *self.parameters)
         self._zeros = np.zeros(nv)  # ε of the nominal model (private, only read)
         self.qp_failures = 0
         self.epsilon_rejections = 0
@@ -145,9 +146,9 @@ class IdController:
         if eps_rejected:
             eps = self._zeros
         u_ff, u_lin, forces = np.empty(r.n_joints), np.empty(r.n_joints), np.empty((r.n_feet, 3))
-        inputs = kernels.ControlInput(q, v, contacts, ref_q, ref_v, ref_a, ref_contacts, eps)
-        flags, status, _, unrealizable, worst = kernels.control_step(
-            self.workspace, self.parameters, inputs, kernels.ControlOutputBuffers(u_ff, u_lin, forces))
+        # kernels.control_step's records, field by field (kernels.control_step_arrays says why)
+        flags, status, _, unrealizable, worst = kernels.control_step_arrays(
+            *self._records, q, v, contacts, ref_q, ref_v, ref_a, ref_contacts, eps, u_ff, u_lin, forces)
         if flags & kernels.STATE_NON_FINITE:
             raise ControllerInputError("non-finite measured state")
         if flags & kernels.REFERENCE_NON_FINITE:

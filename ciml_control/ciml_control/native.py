@@ -14,7 +14,7 @@ from compiled code; addresses are arguments, never compiled-in constants, so num
 on-disk cache stays valid from one process to the next.
 
 The ABI (the one place both sides cite; control_core.cpp's comments hold the same):
-`CoreFunctions` names each function compiled code calls and its pointer arguments.
+`FUNCTIONS` names each function compiled code calls and its pointer arguments.
 Every argument is a pointer (handles from `Dynamics` / `QpSolvers`, `a.ctypes.data` of a
 C-contiguous array); matrices are row-major float64, sizes and results int64, the caller
 guarantees the sizes; no function raises (failures are status codes).
@@ -24,7 +24,6 @@ from __future__ import annotations
 import ctypes
 import os
 from functools import lru_cache
-from typing import NamedTuple
 
 import numpy as np
 from llvmlite import ir
@@ -57,39 +56,31 @@ def address(name: str) -> int:
     return int(ctypes.cast(getattr(library(), name), ctypes.c_void_p).value)
 
 
-class CoreFunctions(NamedTuple):
-    """Addresses of the core's C functions that compiled code calls (`ccall(fns.terms, (…))`),
-    each field the C function `ciml_<field>` of control_core.cpp with these pointer arguments
-    (nv, nq: the robot's; nf: its feet; row-major float64 unless said):
+FUNCTIONS = ("ciml_terms", "ciml_difference", "ciml_qp_solve", "ciml_qp_drop", "ciml_foot_kinematics",
+             "ciml_foot_acceleration")
+"""The core's C functions compiled code calls, in the order of function_table(); compiled
+code indexes the table by the names below. Each takes these pointer arguments (nv, nq: the
+robot's; nf: its feet; row-major float64 unless said):
 
-    terms             (Dynamics*, q[nq], v[nv], M[nv×nv] out (upper triangle), h[nv] out,
-                       J[nf×3×nv] out (feet, linear, LOCAL_WORLD_ALIGNED))
-    difference        (Dynamics*, q0[nq], q1[nq], out[nv] = q1 ⊖ q0)
-    qp_solve          (QpSolvers*, sizes[4] int64 (n, n_eq, n_in, box), H[n×n], g[n], A[n_eq×n], b[n_eq],
-                       C[n_in×n], l[n_in], u[n_in], lb[n], ub[n] (read only with box), x[n] out,
-                       info[2] int64 out (status: 0 solved, −1 exception, else QPSolverOutput + 1; iterations))
-    qp_drop           (QpSolvers*, sizes[4] int64): forget the solver of that size
-    foot_kinematics   (Dynamics*, q[nq], J[nf×3×nv] out, feet[nf×3] out (world positions))
-    foot_acceleration (Dynamics*, q[nq], v[nv], a[nv], out[nf×3] (classical, world-aligned))
+TERMS              ciml_terms (Dynamics*, q[nq], v[nv], M[nv×nv] out (upper triangle), h[nv] out,
+                   J[nf×3×nv] out (feet, linear, LOCAL_WORLD_ALIGNED))
+DIFFERENCE         ciml_difference (Dynamics*, q0[nq], q1[nq], out[nv] = q1 ⊖ q0)
+QP_SOLVE           ciml_qp_solve (QpSolvers*, sizes[4] int64 (n, n_eq, n_in, box), H[n×n], g[n], A[n_eq×n],
+                   b[n_eq], C[n_in×n], l[n_in], u[n_in], lb[n], ub[n] (read only with box), x[n] out,
+                   info[2] int64 out (status: 0 solved, −1 exception, else QPSolverOutput + 1; iterations))
+QP_DROP            ciml_qp_drop (QpSolvers*, sizes[4] int64): forget the solver of that size
+FOOT_KINEMATICS    ciml_foot_kinematics (Dynamics*, q[nq], J[nf×3×nv] out, feet[nf×3] out (world positions))
+FOOT_ACCELERATION  ciml_foot_acceleration (Dynamics*, q[nq], v[nv], a[nv], out[nf×3] (classical, world-aligned))
 
-    numba types it as a named tuple of int64 (NamedUniTuple), so the kernels read the fields
-    by name at no cost."""
-
-    terms: int
-    difference: int
-    qp_solve: int
-    qp_drop: int
-    foot_kinematics: int
-    foot_acceleration: int
+The table is an int64 array, not a named tuple: numba types a named tuple argument in
+Python on every call from Python (measured: several µs per call of the 250 Hz step), an
+array in C; the index names are compile-time constants in the kernels."""
+TERMS, DIFFERENCE, QP_SOLVE, QP_DROP, FOOT_KINEMATICS, FOOT_ACCELERATION = range(len(FUNCTIONS))
 
 
-FUNCTIONS = tuple(f"ciml_{name}" for name in CoreFunctions._fields)
-"""The core's C functions compiled code calls, in the order of CoreFunctions."""
-
-
-def function_table() -> CoreFunctions:
-    """Addresses of FUNCTIONS by name, the table the compiled kernels call through."""
-    return CoreFunctions(*(address(n) for n in FUNCTIONS))
+def function_table() -> np.ndarray:
+    """Addresses of FUNCTIONS (int64), the table the compiled kernels index by TERMS, DIFFERENCE, …"""
+    return np.array([address(n) for n in FUNCTIONS], dtype=np.int64)
 
 
 @intrinsic

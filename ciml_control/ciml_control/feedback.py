@@ -17,12 +17,11 @@ The gains (FeedbackGains) and CONTACT_RANK_TOL are the controller's. The specifi
 eq. 24 is ciml_control.specification.feedback_linearization (literal pinv, tested equal to
 the compiled step in test_specification); `feedback_linearization` here calls the compiled
 kernel the product path runs (kernels.projected_pinv_apply, also inside
-kernels.control_step), for tests and tools; `PDCommand` / `joint_pd_command` are not on the
-product path (IdController.compute fills the command's targets and gains itself).
+kernels.control_step), for tests and tools.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
@@ -116,19 +115,3 @@ def feedback_linearization(M: np.ndarray, foot_jacobians: np.ndarray, contacts: 
     arg = kernels.arg
     return kernels.projected_pinv_apply(arg(M), arg(foot_jacobians), arg(contacts, np.bool_), arg(qdd_fb),
                                         CONTACT_RANK_TOL)
-
-
-@dataclass
-class PDCommand:
-    """Targets and gains of the 1 kHz joint loop (joint order)."""
-
-    q_target: np.ndarray
-    qd_target: np.ndarray
-    kp: np.ndarray
-    kd: np.ndarray = field(default_factory=lambda: np.zeros(0))
-
-
-def joint_pd_command(q_des: np.ndarray, v_des: np.ndarray, gains: FeedbackGains) -> PDCommand:
-    """Joint PD targets: the joint part of the reference (qᵈ, q̇ᵈ) with the gains."""
-    return PDCommand(np.asarray(q_des[7:], float).copy(), np.asarray(v_des[6:], float).copy(),
-                     gains.kp.copy(), gains.kd.copy())

@@ -5,8 +5,10 @@ Nodes stay thin adapters around pure modules (docs/ARCHITECTURE.md).
 """
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
+import sys
 import threading
 import time
 from collections import Counter
@@ -41,6 +43,9 @@ LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, histor
 """Published once, kept for late joiners (/robot_description, /tf_static, /gap_diagnosis)."""
 
 
+SHUTDOWN_GRACE = 5.0
+"""[s] after SIGINT/SIGTERM before run_node ends a stuck shutdown itself (ros2 launch escalates
+to SIGTERM after 5 s)."""
 PUBLISH_PERIOD = 1.0
 """[s] between /diagnostics messages of a node (diagnostic_updater's default rate)."""
 OK, WARN, ERROR = 0, 1, 2
@@ -70,7 +75,9 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, nam
       executor every 0.1 s through a guard condition: a spin that woke on rclpy's signal
       guard condition before rclpy's deferred shutdown of the context otherwise waits forever
       when nothing else wakes it (measured: 1 node of 160 hung, its simulation-time timers
-      stopped with the bridge).
+      stopped with the bridge). The same thread ends a shutdown still stuck after
+      SHUTDOWN_GRACE with a warning and every thread's stack on stderr (seen once in 480
+      SIGINTs after the waker, cause not found yet), so a stop request always stops the node.
     - A bad parameter (wrong type, out of range, refused by the schema) or a CimlError while
       building the node (bad URDF, scenario, model folder): one logged line, exit status 1.
 
@@ -83,13 +90,21 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, nam
     wake: list = []  # the node's guard condition, once there is a node
 
     def keep_waking() -> None:
-        while True:
+        deadline = time.monotonic() + SHUTDOWN_GRACE
+        while time.monotonic() < deadline:
             time.sleep(0.1)
             try:
                 for gc in wake:
                     gc.trigger()
-            except Exception:  # destroyed: the node is gone
-                return
+            except Exception:  # destroyed: the node is going
+                wake.clear()
+        # still here: the shutdown is stuck somewhere; say where, then end the process as asked
+        rclpy.logging.get_logger(label).warning(
+            f"shutdown not finished {SHUTDOWN_GRACE:g} s after the signal; exiting (stacks on stderr)")
+        faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
 
     def on_signal(signum: int, _frame) -> None:
         if not signalled:

@@ -16,7 +16,7 @@ MUJOCO_BRIDGE = NodeSchema("ciml_sim", "mujoco_bridge", "the simulated robot (Mu
     Param("lockstep", False, "Under torque control, publish the next sample only once the command stamped with "
           "the last one has arrived (simulation time waits for the controller: every sample gets its command "
           "on a slow machine); false: free-running against the wall clock, as a real robot"),
-    Param("lockstep_timeout", 0.5, "Wall-clock wait for a command in lockstep; then free-running until the next "
+    Param("lockstep_timeout", 2.0, "Wall-clock wait for a command in lockstep; then free-running until the next "
           "command (a dead controller still meets command_timeout)", "s", 0.01, 10.0, read_only=False),
     Param("hold_standing_until_command", True, "Hold the standing pose (joint PD + gravity compensation) after start "
           "and reset until the first torque command; false: damp the joints instead"),

@@ -220,14 +220,8 @@ class MujocoBridge(Node):
             self.health.count("realtime_overruns")
             self._steps_done += owed - max_steps  # drop the debt: simulation time slows down
             owed = max_steps
-        try:
-            for _ in range(owed // self.steps_per_sample):
-                self._sample()
-        except Exception:
-            if self.context.ok():
-                raise
-            return  # SIGTERM/SIGINT shut the context down during this tick: normal shutdown
-        self._stats(now)
+        if self._samples(owed // self.steps_per_sample):
+            self._stats(now)
 
     def _lockstep_tick(self, now: float) -> None:
         """One sample per tick, once the last one's command has arrived (or the wait timed out)."""
@@ -237,13 +231,19 @@ class MujocoBridge(Node):
                 return
             self._lockstep_released = True  # free-running until the next command
             self.health.count("lockstep_timeouts", f"no command within {self.lockstep_timeout:g} s: free-running")
+        if self._samples(1):
+            self._steps_done = int((now - self._wall0) * 1000.0 * self.rtf)  # no debt when the lockstep ends
+
+    def _samples(self, n: int) -> bool:
+        """Take and publish n samples; False if a signal shut the context down meanwhile."""
         try:
-            self._sample()
+            for _ in range(n):
+                self._sample()
         except Exception:
             if self.context.ok():
                 raise
-            return
-        self._steps_done = int((now - self._wall0) * 1000.0 * self.rtf)  # no debt when the lockstep ends
+            return False  # SIGTERM/SIGINT shut the context down during this tick: normal shutdown
+        return True
 
     def _sample(self) -> None:
         if not (self.damping or self.holding) and self.plant.time - self.last_command_time > self.timeout:

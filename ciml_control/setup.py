@@ -8,7 +8,7 @@ setup(
     name=package_name,
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
-    # the controller core, compiled by cpp/build.sh (tools/install.sh) before the package is built
+    # the controller core, built by CMake (cpp/CMakeLists.txt, run by tools/install.sh) before the package is built
     package_data={package_name: ["py.typed", "libciml_control_core.so"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),

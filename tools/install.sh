@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Installs everything CIML needs into ./.venv, idempotently:
 #   system tools (apt, only when missing) -> venv + pinned wheels -> ciml_msgs (rosidl, CMake)
-#   -> the three ament_python packages (editable) -> ros2-run layout (lib/<pkg>/<exe>).
+#   -> the controller core (C++, CMake) -> the three ament_python packages (editable)
+#   -> ros2-run layout (lib/<pkg>/<exe>).
 # Each step is skipped when the files it depends on have not changed (hash stamps).
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -58,14 +59,18 @@ if ! stamp_ok msgs "$h"; then
   stamp_set msgs "$h"
 fi
 
-# The controller's C++ core (Pinocchio + proxsuite, headers from the cmeel wheels; ~2.5 min)
+# The controller's C++ core (CMake, ciml_control/cpp; Pinocchio + proxsuite headers from the cmeel wheels;
+# ~2.5 min) into the ciml_control package folder; CMake itself rebuilds only what changed.
 CORE="$ROOT/ciml_control/ciml_control/libciml_control_core.so"
 h=$(hash_of "$ROOT"/ciml_control/cpp/* "$STAMPS/wheels")
 if ! stamp_ok core "$h" || [ ! -f "$CORE" ]; then
   log "compiling the controller core (C++: Pinocchio, proxsuite)"
-  mkdir -p "$ROOT/build"
-  "$ROOT/ciml_control/cpp/build.sh" "$PY" > "$ROOT/build/control_core.log" 2>&1 \
-    || { tail -30 "$ROOT/build/control_core.log"; log "controller core build failed"; exit 1; }
+  BUILD="$ROOT/build/control_core"
+  CMEEL="$("$PY" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/cmeel.prefix"
+  mkdir -p "$BUILD"
+  (cmake -S "$ROOT/ciml_control/cpp" -B "$BUILD" -DCMAKE_PREFIX_PATH="$CMEEL" -DCMAKE_BUILD_TYPE=Release \
+     > "$BUILD/cmake.log" 2>&1 && cmake --build "$BUILD" > "$BUILD/make.log" 2>&1) \
+    || { tail -30 "$BUILD"/*.log; log "controller core build failed, see $BUILD/*.log"; exit 1; }
   stamp_set core "$h"
 fi
 

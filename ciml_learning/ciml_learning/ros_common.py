@@ -19,7 +19,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, ShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
@@ -63,10 +63,18 @@ def _node_name(factory: Callable[[], Node]) -> str:
 
 
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, name: str | None = None) -> None:
-    """rclpy.init → spin → clean shutdown (the ros2/demos skeleton), once for every node.
+    """One node in its own process (`ros2 run`): run_nodes with one factory."""
+    run_nodes([factory], args, name or _node_name(factory))
+
+
+def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None,
+              name: str = "ciml_container") -> None:
+    """rclpy.init → spin → clean shutdown (the ros2/demos skeleton), for one node in its own
+    process or several composed in one (`ciml_container`), spun by one DirectExecutor
+    (ciml_learning.executor: the CPU of a cycle goes to the nodes, not to rebuilding wait sets).
 
     - SIGINT/SIGTERM: rclpy's signal handler wakes the executor and shuts the context down;
-      whatever the spin (or a callback, or the node's construction) raises after the signal is
+      whatever the spin (or a callback, or a node's construction) raises after the signal is
       the shutdown racing the node, not an error: the process exits 0 without a traceback.
       The Python handler rclpy chains to records the signal instead of raising
       KeyboardInterrupt as Python's default one does (raised inside rclpy's message
@@ -77,17 +85,18 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, nam
       when nothing else wakes it (measured: 1 node of 160 hung, its simulation-time timers
       stopped with the bridge). The same thread ends a shutdown still stuck after
       SHUTDOWN_GRACE with a warning and every thread's stack on stderr (seen once in 480
-      SIGINTs after the waker, cause not found yet), so a stop request always stops the node.
+      SIGINTs after the waker, cause not found yet), so a stop request always stops the process.
     - A bad parameter (wrong type, out of range, refused by the schema) or a CimlError while
-      building the node (bad URDF, scenario, model folder): one logged line, exit status 1.
+      building a node (bad URDF, scenario, model folder): one logged line, exit status 1.
 
     DDS discovery defaults to this machine only; set ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET
     explicitly to talk to other hosts.
     """
+    from .executor import DirectExecutor
+
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    label = name or _node_name(factory)
     signalled: list[int] = []
-    wake: list = []  # the node's guard condition, once there is a node
+    wake: list = []  # a guard condition of the first node, once there is one
 
     def keep_waking() -> None:
         deadline = time.monotonic() + SHUTDOWN_GRACE
@@ -99,7 +108,7 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, nam
             except Exception:  # destroyed: the node is going
                 wake.clear()
         # still here: the shutdown is stuck somewhere; say where, then end the process as asked
-        rclpy.logging.get_logger(label).warning(
+        rclpy.logging.get_logger(name).warning(
             f"shutdown not finished {SHUTDOWN_GRACE:g} s after the signal; exiting (stacks on stderr)")
         faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
         sys.stdout.flush()
@@ -116,21 +125,26 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, nam
     try:
         rclpy.init(args=args)
     except Exception as err:  # malformed --ros-args (rcl parses them here)
-        rclpy.logging.get_logger(label).error(f"bad arguments: {_one_line(err)}")
+        rclpy.logging.get_logger(name).error(f"bad arguments: {_one_line(err)}")
         raise SystemExit(1) from None
     context = rclpy.get_default_context()
-    node = None
+    nodes: list[Node] = []
+    executor = None
     status = 0
     try:
-        node = factory()
-        wake.append(node.create_guard_condition(lambda: None))
+        executor = DirectExecutor(context=context)
+        for factory in factories:
+            nodes.append(factory())
+            executor.add_node(nodes[-1])
+            if not wake:
+                wake.append(nodes[-1].create_guard_condition(lambda: None))
         if not signalled:
-            rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
+            executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException, ShutdownException):
         pass
     except (ParameterException, CimlError) as err:
         if context.ok() and not signalled:
-            rclpy.logging.get_logger(label).error(f"{_one_line(err)}")
+            rclpy.logging.get_logger(name).error(f"{_one_line(err)}")
             status = 1
     except Exception:
         if context.ok() and not signalled:
@@ -138,8 +152,10 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, nam
         # a signal shut the context down while spin or a callback was using it
     finally:
         try:
-            if node is not None:
+            for node in nodes:
                 node.destroy_node()
+            if executor is not None:
+                executor.shutdown(timeout_sec=0)
             rclpy.try_shutdown()
         except (KeyboardInterrupt, Exception):  # a second signal, or destroy racing the shutdown
             pass

@@ -30,6 +30,15 @@ setup(
             "online_learner = ciml_learning.nodes.online_learner:main",
             "model_server = ciml_learning.nodes.model_server:main",
             "state_publisher = ciml_learning.nodes.state_publisher:main",
+            "ciml_container = ciml_learning.container:main",
+        ],
+        # node classes by executable name, for ciml_container (composition; ciml_learning.container)
+        "ciml.nodes": [
+            "state_filter = ciml_learning.nodes.state_filter:StateFilterNode",
+            "error_extractor = ciml_learning.nodes.error_extractor:ErrorExtractorNode",
+            "online_learner = ciml_learning.nodes.online_learner:OnlineLearnerNode",
+            "model_server = ciml_learning.nodes.model_server:ModelServerNode",
+            "state_publisher = ciml_learning.nodes.state_publisher:StatePublisherNode",
         ],
         # `ciml` verbs and benchmarks of this package (ciml_learning.cliargs.Verb; ciml_learning.bench)
         "ciml.verbs": [

@@ -75,12 +75,57 @@ class NodeAction:
         return out + (["--ros-args", *ros] if ros else [])
 
 
+@dataclass(frozen=True)
+class ProcessAction:
+    """One process `ciml launch` starts: a node on its own, or a container of nodes."""
+
+    label: str
+    nodes: tuple[NodeAction, ...]
+
+    @property
+    def composed(self) -> bool:
+        return len(self.nodes) != 1 or self.nodes[0].label != self.label
+
+
+CONTAINERS_ARG = "containers"
+"""The launch argument `ciml launch` reads for composition: groups `NAME:node,node,...`
+separated by spaces; each group's nodes run in one process (ciml_container, one executor),
+the nodes of no group each in its own. `ros2 launch` ignores it and starts each node as
+its own process: launch_ros composes rclcpp components only."""
+
+
+def process_plan(desc: LaunchDescription) -> list[ProcessAction]:
+    """The processes of a launch description: its `containers` groups, then lone nodes, in file order."""
+    by_label = {n.label: n for n in desc.nodes}
+    spec = desc.configuration.get(CONTAINERS_ARG, "").split()
+    groups: list[ProcessAction] = []
+    placed: dict[str, str] = {}
+    for item in spec:
+        name, sep, members = item.partition(":")
+        names = [m for m in members.split(",") if m]
+        if not sep or not name or not names:
+            raise LaunchFileError(f"{CONTAINERS_ARG}: {item!r} is not NAME:node,node,...")
+        for m in names:
+            if m in placed:
+                raise LaunchFileError(f"{CONTAINERS_ARG}: node {m!r} is in both {placed[m]} and {name}")
+            placed[m] = name
+        started = tuple(by_label[m] for m in names if m in by_label)  # a node switched off by `if` is skipped
+        if started:
+            groups.append(ProcessAction(name, started))
+    unknown = sorted(m for m in placed if m not in desc.declared_nodes)
+    if unknown:
+        raise LaunchFileError(f"{CONTAINERS_ARG}: no node named {', '.join(unknown)} in {os.path.basename(desc.path)}")
+    return groups + [ProcessAction(n.label, (n,)) for n in desc.nodes if n.label not in placed]
+
+
 @dataclass
 class LaunchDescription:
     path: str
     arguments: list[LaunchArg] = field(default_factory=list)
     nodes: list[NodeAction] = field(default_factory=list)
     configuration: dict[str, str] = field(default_factory=dict)
+    declared_nodes: set[str] = field(default_factory=set)
+    """Every node entry's name, started or switched off by its condition."""
 
 
 _SUBST = re.compile(r"\$\(([^()]*)\)")
@@ -250,6 +295,7 @@ def load(path: str, arguments: Mapping[str, str] | None = None,
             desc.configuration[str(body["name"])] = resolve(body["value"], where)
         elif kind == "node":
             node = _node(body, resolve, where)
+            desc.declared_nodes.add(resolve(body.get("name", body["exec"]), where))
             if node is not None:
                 desc.nodes.append(node)
         else:

@@ -26,7 +26,7 @@ import time
 from dataclasses import dataclass, field
 from typing import TextIO
 
-from .launch_file import LaunchDescription, LaunchFileError, NodeAction, find_executable
+from .launch_file import LaunchDescription, LaunchFileError, ProcessAction, find_executable, process_plan
 
 KILL_GRACE = 5.0
 """[s] between SIGTERM and SIGKILL of a node that ignores SIGINT."""
@@ -34,7 +34,9 @@ KILL_GRACE = 5.0
 
 @dataclass
 class NodeProcess:
-    action: NodeAction
+    """A started process: one node, or a container of nodes (ProcessAction.composed)."""
+
+    action: ProcessAction
     command: list[str]
     proc: subprocess.Popen
     reader: threading.Thread
@@ -58,9 +60,22 @@ def node_environment(base: dict[str, str] | None = None) -> dict[str, str]:
     return env
 
 
+def command(process: ProcessAction) -> list[str]:
+    """The command line of one process (executables resolved; LaunchFileError if one is missing):
+    `<exec> <node args>`, or `ciml_container --node PKG EXEC <node args> ...` for a container."""
+    if not process.composed:
+        node = process.nodes[0]
+        return [find_executable(node.pkg, node.executable), *node.ros_arguments()]
+    cmd = [find_executable("ciml_learning", "ciml_container")]
+    for node in process.nodes:
+        find_executable(node.pkg, node.executable)  # installed as a node of its package
+        cmd += ["--node", node.pkg, node.executable, *node.ros_arguments()]
+    return cmd
+
+
 def commands(desc: LaunchDescription) -> list[list[str]]:
-    """The command line of every node (executables resolved; raises LaunchFileError if one is missing)."""
-    return [[find_executable(n.pkg, n.executable), *n.ros_arguments()] for n in desc.nodes]
+    """The command line of every process of the launch description (process_plan)."""
+    return [command(p) for p in process_plan(desc)]
 
 
 class Launcher:
@@ -75,7 +90,13 @@ class Launcher:
         if dup:
             raise LaunchFileError(f"{desc.path}: node name(s) used twice: {', '.join(dup)}")
         self.desc = desc
-        self.cmds = commands(desc)  # every executable found before anything starts
+        self.plan = process_plan(desc)
+        labels = [p.label for p in self.plan]
+        dup = sorted({n for n in labels if labels.count(n) > 1})
+        if dup:
+            raise LaunchFileError(f"{desc.path}: process name(s) used twice (a container named like a node?): "
+                                  f"{', '.join(dup)}")
+        self.cmds = [command(p) for p in self.plan]  # every executable found before anything starts
         self.out = out if out is not None else sys.stdout
         self.log_dir = log_dir
         self.stop_timeout = stop_timeout
@@ -113,11 +134,12 @@ class Launcher:
 
     # --- life cycle ----------------------------------------------------------------------
     def start(self, only: list[str] | None = None) -> list[NodeProcess]:
-        """Start every node of the file (or those named in `only`, in the file's order)."""
+        """Start every process of the file (or those named in `only`: a container's name or a
+        lone node's), containers first, then lone nodes in the file's order."""
         if self.log_dir:
             os.makedirs(self.log_dir, exist_ok=True)
         started = []
-        for action, cmd in zip(self.desc.nodes, self.cmds):
+        for action, cmd in zip(self.plan, self.cmds):
             if only is not None and action.label not in only:
                 continue
             proc = subprocess.Popen(cmd, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
@@ -188,7 +210,7 @@ class Launcher:
         if failed:
             self._say(f"[launch] nodes that did not exit cleanly: {', '.join(failed)}")
             return 1
-        self._say(f"[launch] all {len(self.nodes)} nodes exited cleanly")
+        self._say(f"[launch] all {len(self.nodes)} processes exited cleanly")
         return 0
 
     def stop(self, timeout: float | None = None) -> int:

@@ -61,11 +61,13 @@ def test_substitutions_conditions_and_let(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("text,args,message", [
     ("launch:\n- include: {file: x}\n", {}, "unsupported action 'include'"),
-    ("launch:\n- node: {pkg: p, exec: e, param: [{name: x, value: '$(command ls)'}]}\n", {}, "unsupported substitution"),
+    ("launch:\n- node: {pkg: p, exec: e, param: [{name: x, value: '$(command ls)'}]}\n", {},
+     "unsupported substitution"),
     ("launch:\n- node: {pkg: p, exec: e, param: [{name: x, value: '$(var nope)'}]}\n", {}, "'nope' is not set"),
     ("launch:\n- arg: {name: a}\n", {}, "'a' is required"),
     ("launch:\n- arg: {name: a, default: x}\n", {"b": "1"}, "unknown launch argument(s) b"),
-    ("launch:\n- arg: {name: a, default: maybe}\n- node: {pkg: p, exec: e, if: $(var a)}\n", {}, "neither true nor false"),
+    ("launch:\n- arg: {name: a, default: maybe}\n- node: {pkg: p, exec: e, if: $(var a)}\n", {},
+     "neither true nor false"),
     ("launch:\n- node: {pkg: p, exec: e, respawn: true}\n", {}, "unsupported node attribute(s) respawn"),
     ("launch:\n- node: {pkg: p}\n", {}, "missing exec"),
     ("nodes: []\n", {}, "not a YAML launch file"),
@@ -165,7 +167,7 @@ def test_ciml_launch_process_exits_0_on_sigint(tmp_path):
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 0, out
-    assert out.count("got INT") == 2 and "all 2 nodes exited cleanly" in out
+    assert out.count("got INT") == 2 and "all 2 processes exited cleanly" in out
     with pytest.raises(lf.LaunchFileError, match="executable 'nope' not found"):
         os.environ["AMENT_PREFIX_PATH"], old = str(tmp_path / "prefix"), os.environ.get("AMENT_PREFIX_PATH")
         try:
@@ -175,6 +177,69 @@ def test_ciml_launch_process_exits_0_on_sigint(tmp_path):
                 os.environ.pop("AMENT_PREFIX_PATH")
             else:
                 os.environ["AMENT_PREFIX_PATH"] = old
+
+
+def test_containers_argument_composes_nodes_in_one_process_each(tmp_path, monkeypatch):
+    """`containers:=NAME:a,b ...`: one ciml_container process per group with each node's own
+    arguments, the other nodes alone, a node switched off by its condition left out; errors
+    in one line."""
+    _fake_package(tmp_path, {"good": TRAP_INT})
+    (tmp_path / "prefix" / "lib" / "ciml_learning").mkdir(parents=True)
+    (tmp_path / "prefix" / "share" / "ament_index" / "resource_index" / "packages" / "ciml_learning").write_text("")
+    container = tmp_path / "prefix" / "lib" / "ciml_learning" / "ciml_container"
+    container.write_text("#!/bin/sh\n" + TRAP_INT)
+    container.chmod(0o755)
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(tmp_path / "prefix"))
+    text = """
+        launch:
+        - arg: {name: containers, default: "hot:a,b"}
+        - arg: {name: with_c, default: "true"}
+        - node: {pkg: fake, exec: good, name: a, param: [{name: k, value: "1.5"}]}
+        - node: {pkg: fake, exec: good, name: b}
+        - node: {pkg: fake, exec: good, name: c, if: $(var with_c)}
+        - node: {pkg: fake, exec: good, name: d}
+        """
+    desc = lf.load(_write(tmp_path, text))
+    plan = lf.process_plan(desc)
+    assert [(p.label, [n.label for n in p.nodes], p.composed) for p in plan] == [
+        ("hot", ["a", "b"], True), ("c", ["c"], False), ("d", ["d"], False)]
+    out = tmp_path / "out.txt"
+    with open(out, "w") as f:
+        launcher = Launcher(desc, out=f, stop_timeout=3.0)
+        assert launcher.cmds[0] == [str(container), "--node", "fake", "good", "--ros-args", "-r", "__node:=a",
+                                    "-p", "k:=1.5", "--node", "fake", "good", "--ros-args", "-r", "__node:=b"]
+        launcher.start()
+        time.sleep(0.5)
+        assert launcher.stop() == 0
+    assert "all 3 processes exited cleanly" in out.read_text()
+    # a node switched off by its condition may stay listed; no containers → one process per node
+    plan = lf.process_plan(lf.load(_write(tmp_path, text.replace('"hot:a,b"', '"hot:a,c"')), {"with_c": "false"}))
+    assert [p.label for p in plan] == ["hot", "b", "d"]
+    assert [p.label for p in lf.process_plan(lf.load(_write(tmp_path, text), {"containers": ""}))] == list("abcd")
+    for spec, message in [("hot:a,x", "no node named x"), ("hot:a two:a", "'a' is in both hot and two"),
+                          ("hot", "is not NAME:node"), ("a:b", None)]:
+        desc = lf.load(_write(tmp_path, text), {"containers": spec})
+        if message is None:  # a container named like a lone node
+            with pytest.raises(lf.LaunchFileError, match="process name.* used twice"):
+                Launcher(desc)
+        else:
+            with pytest.raises(lf.LaunchFileError, match=message):
+                lf.process_plan(desc)
+
+
+def test_container_command_line_and_node_lookup():
+    from ciml_learning import container
+
+    assert container.parse_command_line(["--node", "p", "a", "--ros-args", "-p", "x:=1", "--node", "q", "b"]) == [
+        ("p", "a", ["--ros-args", "-p", "x:=1"]), ("q", "b", [])]
+    for bad in ([], ["a"], ["--node", "p"], ["--node", "p", "a", "--node"]):
+        with pytest.raises(container.ContainerError):
+            container.parse_command_line(bad)
+    assert container.node_class("ciml_learning", "state_filter").__name__ == "StateFilterNode"
+    with pytest.raises(container.ContainerError, match="belongs to ciml_learning"):
+        container.node_class("ciml_sim", "state_filter")
+    with pytest.raises(container.ContainerError, match="no composable node 'nope'"):
+        container.node_class("ciml_sim", "nope")
 
 
 # --- the live benchmarks' measurement helpers (ciml_learning.live_bench) -------------------------

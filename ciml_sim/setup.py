@@ -42,6 +42,7 @@ setup(
             "diagnosis_50k = ciml_sim.benchmarks:diagnosis_benchmark",
             "live_graph_rates = ciml_sim.benchmarks:live_graph_rates",
             "live_online_learning = ciml_sim.benchmarks:live_online_learning",
+            "live_graph_memory = ciml_sim.benchmarks:live_graph_memory",
         ],
     },
 )

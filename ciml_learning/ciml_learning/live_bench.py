@@ -31,6 +31,7 @@ import numpy as np
 from . import conversions as cv
 from . import topics
 from .errors import CimlError
+from .executor import DirectExecutor
 
 LAUNCH_PACKAGE = "ciml_sim"
 LAUNCH_FILE = "closed_loop.launch.yaml"
@@ -116,7 +117,6 @@ class GraphProbe:
         from ciml_msgs.msg import TorqueCommand
         from diagnostic_msgs.msg import DiagnosticArray
         from nav_msgs.msg import Odometry
-        from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
         from sensor_msgs.msg import JointState
 
@@ -150,7 +150,7 @@ class GraphProbe:
         self.node.create_subscription(JointState, topics.JOINT_STATES, self._on_joints, best_effort)
         self.node.create_subscription(Odometry, topics.BASE_STATE, self._on_base, best_effort)
         self.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, reliable)
-        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor = DirectExecutor(context=self.context)  # a light probe: it shares the machine
         self.executor.add_node(self.node)
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._spin, name="graph-probe", daemon=True)
@@ -260,17 +260,26 @@ def start_graph(arguments: dict[str, str], log_dir: str, only: list[str] | None 
     return launcher, out
 
 
+LAYOUTS = {
+    "free_running": {"lockstep": "false"},
+    "lockstep": {"lockstep": "true"},
+    "free_running_processes": {"lockstep": "false", "containers": ""},
+}
+"""The runs of `live_graph_rates`: the launch file's containers against the wall clock (the
+target: a real robot's loop), the same in lockstep (the file's default), and every node in its
+own process against the wall clock (the layout ros2 launch starts), for comparison."""
+
+
 def graph_rates(duration: float = 60.0, warmup: float = 10.0, arguments: dict[str, str] | None = None,
-                startup_timeout: float = 300.0) -> dict:
+                startup_timeout: float = 300.0, layouts: tuple[str, ...] = tuple(LAYOUTS)) -> dict:
     """`live_graph_rates`: the shipped graph (trot on the default gap, online learning) for
-    `duration` seconds after the controller commands torques and `warmup` seconds more, run
-    twice in one benchmark: free-running against the wall clock (as a real robot; wall-clock
-    rates are the target) and in lockstep (the launch file's default; every sample gets its
-    command, simulated time follows the graph: rates per simulated second and the achieved
-    real-time factor)."""
+    `duration` seconds after the controller commands torques and `warmup` seconds more, once per
+    layout of LAYOUTS, in one benchmark (numbers of one run are comparable; machines are noisy).
+    Free-running, wall-clock rates are the target; in lockstep, every sample gets its command
+    and simulated time follows the graph (rates per simulated second, achieved real-time factor)."""
     _private_domain()
-    return {mode: _rates_run({"lockstep": lockstep, **(arguments or {})}, duration, warmup, startup_timeout)
-            for mode, lockstep in (("free_running", "false"), ("lockstep", "true"))}
+    return {name: _rates_run({**LAYOUTS[name], **(arguments or {})}, duration, warmup, startup_timeout)
+            for name in layouts}
 
 
 def _rates_run(arguments: dict[str, str], duration: float, warmup: float, startup_timeout: float) -> dict:
@@ -312,11 +321,12 @@ def _rates_run(arguments: dict[str, str], duration: float, warmup: float, startu
             result["cpu_cores"] = {k: None if cpu_start[k] is None or cpu_end[k] is None
                                    else round((cpu_end[k] - cpu_start[k]) / wall, 3) for k in pids}
             result["cpu_cores_total"] = round(sum(v for v in result["cpu_cores"].values() if v), 3)
-            # CPU per cycle [ms]: what 250 Hz costs a node, less dependent on other load than rates
+            # CPU per cycle [ms]: what 250 Hz costs a process, less dependent on other load than
+            # rates; a node alone per message it handles, a container per joint sample
             result["cpu_ms_per_cycle"] = {
-                k: round(1e3 * c * wall / len(probe.receipts[MAIN_TOPIC[k]]), 3)
+                k: round(1e3 * c * wall / len(probe.receipts[MAIN_TOPIC.get(k, topics.JOINT_STATES)]), 3)
                 for k, c in result["cpu_cores"].items()
-                if c is not None and k in MAIN_TOPIC and probe.receipts.get(MAIN_TOPIC[k])}
+                if c is not None and probe.receipts.get(MAIN_TOPIC.get(k, topics.JOINT_STATES))}
             with probe.lock:
                 z = [v for _t, v in probe.base_z]
             with probe.lock:

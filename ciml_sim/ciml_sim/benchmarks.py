@@ -101,6 +101,13 @@ def live_graph_rates() -> dict:
     return live_bench.graph_rates(duration=60.0)
 
 
+def live_graph_memory() -> dict:
+    """The launch file's graph in lockstep (a healthy trot whatever the machine's load) for 10
+    minutes: resident memory of every process at the start and the end of the window (the
+    learner writes and the server swaps snapshots all along), rates."""
+    return live_bench.graph_rates(duration=600.0, layouts=("lockstep",))
+
+
 def live_online_learning() -> dict:
     """The online learner's effort on the live graph for 60 s (ciml_learning.live_bench)."""
     return live_bench.online_learning_effort(duration=60.0)
@@ -123,8 +130,8 @@ def rate_benchmark(seconds: float = 8.0, publish_rate: float = 250.0) -> dict:
         commander = rclpy.create_node("bench_commander", context=ctx)
         pub = commander.create_publisher(TorqueCommand, topics.TORQUE_COMMAND, COMMAND_QOS)
         received = [0]
-        commander.create_subscription(JointState, topics.JOINT_STATES, lambda m: received.__setitem__(0, received[0] + 1),
-                                      SENSOR_QOS)
+        commander.create_subscription(JointState, topics.JOINT_STATES,
+                                      lambda m: received.__setitem__(0, received[0] + 1), SENSOR_QOS)
         commander.create_timer(0.004, lambda: pub.publish(cv.torque_command_msg(robot, 0, arrays)))
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(bridge)
@@ -179,7 +186,8 @@ def diagnosis_benchmark(n_samples: int = 50_000, seconds: float = 20.0, motion: 
         t0, c0 = time.perf_counter(), time.process_time()
         result = diagnose(robot, [bag] * (copies - n_ho), [bag] * n_ho, os.path.join(tmp, "out"), progress=False)
         elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
-        return {"samples": copies * per_bag, "valid_samples": result["data"]["samples"] + result["data"]["heldout_samples"],
+        return {"samples": copies * per_bag,
+                "valid_samples": result["data"]["samples"] + result["data"]["heldout_samples"],
                 "diagnosis_s": round(elapsed, 2), "diagnosis_cpu_s": round(cpu, 2), "target_s": 120.0,
                 "effects": [e["type"] for e in result["effects"]]}
     finally:

@@ -33,7 +33,7 @@ def spin_until(ex: DirectExecutor, done, timeout: float = 10.0) -> bool:
     return done()
 
 
-def test_messages_timers_order_and_accounting(ctx):
+def test_messages_timers_and_order(ctx):
     pub_node = rclpy.create_node("pub", context=ctx)
     node = rclpy.create_node("sub", context=ctx)
     got: list[tuple[str, int]] = []
@@ -56,7 +56,6 @@ def test_messages_timers_order_and_accounting(ctx):
     assert got[:2] == [("a", 0), ("b", 0)]
     assert spin_until(ex, lambda: len(got) == 40 and len(ticks) >= 20)
     assert [v for k, v in got if k == "a"] == list(range(20))
-    assert ex.callbacks["sub"] >= 60
 
 
 def test_simulation_time_timer_follows_clock(ctx):

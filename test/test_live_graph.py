@@ -27,6 +27,9 @@ NODES = ("mujoco_bridge", "reference_generator", "id_controller", "model_server"
          "error_extractor", "online_learner", "state_publisher")
 STARTUP = 180.0
 """[s] wall-clock bound for a node to come up (imports, numba caches; a shared 2-core machine)."""
+DEFAULT = next(a.default for a in load(os.path.join(find_package_share("ciml_sim"), "launch",
+                                                    "closed_loop.launch.yaml")).arguments if a.name == "containers")
+"""The launch file's own `containers` (control and learning)."""
 STANDING_Z = 0.5
 """[m] base height above which HyQ stands (standing pose 0.61 m; on its trunk < 0.3 m)."""
 
@@ -123,6 +126,8 @@ ORDERS = {
                          (NODES[:1] + NODES[3:], 0.0)],
     "learner_late": [(NODES[:6], 15.0), (NODES[6:], 0.0)],
     "model_server_restarted": [(NODES, 0.0)],
+    # the launch file's containers (ciml launch's default layout): learning first, control late
+    "containers_learning_first": [(("learning",), 15.0), (("control",), 0.0)],
 }
 
 
@@ -131,10 +136,10 @@ def test_start_orders_end_standing_then_walking(graph, order):
     """Whatever the start order, the robot stands until the controller commands it, then
     trots (trot_35: 0.35 m/s) without falling; a restarted model_server changes nothing."""
     make, probe = graph
-    launcher = make()
+    launcher = make(containers=DEFAULT) if order.startswith("containers") else make()
     for group, pause in ORDERS[order]:
         launcher.start(list(group))
-        if "mujoco_bridge" in group:
+        if "mujoco_bridge" in group or "control" in group:
             assert probe.wait_for(lambda: bool(probe.base_z), STARTUP), "no /base_state from the bridge"
         if pause:
             deadline = time.monotonic() + pause

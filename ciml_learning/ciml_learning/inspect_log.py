@@ -27,6 +27,14 @@ FOOT_WORDS = re.compile(r"foot|feet|contact|force|toe", re.IGNORECASE)
 COMMAND_WORDS = re.compile(r"command|cmd|effort|torque", re.IGNORECASE)
 ARRAYS = ("std_msgs/msg/Float64MultiArray", "std_msgs/msg/Float32MultiArray", "std_msgs/msg/Int16MultiArray",
           "std_msgs/msg/Int32MultiArray", "std_msgs/msg/UInt8MultiArray", "std_msgs/msg/ByteMultiArray")
+CONTACT_WEIGHT_SHARE = 0.15
+"""Draft contact threshold: a foot carrying this share of the robot's weight is in contact."""
+CONTACT_HYSTERESIS_SHARE = 0.10
+"""Draft hysteresis, as a share of the weight (out of contact below 5 % of it)."""
+WEIGHT_AGREEMENT = 0.25
+"""Relative difference between the feet's mean summed reading and m g beyond which the readings are
+taken to be in another unit (the draft then uses the readings' own weight)."""
+GRAVITY = 9.81  # [m/s²]
 PD_NAMES = {"q_des": ("q", "q_des", "position"), "dq_des": ("dq", "dq_des", "velocity"), "kp": ("kp", "stiffness"),
             "kd": ("kd", "damping"), "tau_ff": ("tau", "tau_ff", "effort", "torque")}
 
@@ -71,10 +79,29 @@ def _foot_names(names: list[str], feet: tuple[str, ...] | None) -> list[str]:
     return [n for n in names if FOOT_WORDS.search(n)]
 
 
-def _threshold_from(values: np.ndarray) -> tuple[float, float]:
-    """A draft threshold/hysteresis from the data: halfway between the 5th and 95th percentiles, ±10 %."""
-    lo, hi = np.nanpercentile(values, [5, 95])
-    return float(round((lo + hi) / 2, 3)), float(round(0.1 * (hi - lo), 3))
+def _threshold_from(values: np.ndarray, mass: float | None = None) -> tuple[float, float, str]:
+    """A draft contact threshold and hysteresis for per-foot force readings (samples × feet), and why.
+
+    A foot is relied on as a contact once it carries CONTACT_WEIGHT_SHARE of the robot's weight
+    W (and released below (CONTACT_WEIGHT_SHARE − CONTACT_HYSTERESIS_SHARE) W): the data's
+    midpoint sits in the middle of the stance load and drops early and late stance. W is m g
+    with the robot's mass; without it — or when the readings disagree with m g by more than
+    WEIGHT_AGREEMENT (another unit, a scale) — W is the mean of the feet's summed reading: over a
+    log the feet carry the weight on average (vertical momentum balance), in the sensor's unit."""
+    total = float(np.nanmean(np.nansum(values, axis=1))) if values.size else float("nan")
+    weight, why = total, f"the feet's mean summed reading ({total:.1f})"
+    if mass is not None:
+        mg = mass * GRAVITY
+        if np.isfinite(total) and abs(total - mg) <= WEIGHT_AGREEMENT * mg:
+            weight, why = mg, f"the robot's weight m g = {mg:.1f} N (the feet's mean summed reading: {total:.1f})"
+        elif not np.isfinite(total) or total <= 0:
+            weight, why = mg, f"the robot's weight m g = {mg:.1f} N"
+        else:
+            why += f", not the robot's weight m g = {mg:.1f} N: check the sensor's unit"
+    if not np.isfinite(weight) or weight <= 0:
+        return 0.0, 0.0, "no positive readings: set the threshold [N] by hand"
+    return (float(round(CONTACT_WEIGHT_SHARE * weight, 3)), float(round(CONTACT_HYSTERESIS_SHARE * weight, 3)),
+            f"threshold {CONTACT_WEIGHT_SHARE:.0%} and hysteresis {CONTACT_HYSTERESIS_SHARE:.0%} of {why}")
 
 
 def _twist_frame(items: list) -> tuple[str, str]:
@@ -118,9 +145,11 @@ def _pd_fields(msg) -> dict[str, str] | None:
     return None
 
 
-def inspect_bag(path: str, joint_names: tuple[str, ...] | None = None, feet: tuple[str, ...] | None = None) -> dict:
+def inspect_bag(path: str, joint_names: tuple[str, ...] | None = None, feet: tuple[str, ...] | None = None,
+                mass: float | None = None) -> dict:
     """Topics, stamp statistics and role guesses of one bag; `joint_names`/`feet` (a URDF's)
-    sharpen the guesses. Returns {"topics": [...], "roles": {role: {...}}, "notes": [...]}."""
+    sharpen the guesses, `mass` [kg] (the robot's) sets the drafted contact threshold
+    (_threshold_from). Returns {"topics": [...], "roles": {role: {...}}, "notes": [...]}."""
     topics, msgs = _read(path)
     for d in topics:
         d.update(_stats(msgs.get(d["topic"], [])) if msgs.get(d["topic"]) else {"rate_hz": None, "problems": ["empty"]})
@@ -166,20 +195,19 @@ def inspect_bag(path: str, joint_names: tuple[str, ...] | None = None, feet: tup
             items = msgs[top]
             idx = [list(items[0][2].name).index(n) for n in foot_entries]
             vals = np.array([np.asarray(m.effort, float)[idx] for _, _, m in items if len(m.effort) == len(m.name)])
-            thr, hyst = _threshold_from(vals) if len(vals) else (0.0, 0.0)
+            thr, hyst, how = _threshold_from(vals, mass) if len(vals) else (0.0, 0.0, "no readings")
             roles["contacts"] = {"spec": {"topic": top, "type": JOINT_STATE, "field": "effort",
                                           "names": foot_entries, "threshold": thr, "hysteresis": hyst},
-                                 "why": f"JointState entries {foot_entries} look like foot sensors; threshold from "
-                                        "the data (halfway between its 5th and 95th percentiles) — check it"}
+                                 "why": f"JointState entries {foot_entries} look like foot sensors; {how} — check it"}
         elif arrays:
             d = arrays[0]
             vals = np.array([np.asarray(m.data, float) for _, _, m in msgs[d["topic"]]])
-            thr, hyst = _threshold_from(vals)
+            thr, hyst, how = _threshold_from(vals, mass)
             roles["contacts"] = {"spec": {"topic": d["topic"], "type": d["type"], "field": "data",
                                           "threshold": thr, "hysteresis": hyst},
                                  "why": f"per-foot array ({vals.shape[1]} values) named like foot forces; the "
-                                        "values must be in the profile's feet order (else add order:); threshold "
-                                        "from the data — check it"}
+                                        "values must be in the profile's feet order (else add order:); "
+                                        f"{how} — check it"}
         elif len(wrenches) >= 2:
             roles["contacts"] = {"spec": {"topics": {f"FOOT_{i}": d["topic"] for i, d in enumerate(wrenches)},
                                           "type": WRENCH, "field": "wrench.force.z", "threshold": 20.0,
@@ -276,7 +304,8 @@ def inspect_command(args: argparse.Namespace) -> int:
         prof = profile_from_args(args)
         robot = prof.robot()
     feet = tuple(robot.foot_frames) if robot is not None else (tuple(args.feet) if getattr(args, "feet", None) else None)
-    report = inspect_bag(args.bag, robot.joint_names if robot is not None else None, feet)
+    report = inspect_bag(args.bag, robot.joint_names if robot is not None else None, feet,
+                         robot.total_mass if robot is not None else None)
     cmd = report["roles"].get("command", {}).get("spec", {})
     if robot is not None and "joints" in cmd and "joints" in prof.inputs.get("command", {}) and \
             prof.inputs["command"]["type"] == cmd["type"]:

@@ -61,3 +61,27 @@ def test_inspect_without_a_robot_and_stamp_problems(tmp_path, capsys):
     rep = inspect_bag(str(bag))
     assert rep["roles"]["contacts"]["spec"]["names"] == FEET  # foot-like entries by name
     assert np.isclose(rep["topics"][1]["rate_hz"], 250.0)
+
+
+def test_drafted_contact_threshold_is_a_share_of_the_weight():
+    """The draft threshold is 15 % of the robot's weight (hysteresis 10 %), not the data's midpoint:
+    a trot whose stance feet carry half the weight each, with half-sine load profiles (midpoint of
+    the readings: ~W/2, which would drop early and late stance)."""
+    from ciml_learning.inspect_log import _threshold_from
+
+    mass, g = 13.1, 9.81
+    t = np.arange(0.0, 4.0, 0.002)
+    phase = (t % 0.5) / 0.5  # a 0.5 s trot cycle: FL+RR stance, then FR+RL
+    load = np.pi / 2 * mass * g / 2 * np.abs(np.sin(np.pi * 2 * phase))  # half-sines, mean W/2 per pair
+    first = phase < 0.5
+    forces = np.stack([np.where(first, load, 0.0), np.where(first, 0.0, load),
+                       np.where(first, 0.0, load), np.where(first, load, 0.0)], axis=1)
+    assert np.sum(forces, axis=1).mean() == pytest.approx(mass * g, rel=0.01)
+    thr, hyst, why = _threshold_from(forces, mass)
+    assert (thr, hyst) == (pytest.approx(0.15 * mass * g, abs=1e-3), pytest.approx(0.1 * mass * g, abs=1e-3))
+    assert "m g" in why
+    thr, hyst, _ = _threshold_from(forces)  # no robot: the readings' own weight
+    assert thr == pytest.approx(0.15 * mass * g, rel=0.01) and hyst == pytest.approx(0.1 * mass * g, rel=0.01)
+    thr, _, why = _threshold_from(10.0 * forces, mass)  # another unit: the readings' weight, and a warning
+    assert thr == pytest.approx(1.5 * mass * g, rel=0.01) and "check the sensor's unit" in why
+    assert _threshold_from(np.zeros((10, 4)))[:2] == (0.0, 0.0)

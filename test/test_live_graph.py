@@ -91,9 +91,9 @@ def graph(tmp_path):
 
 
 def test_ciml_launch_brings_up_the_graph_and_sigint_stops_it(tmp_path):
-    """`ciml launch ciml_sim closed_loop.launch.yaml`: all eight nodes in the graph (composed in
-    the file's two containers), sensors, commands, filtered states and predictions flowing;
-    one SIGINT → every process exits 0."""
+    """`ciml launch ciml_sim closed_loop.launch.yaml`: all eight nodes in the graph (in the
+    file's two containers and the learner's own process), sensors, commands, filtered states
+    and predictions flowing; one SIGINT → every process exits 0."""
     probe = rate_probe()
     probe.recording = True
     proc = subprocess.Popen([os.path.join(sys.prefix, "bin", "ciml"), "launch", "ciml_sim", "closed_loop.launch.yaml",
@@ -115,7 +115,7 @@ def test_ciml_launch_brings_up_the_graph_and_sigint_stops_it(tmp_path):
             proc.communicate()
         probe.close()
     assert proc.returncode == 0, out[-3000:]
-    assert "all 2 processes exited cleanly" in out  # the file's two containers (control, learning)
+    assert "all 3 processes exited cleanly" in out  # the file's containers (control, learning) + online_learner
     assert "Traceback" not in out, out[out.index("Traceback") - 500:][:3000]
 
 
@@ -127,7 +127,7 @@ ORDERS = {
     "learner_late": [(NODES[:6], 15.0), (NODES[6:], 0.0)],
     "model_server_restarted": [(NODES, 0.0)],
     # the launch file's containers (ciml launch's default layout): learning first, control late
-    "containers_learning_first": [(("learning",), 15.0), (("control",), 0.0)],
+    "containers_learning_first": [(("learning", "online_learner"), 15.0), (("control",), 0.0)],
 }
 
 

@@ -230,6 +230,10 @@ class GraphProbe:
         rclpy.try_shutdown(context=self.context)
 
 
+def _growth(start: float | None, end: float | None) -> float | None:
+    return None if start is None or end is None else round(end - start, 1)
+
+
 def _message_class(type_name: str) -> type:
     """'pkg/msg/Name' → the message class."""
     import importlib
@@ -301,7 +305,13 @@ def _rates_run(arguments: dict[str, str], duration: float, warmup: float, startu
                 probe.base_z.clear()
             probe.recording = True
             t0 = time.monotonic()
-            time.sleep(duration)
+            # resident memory through the window: bounded means flat in its second half
+            step = max(duration / 10.0, 1.0)
+            rss_series: dict[str, list] = {k: [] for k in pids}
+            while time.monotonic() < t0 + duration:
+                time.sleep(min(step, max(t0 + duration - time.monotonic(), 0.0)))
+                for k, p in pids.items():
+                    rss_series[k].append(rss_mb(p))
             probe.recording = False
             wall = time.monotonic() - t0
             rss_end = {k: rss_mb(p) for k, p in pids.items()}
@@ -315,8 +325,10 @@ def _rates_run(arguments: dict[str, str], duration: float, warmup: float, startu
             result["qp_failure_fraction"] = round(qp / cmds, 4) if cmds else None
             result["damping_command_fraction"] = round(probe.n_damping / max(probe.n_commands, 1), 4)
             result["rss_mb"] = {k: {"start": rss_start[k], "end": rss_end[k],
-                                    "growth": None if rss_start[k] is None or rss_end[k] is None
-                                    else round(rss_end[k] - rss_start[k], 1)} for k in pids}
+                                    "growth": _growth(rss_start[k], rss_end[k]),
+                                    "growth_second_half": _growth(rss_series[k][len(rss_series[k]) // 2 - 1],
+                                                                  rss_end[k]),
+                                    "series": rss_series[k]} for k in pids}
             # CPU demand of each node: 1.0 = one core busy the whole window
             result["cpu_cores"] = {k: None if cpu_start[k] is None or cpu_end[k] is None
                                    else round((cpu_end[k] - cpu_start[k]) / wall, 3) for k in pids}

@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from ciml_learning import bagio
+from ciml_learning.loginputs import load_log
 from ciml_learning.robot import RobotDescription
 
 STORAGES = ("mcap", "sqlite3", "ros1")
@@ -68,7 +69,7 @@ class NativeLog:
 
 def read_native(robot: RobotDescription, path: str | os.PathLike) -> NativeLog:
     """The native bag through CIML's reader, with the ground-truth foot normal forces."""
-    log = bagio.load_sensor_log(robot, path)
+    log = load_log(robot, path)
     msgs = bagio.read_messages(path, ["/sim/contact_forces"])["/sim/contact_forces"]
     if not msgs:
         raise ValueError(f"{path}: no /sim/contact_forces (record with ground truth)")

@@ -7,7 +7,8 @@ Read from the source with `ast`, nothing is imported:
   and entry-point-like "package.module:attr" strings (setup.py entry points, `ciml` verbs);
 - the three Python packages are layered ciml_learning ← ciml_control ← ciml_sim (ciml_msgs,
   the interfaces, below all): a file of a package (its modules, its tests, its setup.py) names
-  no module of a package above it; tests that need several packages live in test/.
+  no module of a package above it; tests that need several packages live in test/;
+- no two modules import each other, directly or around a loop, at module level or inside functions.
 """
 from __future__ import annotations
 
@@ -208,11 +209,13 @@ def test_no_package_declares_a_package_above_it():
 # --- (a) cycles ------------------------------------------------------------------------------------
 
 
-def _graph(include_local: bool) -> dict[str, set[str]]:
+def _graph() -> dict[str, set[str]]:
+    """Module → the project modules it imports, at module level or inside functions (a function-local
+    import closes a cycle as surely, only later); typing-only imports and import strings left out."""
     g: dict[str, set[str]] = {m: set() for m in MODULES}
     for m, path in MODULES.items():
         for imp in imports_of(path):
-            if imp.kind != "statement" or imp.typing_only or (imp.local and not include_local):
+            if imp.kind != "statement" or imp.typing_only:
                 continue
             if imp.target in MODULES and imp.target != m:
                 g[m].add(imp.target)
@@ -267,28 +270,9 @@ def test_cycle_finder_finds_a_cycle():
     assert _cycles({"a": {"b"}, "b": set()}) == []
 
 
-def test_no_import_cycle_between_modules_at_module_level():
-    cycles = _cycles(_graph(include_local=False))
-    assert not cycles, f"module-level import cycles: {cycles}"
-
-
-# Cycles closed only by imports inside functions (docs/ARCHITECTURE.md §3: project imports at module
-# top). Known ones, to be removed as the modules are split (issue 21); a new one fails here.
-KNOWN_FUNCTION_LOCAL_CYCLES: list[list[str]] = [
-    ["ciml_learning.bagio", "ciml_learning.loginputs"],
-    ["ciml_learning.diagnosis.report", "ciml_learning.diagnosis.run"],
-]
-
-
-def test_function_local_import_cycles_are_known(capsys):
-    cycles = _cycles(_graph(include_local=True))
-    with capsys.disabled():
-        print(f"\nimport cycles closed by function-local imports: {len(cycles)}")
-        for c in cycles:
-            print("  " + " ↔ ".join(c))
-    known = [set(c) for c in KNOWN_FUNCTION_LOCAL_CYCLES]
-    new = [c for c in cycles if not any(set(c) <= k for k in known)]
-    assert not new, f"new import cycles through function-local imports: {new}"
+def test_no_import_cycle_between_modules():
+    cycles = _cycles(_graph())
+    assert not cycles, f"import cycles (function-local imports included): {cycles}"
 
 
 # --- (b) package.xml declares what the code imports ------------------------------------------------

@@ -21,6 +21,7 @@ from ciml_learning.estimation import (
     estimate_contacts,
     threshold_contacts,
 )
+from ciml_learning.loginputs import load_log
 from ciml_learning.robot import example_robot_data_dir, load_robot
 
 pytest.importorskip("ciml_sim")
@@ -36,7 +37,7 @@ def _record(robot, path, motion: str, duration: float, scenario: str = "nominal"
         r = run_headless(robot, resolve_scenario(scenario, robot), motion, duration, seed=1, writer=w,
                          ground_truth=True, progress=False)
     assert not r.fell
-    return bagio.load_sensor_log(robot, path)
+    return load_log(robot, path)
 
 
 def _true_normal_forces(path, t: np.ndarray) -> np.ndarray:

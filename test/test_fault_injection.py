@@ -138,7 +138,7 @@ def test_snapshot_writer_killed_at_every_step_leaves_loadable_snapshots(old_mode
 
 DIAG = """
     import sys
-    from ciml_learning.diagnosis.run import write_diagnosis_dir
+    from ciml_learning.diagnosis.files import write_diagnosis_dir
     from ciml_learning.diagnosis.report import attach_closed_loop
     out, tag = sys.argv[1], sys.argv[2]
     write_diagnosis_dir(out, {"format_version": 1, "tag": tag}, f"<html>{tag}<!--closed-loop--><!--/closed-loop--></html>")
@@ -304,9 +304,10 @@ def test_out_on_a_device_node_is_refused(old_model, tmp_path, capsys):
 
 def test_duplicated_messages_are_counted_as_dropped(tmp_path):
     """A log with repeated joint-state messages: each repeat is a counted drop, not a silent one."""
-    from ciml_learning.bagio import BagWriter, iter_bag_messages, load_sensor_log
+    from ciml_learning.bagio import BagWriter, iter_bag_messages
+    from ciml_learning.loginputs import load_log
 
-    clean = load_sensor_log(ROBOT, BAG)
+    clean = load_log(ROBOT, BAG)
     out = tmp_path / "dup"
     repeats = 0
     with BagWriter(out) as w:
@@ -318,7 +319,7 @@ def test_duplicated_messages_are_counted_as_dropped(tmp_path):
                 if seen % 10 == 0:
                     w.write_serialized(topic, ns, raw, msgtype)
                     repeats += 1
-    log = load_sensor_log(ROBOT, str(out))
+    log = load_log(ROBOT, str(out))
     dropped = {k: v for k, v in log.rejected.items() if "duplicated stamp" in k}
     assert repeats > 0 and sum(dropped.values()) == repeats, log.rejected
     assert len(log) == len(clean)
@@ -410,7 +411,7 @@ def test_closed_loop_report_killed_at_every_step_keeps_the_diagnosis_whole(tmp_p
     """The real `ciml closed-loop --report DIAG` (the diagnosis folder rewritten by the same
     write_diagnosis_dir as `ciml diagnose`): killed at every step, DIAG holds both files of
     the old or both of the new write, and the result JSON is absent or complete."""
-    from ciml_learning.diagnosis.run import write_diagnosis_dir
+    from ciml_learning.diagnosis.files import write_diagnosis_dir
 
     diag, result = str(tmp_path / "diag"), tmp_path / "r.json"
     write_diagnosis_dir(diag, {"format_version": 1, "tag": "old"}, "<html>old<!--closed-loop--><!--/closed-loop--></html>")

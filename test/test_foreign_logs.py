@@ -34,7 +34,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 import foreign_layouts as fl  # noqa: E402
 
 try:  # the reading path of the robot profile (loginputs) and the diagnosis taking a profile
-    from ciml_learning.loginputs import load_log  # noqa: F401
+    from ciml_learning.loginputs import load_log
     from ciml_learning.profile import load_profile, profile_from_dict  # noqa: F401
     HAVE_PROFILES = True
 except ImportError:  # pragma: no cover - only before the profile reader exists
@@ -203,7 +203,7 @@ def test_unitree_layout_reads_like_the_native_log(go1_native, storage):
     bags, prof = _write(go1_native, "unitree", storage)
     ref_bags, _ = _write(go1_native, "unitree", "mcap")
     for bag, ref_bag, nat in zip(bags, ref_bags, go1_native["logs"]):
-        log = bagio.load_sensor_log(robot, bag, profile=profile_from_dict(prof))
+        log = load_log(robot, bag, profile_from_dict(prof))
         assert log.rate_hz == pytest.approx(500.0, rel=1e-6)
         assert log.u_observed and not any("unknown" in w for w in log.warnings)
         idx = np.searchsorted(nat.t, log.t - 1e-7)
@@ -212,7 +212,7 @@ def test_unitree_layout_reads_like_the_native_log(go1_native, storage):
         assert (log.contacts == nat.contacts[idx]).mean() >= 0.98
         assert np.all(np.sqrt(np.mean((log.v[:, :3] - nat.v[idx, :3]) ** 2, axis=0)) < 0.03)
         if storage != "mcap":
-            ref = bagio.load_sensor_log(robot, ref_bag, profile=profile_from_dict(prof))
+            ref = load_log(robot, ref_bag, profile_from_dict(prof))
             for f in ("t", "q", "v", "tau", "u", "contacts"):
                 np.testing.assert_array_equal(getattr(log, f), getattr(ref, f), err_msg=f)
 

@@ -83,9 +83,10 @@ class Log:
 
 
 def read_log(robot, bag: str) -> Log:
-    from ciml_learning.bagio import load_sensor_log, read_messages
+    from ciml_learning.bagio import read_messages
+    from ciml_learning.loginputs import load_log
 
-    s = load_sensor_log(robot, bag)
+    s = load_log(robot, bag)
     msgs = [m for _, m in read_messages(bag, ["/torque_command"])["/torque_command"]]
     order = [list(msgs[0].joint_names).index(n) for n in robot.joint_names]
     stamp = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in msgs])

@@ -6,7 +6,7 @@
   live graph publishes) and stored with rosbags' MCAP writer; no DDS is involved.
 - Reading: samples are ordered by header.stamp, never by receive time (docs/ARCHITECTURE.md §7);
   truncated or incomplete bags become one-line BagErrors. A robot log is read through
-  its robot profile (loginputs.load_log): MCAP, db3 and ROS 1 bags, any layout.
+  its robot profile by loginputs.load_log: MCAP, db3 and ROS 1 bags, any layout.
 """
 from __future__ import annotations
 
@@ -23,7 +23,6 @@ import numpy as np
 from . import topics
 from .conversions import stamp_to_ns
 from .errors import CimlError
-from .robot import RobotDescription
 
 
 class BagError(CimlError):
@@ -259,18 +258,6 @@ class SensorLog:
 
     def __len__(self) -> int:
         return len(self.t)
-
-
-def load_sensor_log(robot: RobotDescription, path: str | os.PathLike, max_age_s: float = 0.02,
-                    profile=None) -> SensorLog:
-    """Read one bag into a SensorLog through a robot profile (no /sim/ topic is read).
-
-    profile: a profile.RobotProfile (its input map: topics, types, field paths); None reads
-    CIML's own topics (the shipped HyQ profile's input map). See loginputs.load_log.
-    """
-    from .loginputs import load_log
-
-    return load_log(robot, path, profile, max_age_s=max_age_s)
 
 
 def iter_bag_messages(path: str | os.PathLike) -> Iterator[tuple[str, int, bytes, str]]:

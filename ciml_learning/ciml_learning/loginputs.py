@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from .bagio import BagError, SensorLog, _open_reader
 from .pairing import age_limit_ns, is_strict, partner_indices
 from .profile import CONTACT_STATE, JOINT_STATE, ODOMETRY, TORQUE_COMMAND, RobotProfile, load_profile
 from .robot import RobotDescription
@@ -43,12 +44,6 @@ reported not observable (the "measured" torque is the command, e.g. a current es
 Measured on CIML's simulated HyQ logs: with real actuator effects (default gap: lag,
 friction, a weak actuator) the median is 0.9967 (per joint 0.992–0.998); without any
 actuator effect it is 1.0 — the warning then says Γ is zero or not observable."""
-
-
-def _bag_error(msg: str):
-    from .bagio import BagError
-
-    return BagError(msg)
 
 
 # --- field paths ----------------------------------------------------------------------
@@ -133,8 +128,6 @@ def read_topics(path: str | os.PathLike, wanted: dict[str, tuple[str, str, str]]
     """
     from rosbags.highlevel import AnyReaderError
 
-    from .bagio import _open_reader
-
     rej = rej if rej is not None else _Rejections()
     reader = _open_reader([path])
     raw: dict[str, list] = {t: [] for t in wanted}
@@ -145,16 +138,16 @@ def read_topics(path: str | os.PathLike, wanted: dict[str, tuple[str, str, str]]
                 avail = ", ".join(f"{t} ({y})" for t, y in sorted(bag_types.items()))
                 hint = (" — remove inputs.command from the profile if the robot logs no command"
                         if role == "command" else "")
-                raise _bag_error(f"{role}: bag {path} has no messages on {topic} ({typ}); topics in the bag: "
-                                 f"{avail}{hint}")
+                raise BagError(f"{role}: bag {path} has no messages on {topic} ({typ}); topics in the bag: "
+                               f"{avail}{hint}")
             if typ and bag_types[topic] != typ:
-                raise _bag_error(f"{role}: {topic} in bag {path} is {bag_types[topic]}, the profile says {typ}")
+                raise BagError(f"{role}: {topic} in bag {path} is {bag_types[topic]}, the profile says {typ}")
         conns = [c for c in reader.connections if c.topic in wanted]
         for conn, log_ns, data in reader.messages(connections=conns):
             msg = reader.deserialize(data, conn.msgtype)
             raw[conn.topic].append((_stamp_ns(msg, log_ns, wanted[conn.topic][2]), msg))
     except (AnyReaderError, EOFError, ValueError, KeyError) as err:
-        raise _bag_error(f"bag {path} is truncated or corrupt ({type(err).__name__}: {err}); "
+        raise BagError(f"bag {path} is truncated or corrupt ({type(err).__name__}: {err}); "
                          "try 'mcap recover' (MCAP) or 'ros2 bag reindex' (db3)") from err
     finally:
         reader.close()
@@ -162,15 +155,15 @@ def read_topics(path: str | os.PathLike, wanted: dict[str, tuple[str, str, str]]
     for topic, items in raw.items():
         role, typ, source = wanted[topic]
         if not items:
-            raise _bag_error(f"{role}: bag {path} has no messages on {topic}")
+            raise BagError(f"{role}: bag {path} has no messages on {topic}")
         stamps = np.array([s for s, _ in items], dtype=np.int64)
         report = measure_rate(stamps * 1e-9).as_dict()
         nonzero = stamps != 0
         if count_zero_stamps(stamps) == 0:
             nonzero[:] = True  # a lone first stamp at 0 is a clock that starts there
         if not nonzero.any() or (len(stamps) > 1 and nonzero.sum() <= 1):
-            raise _bag_error(f"{role}: header.stamp is zero in all {len(stamps)} messages on {topic}; "
-                             f"set inputs.{role}.stamp: log to use the recording time")
+            raise BagError(f"{role}: header.stamp is zero in all {len(stamps)} messages on {topic}; "
+                           f"set inputs.{role}.stamp: log to use the recording time")
         order = np.argsort(stamps, kind="stable")  # equal stamps keep bag order
         order = order[nonzero[order]]
         if (~nonzero).any():
@@ -204,7 +197,7 @@ def _convert(top: _Topic, rej: _Rejections, fn) -> tuple[np.ndarray, list]:
         except ValueError as err:
             rej.add(top.role, top.topic, str(err))
     if not rows:
-        raise _bag_error(f"all {len(top)} messages rejected — {rej.first(top.role)}")
+        raise BagError(f"all {len(top)} messages rejected — {rej.first(top.role)}")
     return np.asarray(keep_t, dtype=np.int64), rows
 
 
@@ -251,11 +244,11 @@ class _JointReader:
             index = {n: i for i, n in enumerate(mapped)}
             missing = [j for j in self.robot.joint_names if j not in index]
             if missing:
-                raise _bag_error(
+                raise BagError(
                     f"joint_state ({self.topic}): joints {missing} of the URDF are missing from name[] "
                     f"(the message names {list(names)}); map them with joint_map")
             if len(set(mapped)) != len(mapped):
-                raise _bag_error(f"joint_state ({self.topic}): name[] repeats a joint: {list(names)}")
+                raise BagError(f"joint_state ({self.topic}): name[] repeats a joint: {list(names)}")
             self.extra |= {n for n, m in zip(names, mapped) if m not in self.robot.joint_names}
             p = np.array([index[j] for j in self.robot.joint_names], dtype=int)
             self._perm[key] = p
@@ -297,7 +290,7 @@ def _read_contacts(robot, spec, tops, rej, joint_top) -> tuple[np.ndarray, np.nd
         unknown = [f for f in spec["topics"] if f not in per_foot]
         missing = [f for f in robot.foot_frames if f not in spec["topics"]]
         if unknown or missing:
-            raise _bag_error(f"contacts: topics must name every foot frame once: missing {missing}, unknown {unknown}")
+            raise BagError(f"contacts: topics must name every foot frame once: missing {missing}, unknown {unknown}")
         series = []
         for foot in robot.foot_frames:
             top = tops[spec["topics"][foot]]
@@ -322,7 +315,7 @@ def _read_contacts(robot, spec, tops, rej, joint_top) -> tuple[np.ndarray, np.nd
                 try:
                     return flags[robot.foot_permutation(list(m.foot_names))]
                 except Exception as err:
-                    raise _bag_error(f"contacts ({top.topic}): {err}") from err
+                    raise BagError(f"contacts ({top.topic}): {err}") from err
             t, rows = _convert(top, rej, conv)
             return t, np.asarray(rows, dtype=bool), f"topic {top.topic} ({CONTACT_STATE})"
         if spec["type"] == JOINT_STATE:
@@ -346,13 +339,13 @@ def _read_contacts(robot, spec, tops, rej, joint_top) -> tuple[np.ndarray, np.nd
         t, rows = _convert(top, rej, conv)
         lens = {len(r) for r in rows}
         if len(lens) != 1:
-            raise _bag_error(f"contacts ({top.topic}): field {spec['field']} changes length {sorted(lens)}")
+            raise BagError(f"contacts ({top.topic}): field {spec['field']} changes length {sorted(lens)}")
         vals = np.asarray(rows, dtype=float)
         if perm is None:
             try:
                 perm = _foot_order(robot, spec.get("order"), vals.shape[1])
             except Exception as err:
-                raise _bag_error(f"contacts ({top.topic}): field {spec['field']}: {err}") from err
+                raise BagError(f"contacts ({top.topic}): field {spec['field']}: {err}") from err
         vals = vals[:, perm]
         desc = f"topic {top.topic} ({spec['type']}, field {spec.get('field')})"
     finite = np.all(np.isfinite(vals), axis=1)
@@ -407,7 +400,7 @@ def _read_base(spec, tops, rej, warnings: list[str]):
         idx = partner_indices(tt, t, int(0.05e9))  # a twist at or before each pose
         ok = idx >= 0
         if not ok.any():
-            raise _bag_error(f"base ({ttop.topic}): no twist within 0.05 s of any pose on {ptop.topic}")
+            raise BagError(f"base ({ttop.topic}): no twist within 0.05 s of any pose on {ptop.topic}")
         t = t[ok]
         pos = np.array([r[0] for r, k in zip(prow, ok) if k])
         quat = np.array([r[1] for r, k in zip(prow, ok) if k])
@@ -455,7 +448,7 @@ class _Command:
                     return torque_command_arrays(robot, m)
                 except ConversionError as err:
                     if "do not match the robot" in str(err):
-                        raise _bag_error(f"command ({top.topic}): {err}") from err
+                        raise BagError(f"command ({top.topic}): {err}") from err
                     raise ValueError(str(err)) from err
             self.t, self.rows = _convert(top, rej, conv)
             self.u = lambda i, q, qd, dt: self.rows[i].total(q, qd, limits, elapsed=dt)
@@ -520,8 +513,8 @@ class _Command:
         missing = [j for j in self.robot.joint_names if j not in mapped]
         unknown = [j for j in mapped if j not in self.robot.joint_names]
         if missing or unknown:
-            raise _bag_error(f"command ({self.spec['topic']}): joints lists missing {missing}, unknown {unknown}; "
-                             f"expected the URDF's {list(self.robot.joint_names)} in the array's order")
+            raise BagError(f"command ({self.spec['topic']}): joints lists missing {missing}, unknown {unknown}; "
+                           f"expected the URDF's {list(self.robot.joint_names)} in the array's order")
         return np.array([mapped.index(j) for j in self.robot.joint_names], dtype=int)
 
 
@@ -532,12 +525,12 @@ def _span(t: np.ndarray) -> str:
 def _require(role: str, topic: str, idx: np.ndarray, src_t: np.ndarray, tj: np.ndarray, max_age_s: float,
              what: str = "at or before") -> None:
     if not (idx >= 0).any():
-        raise _bag_error(f"{role} ({topic}): no message within {max_age_s:g} s {what} any joint-state sample "
-                         f"({role} stamps {_span(src_t)}, joint states {_span(tj)})")
+        raise BagError(f"{role} ({topic}): no message within {max_age_s:g} s {what} any joint-state sample "
+                       f"({role} stamps {_span(src_t)}, joint states {_span(tj)})")
 
 
 def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotProfile | None = None,
-             max_age_s: float = 0.02):
+             max_age_s: float = 0.02) -> SensorLog:
     """Read one bag through the profile into a bagio.SensorLog (no /sim/ topic is read).
 
     Samples are taken at the joint-state stamps; each other role is paired by the pairing
@@ -548,8 +541,6 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     sorted, not refused, and reported in stamp_report); of joint-state messages sharing a
     stamp the last is used and the others are counted in `rejected`.
     """
-    from .bagio import SensorLog
-
     profile = profile if profile is not None else load_profile()
     inputs = profile.inputs
     js, base_spec, con_spec = inputs["joint_state"], inputs["base"], inputs["contacts"]
@@ -569,7 +560,7 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
         wanted[con_spec["topic"]] = ("contacts", con_spec["type"], con_spec["stamp"])
     if cmd_spec is not None:
         if cmd_spec["topic"] in wanted:
-            raise _bag_error(f"command: topic {cmd_spec['topic']} is already the {wanted[cmd_spec['topic']][0]} input")
+            raise BagError(f"command: topic {cmd_spec['topic']} is already the {wanted[cmd_spec['topic']][0]} input")
         wanted[cmd_spec["topic"]] = ("command", cmd_spec["type"], cmd_spec["stamp"])
     rej = _Rejections()
     tops = read_topics(path, wanted, rej)
@@ -591,7 +582,7 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     stamp_report = dict(jtop.report)
     rate = measure_rate(tj * 1e-9).rate_hz
     if not np.isfinite(rate):
-        raise _bag_error(f"joint_state ({jtop.topic}): fewer than two distinct stamps; no sample rate")
+        raise BagError(f"joint_state ({jtop.topic}): fewer than two distinct stamps; no sample rate")
     stamp_report["rate_hz"] = float(rate)
     extra = sorted(jr.extra)
     expected = [e for e in extra if e in profile.ignore_joints]
@@ -619,7 +610,7 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     if "estimate" not in con_spec:
         tc, cflags, sources["contacts"] = _read_contacts(robot, con_spec, tops, rej, jtop)
         if len(tc) == 0:
-            raise _bag_error(f"contacts: no usable message — {rej.first('contacts')}")
+            raise BagError(f"contacts: no usable message — {rej.first('contacts')}")
         ic = hold("contacts", con_spec.get("topic", "per-foot topics"), tc)
         ok &= ic >= 0
         contacts = np.zeros((n, robot.n_feet), dtype=bool)
@@ -655,8 +646,8 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
         sources["command"] = cmd.desc
     # keep the samples that have every measured role
     if not ok.any():
-        raise _bag_error(f"bag {path}: no joint-state sample has every input within its age limit "
-                         f"(missing per role: {stale})")
+        raise BagError(f"bag {path}: no joint-state sample has every input within its age limit "
+                       f"(missing per role: {stale})")
     sel = np.flatnonzero(ok)
     tj, qj, qdj, tau, u = tj[sel], qj[sel], qdj[sel], tau[sel], u[sel]
     n = len(tj)
@@ -668,7 +659,7 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
         base_pos, base_quat, base_twist = base_pos[sel], base_quat[sel], base_twist[sel]
     if profile.torque_source == "none":
         if cmd_spec is None:
-            raise _bag_error("torque_source none needs inputs.command (the only torque left is the command)")
+            raise BagError("torque_source none needs inputs.command (the only torque left is the command)")
         tau = u.copy()
         warnings.append("torque_source none: the command is used as the joint torque; the actuation error "
                         "is not observable")

@@ -6,9 +6,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .bagio import BagError, load_sensor_log
+from .bagio import BagError
 from .extraction import ExtractionResult, extract
 from .filters import FilteredLog, filter_state_log
+from .loginputs import load_log
 from .robot import RobotDescription
 
 
@@ -70,7 +71,7 @@ def load_dataset(robot: RobotDescription, bags: Sequence[str], progress: bool = 
 
         iterator = tqdm(bags, desc="read+filter", unit="bag", leave=False)
     for i, bag in enumerate(iterator):
-        raw = load_sensor_log(robot, bag, profile=profile)
+        raw = load_log(robot, bag, profile)
         for k, c in raw.rejected.items():
             rejected[k] = rejected.get(k, 0) + c
         inputs.append({"bag": str(bag), "rate_hz": raw.rate_hz, "u_observed": raw.u_observed,

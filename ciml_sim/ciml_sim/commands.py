@@ -90,7 +90,7 @@ def record(args: argparse.Namespace) -> int:
 def closed_loop(args: argparse.Namespace) -> int:
     from ciml_control.references import default_duration
     from ciml_learning.cli import robot_from_args
-    from ciml_learning.diagnosis.run import is_diagnosis_dir
+    from ciml_learning.diagnosis.files import is_diagnosis_dir
     from ciml_learning.fileio import atomic_write_json, check_out_dir, check_out_file
 
     from .recorder import check_motion, run_headless
@@ -134,8 +134,8 @@ def _model_label(model: str) -> str:
 
 def _add_to_report(diagnosis_dir: str, label: str, metrics: dict) -> None:
     """Add one closed-loop result to DIAG_DIR's comparison (diagnosis.json and report.html)."""
+    from ciml_learning.diagnosis.files import read_diagnosis_json
     from ciml_learning.diagnosis.report import attach_closed_loop
-    from ciml_learning.diagnosis.run import read_diagnosis_json
 
     try:
         existing = read_diagnosis_json(diagnosis_dir).get("closed_loop") or {}

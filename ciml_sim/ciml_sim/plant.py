@@ -26,7 +26,7 @@ Where each effect acts (docs/ARCHITECTURE.md §5), from command to motion:
     → sensors: encoder_offset and base_imu_tilt bias what is measured (the joint loop
       sees the offset encoder too); sensor noise likewise.
 
-Timing convention (the one ciml_learning.bagio.load_sensor_log rebuilds): a sample at
+Timing convention (the one ciml_learning.loginputs.load_log rebuilds): a sample at
 time t reports the state at t and the joint loop's u and the actuator's τ at t *under
 the command in force before t*, its position target advanced to t (a command computed
 from that sample acts after it);

@@ -7,7 +7,8 @@ import numpy as np
 
 from ciml_learning import conversions as cv
 from ciml_learning import topics
-from ciml_learning.bagio import BagWriter, load_sensor_log, read_messages
+from ciml_learning.bagio import BagWriter, read_messages
+from ciml_learning.loginputs import load_log
 from ciml_learning.pipeline import load_dataset
 from ciml_learning.robot import load_robot
 from ciml_sim.plant import Plant
@@ -56,7 +57,7 @@ def test_bag_u_is_the_plants_u_with_the_moving_target(tmp_path):
         {"type": "torque_offset", "joint": "rh_kfe_joint", "value": 2.0}]}, ROBOT)
     with BagWriter(tmp_path / "bag") as w:
         run_headless(ROBOT, scen, "walk_35", 0.8, seed=0, writer=w, progress=False, settle_time=0.2)
-    log = load_sensor_log(ROBOT, tmp_path / "bag")
+    log = load_log(ROBOT, tmp_path / "bag")
     msgs = read_messages(tmp_path / "bag", [topics.TORQUE_COMMAND] + [topics.SIM_EFFECT_PREFIX + e.label
                                                                         for e in scen.effects])
     act = sum(np.array([m.values for _, m in msgs[topics.SIM_EFFECT_PREFIX + e.label]]) for e in scen.effects)

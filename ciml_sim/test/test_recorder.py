@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from ciml_learning import bagio, topics
-from ciml_learning.bagio import BagWriter, list_topics, load_sensor_log, read_messages
+from ciml_learning.bagio import BagWriter, list_topics, read_messages
+from ciml_learning.loginputs import load_log
 from ciml_learning.robot import load_robot
 from ciml_sim import recorder
 from ciml_sim.recorder import run_headless
@@ -53,7 +54,7 @@ def test_recorded_bag_has_the_live_topics_at_250_hz_and_ground_truth_under_sim(t
     assert np.array_equal(clock, _stamps(msgs[topics.JOINT_STATES]))
     # the bag's measured torque minus the command the bag pairs with it (Γ, eq. 14) is exactly
     # the sum of the actuator effects' ground truth: sensors, commands and truth line up in time
-    log = load_sensor_log(ROBOT, path)
+    log = load_log(ROBOT, path)
     assert len(log) == n - 1  # the first sample has no command before it
     gamma = log.tau - log.u
     act = sum(np.array([m.values for _, m in msgs[topics.SIM_EFFECT_PREFIX + e.label]])
@@ -93,8 +94,8 @@ def test_ground_truth_does_not_change_the_recorded_sensors(tmp_path):
     for name, gt in (("with", True), ("without", False)):
         with BagWriter(tmp_path / name) as w:
             run_headless(ROBOT, scen, "stand", 0.4, seed=3, writer=w, ground_truth=gt, progress=False)
-    a = load_sensor_log(ROBOT, tmp_path / "with")
-    b = load_sensor_log(ROBOT, tmp_path / "without")
+    a = load_log(ROBOT, tmp_path / "with")
+    b = load_log(ROBOT, tmp_path / "without")
     for f in ("t", "q", "v", "tau", "u", "contacts"):
         np.testing.assert_allclose(getattr(a, f), getattr(b, f), rtol=1e-6, atol=1e-6, err_msg=f)
     assert not any(topics.is_ground_truth(t) for t in list_topics(tmp_path / "without"))
@@ -256,7 +257,7 @@ def test_committed_bags_are_readable_robot_logs(name, seconds, truth):
     found = list_topics(path)
     assert LIVE <= set(found)
     assert any(topics.is_ground_truth(t) for t in found) == truth
-    log = load_sensor_log(ROBOT, path)
+    log = load_log(ROBOT, path)
     assert len(log) == seconds * 250 - 1 and np.allclose(np.diff(log.t), 0.004)
     assert log.q[:, 2].min() > 0.5  # standing all along
     if name == "default_gap_base":

@@ -8,7 +8,8 @@ it shrinks. Pure modules (no rclpy):
 - uncertainty: intervals that cover the truth (block bootstrap sized by the residual's autocorrelation,
   held-out reproduction, the lag's sampling conversion, misspecification; docs/DIAGNOSIS.md);
 - reference: what distinguishes logs from reference logs of the same robot (`--reference`);
-- localization, shrink, report: the three answers; run: the whole diagnosis; commands: `ciml diagnose`;
+- localization, shrink, report: the three answers; run: the whole diagnosis; files: the diagnosis
+  directory (diagnosis.json, report.html); commands: `ciml diagnose`;
 - effects: the identified effects as a model of ε (for `ciml closed-loop --model DIAG_DIR`).
 """
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 
 from ..robot import RobotDescription
 from .effects import DiagnosisError, EffectModel, effects_from_diagnosis
+from .files import DIAGNOSIS_JSON, read_diagnosis_json
 
 __all__ = ["DiagnosisError", "EffectModel", "load_epsilon_function", "diagnose"]
 
@@ -33,11 +35,9 @@ def diagnose(*args, **kwargs):
 
 def load_effect_model(robot: RobotDescription, diagnosis_dir: str) -> EffectModel:
     """The identified effects of DIR/diagnosis.json as an EffectModel (checks the robot)."""
-    path = os.path.join(diagnosis_dir, "diagnosis.json") if os.path.isdir(diagnosis_dir) else diagnosis_dir
+    path = os.path.join(diagnosis_dir, DIAGNOSIS_JSON) if os.path.isdir(diagnosis_dir) else diagnosis_dir
     if not os.path.exists(path):
         raise DiagnosisError(f"no diagnosis.json in {diagnosis_dir}; run `ciml diagnose --out DIR` first")
-    from .run import read_diagnosis_json
-
     doc = read_diagnosis_json(path)  # size and nesting limits
     effects, smoothing = effects_from_diagnosis(doc)
     joints = doc["model"].get("joint_names")

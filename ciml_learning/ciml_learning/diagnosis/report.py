@@ -5,8 +5,12 @@ from __future__ import annotations
 import base64
 import html
 import io
+import os
 
 import numpy as np
+
+from ..errors import CimlError
+from .files import REPORT_HTML, read_diagnosis_json, write_diagnosis_dir
 
 
 def _png(fig) -> str:
@@ -139,13 +143,8 @@ def closed_loop_html(closed_loop: dict | None) -> str:
 
 def attach_closed_loop(diagnosis_dir: str, closed_loop: dict) -> None:
     """Add closed-loop metrics ({model name: `ciml closed-loop` metrics}) to DIR/diagnosis.json and
-    DIR/report.html: the directory is rebuilt and replaced in one step (run.write_diagnosis_dir),
+    DIR/report.html: the directory is rebuilt and replaced in one step (files.write_diagnosis_dir),
     so a reader finds both files old or both new."""
-    import os
-
-    from ..errors import CimlError
-    from .run import REPORT_HTML, read_diagnosis_json, write_diagnosis_dir
-
     doc = read_diagnosis_json(diagnosis_dir)
     doc["closed_loop"] = closed_loop
     page = None

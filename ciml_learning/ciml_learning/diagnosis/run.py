@@ -24,15 +24,17 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..fileio import atomic_dir, check_out_dir, json_dumps, load_json_bounded
+from ..fileio import check_out_dir
 from ..pipeline import load_dataset
 from ..robot import RobotDescription
 from .bounds import physical_ranges
 from .candidates import COULOMB_SMOOTHING, UNMODELLED_SENSOR_TYPE, FeatureLayout, link_inertias
 from .effects import DiagnosisError
 from .features import build_rows, grams
+from .files import is_diagnosis_dir, write_diagnosis_dir
 from .identification import parameter_uncertainty, physical_parameters, relevance_function, select
 from .localization import dimension_names, leg_summary, localize
+from .report import render_report
 from .shrink import residual_series, residuals, shrink
 
 FORMAT_VERSION = 1
@@ -339,51 +341,11 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
         html = None
         if report:
             _say(progress, "report")
-            from .report import render_report
-
             series = residual_series(corr_ho, res, sel.sigma, ds_ho.targets.t)
             html = render_report(robot, result, series, rows_ho, sel)
         write_diagnosis_dir(out_dir, result, html)
         result["time_s"] = round(time.perf_counter() - t_start, 2)
     return result
-
-
-DIAGNOSIS_JSON, REPORT_HTML = "diagnosis.json", "report.html"
-DIAGNOSIS_MAX_BYTES = 64 * 2**20
-
-
-def write_diagnosis_dir(out_dir: str, result: dict, html: str | None, what: str = "--out",
-                        update: bool = False) -> None:
-    """DIR/diagnosis.json and DIR/report.html as one directory published in one step
-    (fileio.atomic_dir): a reader finds both old or both new. `update`: start from the
-    existing directory's other files."""
-    with atomic_dir(out_dir, is_diagnosis_dir, "diagnosis", what, copy_from_old=update) as tmp:
-        with open(os.path.join(tmp, DIAGNOSIS_JSON), "w", encoding="utf-8") as f:
-            f.write(json_dumps(result))
-        if html is not None:
-            with open(os.path.join(tmp, REPORT_HTML), "w", encoding="utf-8") as f:
-                f.write(html)
-
-
-def read_diagnosis_json(path: str) -> dict:
-    """DIR/diagnosis.json (or the file itself) with size and nesting limits; CimlError (one line)."""
-    if os.path.isdir(path):
-        path = os.path.join(path, DIAGNOSIS_JSON)
-    doc = load_json_bounded(path, "diagnosis", DIAGNOSIS_MAX_BYTES)
-    if not isinstance(doc, dict):
-        raise DiagnosisError(f"{path} is not a CIML diagnosis")
-    return doc
-
-
-def is_diagnosis_dir(path: str) -> bool:
-    """Whether `path` holds a CIML diagnosis (what `--out` may replace)."""
-    from ..errors import CimlError
-
-    try:
-        read_diagnosis_json(path)
-        return True
-    except CimlError:
-        return False
 
 
 def _check_finite(obj, path: str = "") -> None:

@@ -6,7 +6,8 @@ No `launch` wheel exists for this platform, so `ciml launch` reads the same file
 - `arg` (name, default, description): a launch argument, set as `name:=value`;
 - `let` (name, value): a launch configuration computed in the file;
 - `node` (pkg, exec, name, namespace, param [name/value or from], remap [from/to],
-  ros_args, args, `if`/`unless`): one process;
+  ros_args, args, launch-prefix, `if`/`unless`; `output` is accepted, output always goes
+  to the screen and, with --log-dir, to a file): one process;
 - substitutions `$(var NAME)`, `$(find-pkg-share PKG)`, `$(env NAME [DEFAULT])`,
   `$(dirname)` and `$(filename)`; conditions are "true"/"false" (or 1/0), as in launch.
 
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import os
 import re
+import shlex
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -52,6 +54,8 @@ class NodeAction:
     remaps: tuple[tuple[str, str], ...] = ()
     extra_ros_args: tuple[str, ...] = ()
     args: tuple[str, ...] = ()
+    launch_prefix: tuple[str, ...] = ()
+    """Words before the executable (`launch-prefix`, e.g. `nice -n 10`), as launch_ros runs them."""
 
     @property
     def label(self) -> str:
@@ -110,6 +114,11 @@ def process_plan(desc: LaunchDescription) -> list[ProcessAction]:
                 raise LaunchFileError(f"{CONTAINERS_ARG}: node {m!r} is in both {placed[m]} and {name}")
             placed[m] = name
         started = tuple(by_label[m] for m in names if m in by_label)  # a node switched off by `if` is skipped
+        prefixes = {n.launch_prefix for n in started}
+        if len(prefixes) > 1:
+            shown = " / ".join(" ".join(p) or "none" for p in sorted(prefixes))
+            raise LaunchFileError(f"{CONTAINERS_ARG}: the nodes of {name} have different launch-prefix ({shown}); "
+                                  "one process has one")
         if started:
             groups.append(ProcessAction(name, started))
     unknown = sorted(m for m in placed if m not in desc.declared_nodes)
@@ -358,7 +367,8 @@ def _node(body: dict, resolve: _Resolver, where: str) -> NodeAction | None:
     return NodeAction(pkg=resolve(body["pkg"], where), executable=resolve(body["exec"], where), name=name,
                       namespace=namespace, parameters=tuple(params), param_files=tuple(files), remaps=tuple(remaps),
                       extra_ros_args=tuple(resolve(body.get("ros_args", ""), where).split()),
-                      args=tuple(resolve(body.get("args", ""), where).split()))
+                      args=tuple(resolve(body.get("args", ""), where).split()),
+                      launch_prefix=tuple(shlex.split(resolve(body.get("launch-prefix", ""), where))))
 
 
 def describe(desc: LaunchDescription) -> str:

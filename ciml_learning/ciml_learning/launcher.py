@@ -65,8 +65,8 @@ def command(process: ProcessAction) -> list[str]:
     `<exec> <node args>`, or `ciml_container --node PKG EXEC <node args> ...` for a container."""
     if not process.composed:
         node = process.nodes[0]
-        return [find_executable(node.pkg, node.executable), *node.ros_arguments()]
-    cmd = [find_executable("ciml_learning", "ciml_container")]
+        return [*node.launch_prefix, find_executable(node.pkg, node.executable), *node.ros_arguments()]
+    cmd = [*process.nodes[0].launch_prefix, find_executable("ciml_learning", "ciml_container")]
     for node in process.nodes:
         find_executable(node.pkg, node.executable)  # installed as a node of its package
         cmd += ["--node", node.pkg, node.executable, *node.ros_arguments()]

@@ -227,6 +227,21 @@ def test_containers_argument_composes_nodes_in_one_process_each(tmp_path, monkey
                 lf.process_plan(desc)
 
 
+def test_launch_prefix_runs_before_the_executable(tmp_path, monkeypatch):
+    _fake_package(tmp_path, {"good": TRAP_INT})
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(tmp_path / "prefix"))
+    text = """
+        launch:
+        - arg: {name: containers, default: ""}
+        - node: {pkg: fake, exec: good, name: a, launch-prefix: "nice -n 5"}
+        - node: {pkg: fake, exec: good, name: b}
+        """
+    launcher = Launcher(lf.load(_write(tmp_path, text)))
+    assert launcher.cmds[0][:3] == ["nice", "-n", "5"] and launcher.cmds[1][0].endswith("/fake/good")
+    with pytest.raises(lf.LaunchFileError, match="different launch-prefix"):
+        lf.process_plan(lf.load(_write(tmp_path, text), {"containers": "c:a,b"}))
+
+
 def test_container_command_line_and_node_lookup():
     from ciml_learning import container
 

@@ -83,7 +83,8 @@ def test_hostile_argument_gives_one_line(verb, arg, kind, i, tmp_path, capsys, m
     except SystemExit as exc:  # argparse
         rc = exc.code
     err = capsys.readouterr().err
-    lines = [ln for ln in err.replace("\r", "\n").splitlines() if ln.strip() and not ln.startswith(("ciml: note:", "["))]
+    lines = [ln for ln in err.replace("\r", "\n").splitlines()
+             if ln.strip() and not ln.startswith(("ciml: note:", "["))]
     assert rc in (1, 2), (argv, rc, err)
     assert "Traceback" not in err and "internal error" not in err, err
     assert len(lines) == 1 and lines[-1].startswith(f"ciml {verb}: error:"), err

@@ -141,7 +141,8 @@ DIAG = """
     from ciml_learning.diagnosis.files import write_diagnosis_dir
     from ciml_learning.diagnosis.report import attach_closed_loop
     out, tag = sys.argv[1], sys.argv[2]
-    write_diagnosis_dir(out, {"format_version": 1, "tag": tag}, f"<html>{tag}<!--closed-loop--><!--/closed-loop--></html>")
+    write_diagnosis_dir(out, {"format_version": 1, "tag": tag},
+                        f"<html>{tag}<!--closed-loop--><!--/closed-loop--></html>")
     attach_closed_loop(out, {"nominal": {"rms_feedback_effort_nm": 1.0}})
 """
 
@@ -199,7 +200,8 @@ def test_sigkill_at_each_rename_syscall_is_old_or_new(tmp_path):
     assert run_with_fault(DIAG, None, out, "old").returncode == 0
     seen = set()
     for n in range(1, 12):
-        cmd = ["strace", "-f", "-qq", "-o", "/dev/null", "-e", f"inject=rename,renameat,renameat2:signal=SIGKILL:when={n}",
+        cmd = ["strace", "-f", "-qq", "-o", "/dev/null",
+               "-e", f"inject=rename,renameat,renameat2:signal=SIGKILL:when={n}",
                sys.executable, "-c", textwrap.dedent(DIAG), out, "new"]
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=120, env={**os.environ, "PYTHONPATH": ROOT})
         if r.returncode != 0 and "ptrace" in r.stderr.lower():
@@ -228,8 +230,9 @@ def _regions(path: str) -> dict[str, int]:
         buf = f.read()
     lay = _layout(buf, path)
     c = lay.chunks[len(lay.chunks) // 2]
-    return {"header": 12, "chunk": c.data_at + c.data_size // 2, "message_index": c.offset + 9 + (c.data_at - c.offset) +
-            c.data_size + 12, "summary_index": lay.summary_start + 20, "footer": lay.footer + 12}
+    return {"header": 12, "chunk": c.data_at + c.data_size // 2,
+            "message_index": c.offset + 9 + (c.data_at - c.offset) + c.data_size + 12,
+            "summary_index": lay.summary_start + 20, "footer": lay.footer + 12}
 
 
 @pytest.mark.parametrize("region", ["header", "chunk", "message_index", "summary_index", "footer"])
@@ -358,7 +361,8 @@ def test_recording_killed_mid_run_leaves_nothing_at_out_and_is_cleaned(tmp_path)
         from ciml_learning import topics
         with BagWriter(sys.argv[1]) as w:
             for k in range(50):
-                w.write_serialized(topics.JOINT_STATES, k, b"\\x00\\x01\\x00\\x00" + bytes(60), "sensor_msgs/msg/JointState")
+                w.write_serialized(topics.JOINT_STATES, k, b"\\x00\\x01\\x00\\x00" + bytes(60),
+                                   "sensor_msgs/msg/JointState")
             print("writing", flush=True)
             time.sleep(60)
     """
@@ -414,7 +418,8 @@ def test_closed_loop_report_killed_at_every_step_keeps_the_diagnosis_whole(tmp_p
     from ciml_learning.diagnosis.files import write_diagnosis_dir
 
     diag, result = str(tmp_path / "diag"), tmp_path / "r.json"
-    write_diagnosis_dir(diag, {"format_version": 1, "tag": "old"}, "<html>old<!--closed-loop--><!--/closed-loop--></html>")
+    write_diagnosis_dir(diag, {"format_version": 1, "tag": "old"},
+                        "<html>old<!--closed-loop--><!--/closed-loop--></html>")
     script = """
         import sys
         from ciml_learning.cli import main

@@ -39,7 +39,8 @@ def test_ament_index_lists_packages_and_executables():
 def test_hyq_description():
     robot = load_robot()
     assert robot.nv == 18 and robot.nq == 19
-    assert robot.joint_names == tuple(f"{leg}_{j}_joint" for leg in ("lf", "lh", "rf", "rh") for j in ("haa", "hfe", "kfe"))
+    assert robot.joint_names == tuple(f"{leg}_{j}_joint" for leg in ("lf", "lh", "rf", "rh")
+                                      for j in ("haa", "hfe", "kfe"))
     assert len(robot.foot_frames) == 4
     urdf_mass = sum(
         float(m.get("value")) for m in ElementTree.parse(robot.urdf_path).getroot().iter("mass")

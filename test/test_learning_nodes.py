@@ -33,8 +33,8 @@ def test_replayed_bag_through_nodes_matches_offline_extraction(tmp_path):
                                  and listener.node.count_subscribers("/filtered_state") >= 1
                                  and listener.node.count_subscribers("/joint_states") >= 1, timeout=30)
         time.sleep(1.0)
-        subprocess.run([os.path.join(BIN, "ciml"), "play", "--bag", str(bag), "--rate", "0.5"], check=True, capture_output=True,
-                       timeout=90)
+        subprocess.run([os.path.join(BIN, "ciml"), "play", "--bag", str(bag), "--rate", "0.5"], check=True,
+                       capture_output=True, timeout=90)
         listener.wait_for(lambda: len(listener.messages["/model_error/measured"]) > 500, timeout=10)
     finally:
         logs = [stop(p) for p in nodes]

@@ -149,7 +149,8 @@ def _good_model(path) -> dict:
         phi = np.zeros(18)
         phi[2] = -40.0 + rng.normal(scale=2.0)
         gamma = -3.0 * np.sign(v[6:])
-        learner.learn(1_000_000_000 + 4_000_000 * k, StateSample(q, v, np.zeros(ROBOT.nv), np.zeros(nj), np.zeros(nj), True),
+        learner.learn(1_000_000_000 + 4_000_000 * k,
+                      StateSample(q, v, np.zeros(ROBOT.nv), np.zeros(nj), np.zeros(nj), True),
                       ErrorSample(phi, np.r_[np.ones(6, bool), np.zeros(12, bool)], gamma, np.ones(nj, bool)))
     saved = SnapshotWriter(str(path)).write(learner.snapshot())
     return {"learner": learner, "saved": saved}
@@ -195,13 +196,14 @@ def test_model_server_refuses_poisoned_and_unchecksummed_models(tmp_path):
 
     name = f"lwpr:{saved.model_dir.rsplit('/', 1)[-1]}"
     try:
-        assert listener.wait_for(lambda: ref_pub.get_subscription_count() >= 1 and upd_pub.get_subscription_count() >= 1,
-                                 timeout=40)
+        assert listener.wait_for(lambda: ref_pub.get_subscription_count() >= 1
+                                 and upd_pub.get_subscription_count() >= 1, timeout=40)
         upd_pub.publish(ModelUpdate(model_dir=saved.model_dir, learner="lwpr", samples=saved.samples,
                                     checksum=saved.checksum))
         assert stream_until(lambda: any(m.source == name for m in preds), timeout=20), stop(server)
         # announced ×1e6 with its (valid) checksum: refused on its own training inputs
-        upd_pub.publish(ModelUpdate(model_dir=str(poisoned_dir), learner="lwpr", samples=300, checksum=meta["checksum"]))
+        upd_pub.publish(ModelUpdate(model_dir=str(poisoned_dir), learner="lwpr", samples=300,
+                                    checksum=meta["checksum"]))
         assert stream_until(lambda: refused() >= 1, timeout=15), _values(listener, "model_server")
         # announced without a checksum: refused even though the files are intact
         upd_pub.publish(ModelUpdate(model_dir=saved.model_dir, learner="lwpr", samples=saved.samples, checksum=""))
@@ -270,7 +272,8 @@ def test_online_learner_pauses_on_a_fall_and_says_so(tmp_path):
         return _values(listener, "online_learner")
 
     try:
-        assert listener.wait_for(lambda: state_pub.get_subscription_count() >= 1 and error_pub.get_subscription_count() >= 1
+        assert listener.wait_for(lambda: state_pub.get_subscription_count() >= 1
+                                 and error_pub.get_subscription_count() >= 1
                                  and _diag(listener, "online_learner") is not None, timeout=40), stop(learner)
         # standing: learned
         assert stream(0.6, -30.0, lambda: int(values().get("samples_learned", 0)) >= 50, timeout=20), values()

@@ -73,7 +73,8 @@ def main() -> int:
         t0 = time.perf_counter()
         ciml("train", "--bag", *bags, "--learner", learner, "--out", model)
         train_s[learner] = time.perf_counter() - t0
-        ciml("evaluate", "--model", model, "--bag", *heldout, "--out", os.path.join(args.work, f"evaluate_{learner}.json"))
+        ciml("evaluate", "--model", model, "--bag", *heldout,
+             "--out", os.path.join(args.work, f"evaluate_{learner}.json"))
 
     results: dict[str, dict[str, dict]] = {}
     for motion in TRAIN_MOTIONS + NEW_MOTIONS:
@@ -155,7 +156,8 @@ def plot_rmse(work: str, out: str) -> list[str]:
 
 def _commit() -> str:
     """HEAD at the start of the run, marked when the tracked sources differ from it."""
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                            cwd=ROOT).stdout.strip()
     dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True,
                            cwd=ROOT).stdout.strip()
     return f"`{commit}`" + (" (with uncommitted changes)" if dirty else "")
@@ -189,7 +191,8 @@ def write_document(args, results, train_s, figures, bags, wall_s) -> None:
         lines.append(f"| {model.upper()} | {100 * mean_reduction(results, TRAIN_MOTIONS, model):.1f} % "
                      f"| {100 * mean_reduction(results, NEW_MOTIONS, model):.1f} % |")
     lines += ["", "## Prediction RMSE per dimension on new motions", "",
-              "| model | base dims learned < nominal | actuators learned < nominal | RMSE reduction (rbd / actuation) |",
+              "| model | base dims learned < nominal | actuators learned < nominal "
+              "| RMSE reduction (rbd / actuation) |",
               "|---|---|---|---|"]
     for learner in ("lwpr", "sgpr"):
         with open(os.path.join(args.work, f"evaluate_{learner}.json"), encoding="utf-8") as f:

@@ -39,7 +39,8 @@ def variant_inputs(robot, variant: str) -> dict[str, tuple[str, ...]]:
     dofs = robot.dof_names[:N_BASE]
     format4 = ("base_roll", "base_pitch") + tuple(f"qd_{d}" for d in dofs) + tuple(f"qdd_{d}" for d in dofs)
     bases = {"product": None, "format4": format4,
-             "nolin": ("base_roll", "base_pitch") + tuple(f"qd_{d}" for d in dofs[3:]) + tuple(f"qdd_{d}" for d in dofs),
+             "nolin": ("base_roll", "base_pitch") + tuple(f"qd_{d}" for d in dofs[3:])
+                      + tuple(f"qdd_{d}" for d in dofs),
              "novel": ("base_roll", "base_pitch") + tuple(f"qdd_{d}" for d in dofs)}
     if bases[base] is not None:
         out.update({name: bases[base] for name in robot.rbd_error_names[:N_BASE]})

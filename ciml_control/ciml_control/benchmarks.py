@@ -39,7 +39,8 @@ def id_controller_step() -> dict:
     return compute_benchmark(motion="trot_35", n_steps=2000)
 
 
-def compute_benchmark(motion: str = "trot_35", n_steps: int = 2000, seed: int = 0, model_dir: str | None = None) -> dict:
+def compute_benchmark(motion: str = "trot_35", n_steps: int = 2000, seed: int = 0,
+                      model_dir: str | None = None) -> dict:
     """p50/p99 of one control step as the id_controller node runs it: the model error ε at
     the reference (eq. 17: contact-invariant basis at qᵈ and a Φ̃', Γ prediction — from
     `model_dir` via ciml_learning.models.load_epsilon_function if given, else a fixed
@@ -121,7 +122,8 @@ def dds_latency_benchmark(duration_s: float = 5.0, rate: float = 250.0) -> dict:
     n_sent = 0
     try:
         deadline = time.monotonic() + 60.0
-        while time.monotonic() < deadline and (pub_j.get_subscription_count() == 0 or node.count_publishers(topics.TORQUE_COMMAND) == 0):
+        while time.monotonic() < deadline and (pub_j.get_subscription_count() == 0
+                                               or node.count_publishers(topics.TORQUE_COMMAND) == 0):
             time.sleep(0.1)
         if pub_j.get_subscription_count() == 0:
             return {"error": "id_controller did not come up within 60 s"}
@@ -155,6 +157,7 @@ def dds_latency_benchmark(duration_s: float = 5.0, rate: float = 250.0) -> dict:
     lat = np.array(latencies) * 1e3
     out = {"rate_hz": rate, "sent": n_sent, "received": len(lat)}
     if len(lat):
-        out.update({"p50_ms": round(float(np.percentile(lat, 50)), 3), "p99_ms": round(float(np.percentile(lat, 99)), 3),
+        out.update({"p50_ms": round(float(np.percentile(lat, 50)), 3),
+                    "p99_ms": round(float(np.percentile(lat, 99)), 3),
                     "max_ms": round(float(lat.max()), 3), "budget_ms": round(1e3 / rate, 1)})
     return out

@@ -70,7 +70,8 @@ class IdController:
     def __init__(self, robot: RobotDescription, gains: FeedbackGains | None = None, mu: float = DEFAULT_MU,
                  f_min: float = DEFAULT_F_MIN, feedback_contacts: str = "reference") -> None:
         if feedback_contacts not in ("reference", "measured"):
-            raise ControllerInputError(f"feedback_contacts must be 'reference' or 'measured', got {feedback_contacts!r}")
+            raise ControllerInputError(
+                f"feedback_contacts must be 'reference' or 'measured', got {feedback_contacts!r}")
         self.robot = robot
         self.gains = gains or FeedbackGains.default(robot)
         self.gains.validate(robot)
@@ -125,7 +126,8 @@ class IdController:
         contacts = arg(contacts, np.bool_)
         if q.shape != (r.nq,) or v.shape != (r.nv,) or contacts.shape != (r.n_feet,):
             raise ControllerInputError(
-                f"state sizes q {q.shape}, v {v.shape}, contacts {contacts.shape}; expected ({r.nq},), ({r.nv},), ({r.n_feet},)")
+                f"state sizes q {q.shape}, v {v.shape}, contacts {contacts.shape}; "
+                f"expected ({r.nq},), ({r.nv},), ({r.n_feet},)")
         ref_q, ref_v, ref_a = arg(ref.q), arg(ref.v), arg(ref.a)
         ref_contacts = arg(ref.contacts, np.bool_)
         if (ref_q.shape != (r.nq,) or ref_v.shape != (r.nv,) or ref_a.shape != (r.nv,)

@@ -9,7 +9,8 @@ from .trust import DEFAULT_MAX_VARIANCE_RATIO
 
 URDF = Param("urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
 
-REFERENCE_GENERATOR = NodeSchema("ciml_control", "reference_generator", "the full-body reference of a motion on /reference", (
+REFERENCE_GENERATOR = NodeSchema("ciml_control", "reference_generator",
+                                 "the full-body reference of a motion on /reference", (
     Param("motion", "stand", "Motion to generate", choices=MOTIONS, deploy="trot_35"),
     Param("rate", 250.0, "Publish rate", "Hz", 1.0, 1000.0, read_only=False),
     Param("start_on_command", True, "Start the motion once the robot is under torque control (the first "
@@ -21,7 +22,8 @@ REFERENCE_GENERATOR = NodeSchema("ciml_control", "reference_generator", "the ful
     URDF,
 ))
 
-ID_CONTROLLER = NodeSchema("ciml_control", "id_controller", "the inverse-dynamics QP controller (eq. 17-24) with the predicted model error ε", (
+ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
+                           "the inverse-dynamics QP controller (eq. 17-24) with the predicted model error ε", (
     Param("rate", 250.0, "Watchdog rate (control runs on each /joint_states sample)", "Hz", 10.0, 1000.0),
     Param("state_timeout", 0.05, "Damping when a state topic is older than this (node clock; use_sim_time:=true "
           "with a simulator)", "s", 0.002, 2.0, read_only=False),

@@ -462,7 +462,8 @@ class GaitReference(Reference):
             w, dw, ddw = quintic(t / self.t0)
             fv, fa = dw / self.t0, ddw / self.t0 ** 2
             p0, d = self.base_p0, self._balance_shift
-            p, dp, ddp = [p0[c] + w * d[c] for c in range(3)], [fv * d[c] for c in range(3)], [fa * d[c] for c in range(3)]
+            p = [p0[c] + w * d[c] for c in range(3)]
+            dp, ddp = [fv * d[c] for c in range(3)], [fa * d[c] for c in range(3)]
             if self.spec.kind == "trot":
                 planar = [(self.progression(t), self.direction)]
                 if sway:

@@ -57,6 +57,7 @@ class StandingController:
 
     def compute(self, q_des: np.ndarray, contacts: np.ndarray) -> JointCommand:
         """Command that holds the configuration q_des (Pinocchio q) on the given stance feet."""
-        u = np.clip(gravity_compensation(self.dyn, q_des, contacts), -self.robot.torque_limits, self.robot.torque_limits)
+        limits = self.robot.torque_limits
+        u = np.clip(gravity_compensation(self.dyn, q_des, contacts), -limits, limits)
         n = self.robot.n_joints
         return JointCommand(u, np.zeros(n), q_des[7:].copy(), np.zeros(n), self.kp.copy(), self.kd.copy())

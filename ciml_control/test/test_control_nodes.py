@@ -27,7 +27,8 @@ def test_reference_generator_stands_until_torque_control_then_runs_the_motion():
     n = ROBOT.n_joints
     try:
         # subscribers alone (this listener) do not start the motion, nor does a damping command
-        assert listener.wait_for(lambda: len(refs) >= 250 and command.get_subscription_count() >= 1, timeout=30), stop(node)
+        assert listener.wait_for(lambda: len(refs) >= 250 and command.get_subscription_count() >= 1,
+                                 timeout=30), stop(node)
         command.publish(cv.torque_command_msg(ROBOT, 0, cv.TorqueCommandArrays(
             1, np.zeros(n), np.zeros(n), q_stand[7:], np.zeros(n), np.zeros(n), np.full(n, 10.0))))
         time.sleep(0.3)
@@ -89,7 +90,8 @@ def test_id_controller_waits_then_commands_limited_trusted_torque_and_damps_with
         time.sleep(1.5)
         assert cmds == []
         waiting = [s for d in listener.messages["/diagnostics"] for s in d.status if "id_controller" in s.name]
-        assert waiting[-1].level == b"\x01" and "waiting for" in waiting[-1].message and "/reference" in waiting[-1].message
+        last = waiting[-1]
+        assert last.level == b"\x01" and "waiting for" in last.message and "/reference" in last.message
         # a static standing state at 250 Hz → torque commands
         n_before = len(cmds)
         rng = np.random.default_rng(0)
@@ -105,7 +107,8 @@ def test_id_controller_waits_then_commands_limited_trusted_torque_and_damps_with
             phases[ns] = "nominal"
             if 250 <= k < 375:  # confident prediction (variance 0): used
                 phases[ns] = "confident"
-                pubs["/model_error/predicted"].publish(cv.model_error_msg(ROBOT, ns, "test", phi, ones_r, gamma, ones_a))
+                pubs["/model_error/predicted"].publish(
+                    cv.model_error_msg(ROBOT, ns, "test", phi, ones_r, gamma, ones_a))
             elif 375 <= k < 475:  # the same mean, but the model is less certain than the prior: gated
                 phases[ns] = "uncertain"
                 pubs["/model_error/predicted"].publish(cv.model_error_msg(

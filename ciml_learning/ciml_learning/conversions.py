@@ -112,7 +112,8 @@ def joint_state_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, np.nda
 # --- nav_msgs/Odometry (base) ------------------------------------------------------
 
 
-def odometry_msg(stamp_ns: int, position: np.ndarray, quaternion_xyzw: np.ndarray, linear: np.ndarray, angular: np.ndarray):
+def odometry_msg(stamp_ns: int, position: np.ndarray, quaternion_xyzw: np.ndarray, linear: np.ndarray,
+                 angular: np.ndarray):
     """Base state; twist in the base frame (child_frame_id), as nav_msgs/Odometry defines."""
     from geometry_msgs.msg import Point, Pose, PoseWithCovariance, Quaternion, Twist, TwistWithCovariance, Vector3
     from nav_msgs.msg import Odometry
@@ -241,7 +242,8 @@ def model_error_msg(
         actuation_names=list(robot.joint_names),
         actuation_error=np.asarray(actuation_error, float).tolist(),
         actuation_observed=[bool(b) for b in actuation_observed],
-        actuation_variance=(np.zeros(na) if actuation_variance is None else np.asarray(actuation_variance, float)).tolist(),
+        actuation_variance=(np.zeros(na) if actuation_variance is None
+                            else np.asarray(actuation_variance, float)).tolist(),
     )
 
 

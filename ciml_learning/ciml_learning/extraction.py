@@ -159,7 +159,8 @@ class ExtractionResult:
         atomic_write_bytes(path, buf.getvalue())
 
 
-def dynamics_batch(robot: RobotDescription, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def dynamics_batch(robot: RobotDescription, q: np.ndarray, v: np.ndarray,
+                   a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Nominal M q̈ + h (N × nv, RNEA) and foot Jacobians (N × n_feet × 3 × nv)."""
     model = robot.model
     data = model.createData()

@@ -73,7 +73,7 @@ def field_values(msg: Any, path: str | list) -> np.ndarray:
         nxt = []
         for it in items:
             if not hasattr(it, name):
-                fields = [f for f in getattr(it, "__dataclass_fields__", {})] or [a for a in dir(it) if not a.startswith("_")]
+                fields = list(getattr(it, "__dataclass_fields__", {})) or [a for a in dir(it) if not a.startswith("_")]
                 raise ValueError(f"no field {name!r} (fields: {', '.join(fields)})")
             nxt.append(getattr(it, name))
         items = nxt

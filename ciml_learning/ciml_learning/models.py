@@ -110,15 +110,15 @@ KERNELS = {"lwpr": "gaussian_receptive_fields", "sgpr": "matern32_ard"}
 DEFAULT_PARAMS: dict[str, dict[str, dict[str, Any]]] = {
     # Hyper-parameters per learner and group, in standardised units (unit-variance inputs,
     # unit-RMS outputs). Groups: "base" the base wrench (26 inputs: the base state's 14 and the
-    # 12 joint velocities), "leg" a leg joint's rigid-body error (3 inputs) and "actuation" (5 inputs). LWPR: the base's inputs lie near
-    # the low-dimensional cycles of the gaits — a diagonal metric, at most 3 PLS projections and
-    # narrow initial fields (D = 0.2) put a few tens of fields along a cycle; a joint's 3
-    # inputs: a diagonal metric with D = 0.8 for the rigid-body error (generalised best to
-    # new gaits among 0.2–2 in closed loop), a full one for the actuation error. Offline
-    # fit() visits the samples in random order (shuffle; LWPR assumes no ordering, and
-    # time-ordered gait data otherwise drift the fields); online partial_fit() takes them as
-    # they come. The sparse GP fits its hyper-parameters on 1,500 random samples per
-    # dimension (learners/sgpr.py explains why).
+    # 12 joint velocities), "leg" a leg joint's rigid-body error (3 inputs) and "actuation" (5
+    # inputs). LWPR: the base's inputs lie near the low-dimensional cycles of the gaits — a
+    # diagonal metric, at most 3 PLS projections and narrow initial fields (D = 0.2) put a few
+    # tens of fields along a cycle; a joint's 3 inputs: a diagonal metric with D = 0.8 for the
+    # rigid-body error (generalised best to new gaits among 0.2–2 in closed loop), a full one
+    # for the actuation error. Offline fit() visits the samples in random order (shuffle; LWPR
+    # assumes no ordering, and time-ordered gait data otherwise drift the fields); online
+    # partial_fit() takes them as they come. The sparse GP fits its hyper-parameters on 1,500
+    # random samples per dimension (learners/sgpr.py explains why).
     "lwpr": {
         "base": {"init_D": 0.2, "diag_only": True, "init_alpha": 10.0, "w_gen": 0.1, "w_prune": 0.95,
                  "max_projections": 3, "penalty": 1e-6, "max_rfs": 1500, "n_epochs": 1, "shuffle": True},

@@ -153,7 +153,8 @@ def _keys(where: str, key: str, spec: Any, allowed: tuple[str, ...]) -> dict:
     return dict(spec)
 
 
-def _topic_spec(where: str, key: str, spec: dict, default_type: str | None, types: tuple[str, ...] | None = None) -> dict:
+def _topic_spec(where: str, key: str, spec: dict, default_type: str | None,
+                types: tuple[str, ...] | None = None) -> dict:
     out = dict(spec)
     out["topic"] = _str(where, f"{key}.topic", spec.get("topic"))
     typ = spec.get("type", default_type)
@@ -280,11 +281,13 @@ def _validate_inputs(where: str, inputs: Any) -> dict[str, dict]:
             if missing:
                 raise _err(where, f"{k}.fields", f"missing {missing} (u = tau_ff + kp (q_des − q) + kd (dq_des − dq))")
             if not f:
-                raise _err(where, f"{k}.fields", f"needs at least tau_ff or q_des + kp; allowed: {', '.join(PD_FIELDS)}")
+                raise _err(where, f"{k}.fields",
+                           f"needs at least tau_ff or q_des + kp; allowed: {', '.join(PD_FIELDS)}")
             spec["fields"] = {x: _str(where, f"{k}.fields.{x}", y) for x, y in f.items()}
             spec["joints"] = _str_list(where, f"{k}.joints", m.get("joints"))
         else:
-            spec["field"] = _str(where, f"{k}.field", m.get("field", "effort" if spec["type"] == JOINT_STATE else "data"))
+            default_field = "effort" if spec["type"] == JOINT_STATE else "data"
+            spec["field"] = _str(where, f"{k}.field", m.get("field", default_field))
             if spec["type"] != JOINT_STATE:
                 spec["joints"] = _str_list(where, f"{k}.joints", m.get("joints"))
             elif "joints" in m:
@@ -356,7 +359,8 @@ def load_profile(path: str | os.PathLike | None = None) -> RobotProfile:
     return RobotProfile(**{**prof.__dict__, "path": os.path.abspath(path)})
 
 
-def with_overrides(profile: RobotProfile, urdf: str | None = None, feet: list[str] | tuple[str, ...] | None = None) -> RobotProfile:
+def with_overrides(profile: RobotProfile, urdf: str | None = None,
+                   feet: list[str] | tuple[str, ...] | None = None) -> RobotProfile:
     """The profile with --urdf / --feet shortcuts applied (a URDF without feet keeps the profile's feet)."""
     changes: dict[str, Any] = {}
     if urdf is not None:

@@ -43,13 +43,14 @@ def play_bag(path: str, rate: float = 1.0, exclude_prefixes: Iterable[str] = (),
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         pubs = {
-            t: node.create_publisher(message_class(ty), t, SENSOR_PUB_QOS if t in topics.MEASUREMENT_TOPICS else COMMAND_QOS)
+            t: node.create_publisher(message_class(ty), t,
+                                     SENSOR_PUB_QOS if t in topics.MEASUREMENT_TOPICS else COMMAND_QOS)
             for t, ty in types.items()
         }
         # give discovery up to `wait_subscribers` s to match subscribers before the first message
         deadline = time.monotonic() + wait_subscribers
-        while time.monotonic() < deadline and not all(p.get_subscription_count() for p in pubs.values()
-                                                      if types[p.topic_name] and p.topic_name in topics.MEASUREMENT_TOPICS):
+        measured = [p for p in pubs.values() if types[p.topic_name] and p.topic_name in topics.MEASUREMENT_TOPICS]
+        while time.monotonic() < deadline and not all(p.get_subscription_count() for p in measured):
             executor.spin_once(timeout_sec=0.05)
         time.sleep(0.3)
         start_wall = None

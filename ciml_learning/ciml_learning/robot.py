@@ -39,7 +39,8 @@ class RobotDescriptionError(CimlError):
 def example_robot_data_dir() -> str:
     """Folder of example-robot-data's robots inside the current environment."""
     candidates = glob.glob(
-        os.path.join(sys.prefix, "lib", "python3*", "site-packages", "cmeel.prefix", "share", "example-robot-data", "robots")
+        os.path.join(sys.prefix, "lib", "python3*", "site-packages", "cmeel.prefix", "share", "example-robot-data",
+                     "robots")
     )
     if not candidates:
         raise RobotDescriptionError(
@@ -190,7 +191,8 @@ class RobotDescription:
         return q
 
 
-def load_robot(urdf_path: str | None = None, foot_frames: tuple[str, ...] | list[str] | None = None) -> RobotDescription:
+def load_robot(urdf_path: str | None = None,
+               foot_frames: tuple[str, ...] | list[str] | None = None) -> RobotDescription:
     """Load a point-foot quadruped with a free-flyer root; HyQ by default.
 
     Each foot's leg is found as the actuated joints on the path from the root to the

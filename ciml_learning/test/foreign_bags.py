@@ -90,7 +90,8 @@ def go1_messages(robot, s, rate_hz: float = 500.0, seconds: float = 1.0, *, zero
         if with_command:
             # the command computed from this sample, stamped (recording time) 0.5 ms later
             qu = {j: (q[k][i], qd[k][i]) for i, j in enumerate(robot.joint_names)}
-            motors = [Mot(mode=10, q=float(qu[j][0] + Q_OFFSET), dq=0.0, tau=TAU_FF, kp=KP, kd=KD) for j in UNITREE_ORDER]
+            motors = [Mot(mode=10, q=float(qu[j][0] + Q_OFFSET), dq=0.0, tau=TAU_FF, kp=KP, kd=KD)
+                      for j in UNITREE_ORDER]
             motors += [Mot(mode=0, q=0.0, dq=0.0, tau=0.0, kp=0.0, kd=0.0)] * 8
             out.append(("/low_cmd", "unitree_go/msg/LowCmd", ns + 500_000, Low(level_flag=255, motor_cmd=motors)))
     return out
@@ -144,12 +145,14 @@ GO1_PROFILE = {
 def imu_messages(robot, s, rate_hz: float = 500.0, seconds: float = 1.0):
     """An IMU (orientation = the odometry's, gyro zero) at the joint-state stamps."""
     t, *_ = go1_signals(robot, rate_hz, seconds)
-    Imu, Qt, V = s.types["sensor_msgs/msg/Imu"], s.types["geometry_msgs/msg/Quaternion"], s.types["geometry_msgs/msg/Vector3"]
+    Imu, Qt = s.types["sensor_msgs/msg/Imu"], s.types["geometry_msgs/msg/Quaternion"]
+    V = s.types["geometry_msgs/msg/Vector3"]
     out = []
     for tk in t:
         ns = int(round(tk * 1e9))
         out.append(("/imu", "sensor_msgs/msg/Imu", ns, Imu(
-            header=_header(s, ns, "imu_link"), orientation=Qt(x=0.0, y=0.0, z=float(np.sin(YAW / 2)), w=float(np.cos(YAW / 2))),
+            header=_header(s, ns, "imu_link"),
+            orientation=Qt(x=0.0, y=0.0, z=float(np.sin(YAW / 2)), w=float(np.cos(YAW / 2))),
             orientation_covariance=np.zeros(9), angular_velocity=V(x=0.0, y=0.0, z=0.0),
             angular_velocity_covariance=np.zeros(9), linear_acceleration=V(x=0.0, y=0.0, z=9.81),
             linear_acceleration_covariance=np.zeros(9))))

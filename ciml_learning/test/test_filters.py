@@ -153,7 +153,8 @@ def test_dropped_samples_are_bridged_alike_online_and_offline():
     q2[:, 6] = 1.0
     q2[:, 7:] = ramp[:, None]
     v2 = np.ones((n, 18))
-    lin = filter_state_log(np.arange(n)[keep] / FS, q2[keep], v2[keep], v2[keep, :12], v2[keep, :12], np.ones((keep.sum(), 4), bool))
+    lin = filter_state_log(np.arange(n)[keep] / FS, q2[keep], v2[keep], v2[keep, :12], v2[keep, :12],
+                           np.ones((keep.sum(), 4), bool))
     k = int(np.flatnonzero(np.isclose(lin.t, 101 / FS))[0])
     np.testing.assert_allclose(lin.q[k, 7:], 101 / FS, atol=1e-12)
     np.testing.assert_allclose(lin.a[k], 0.0, atol=1e-9)

@@ -117,7 +117,8 @@ def test_torque_following_the_command_is_flagged(tmp_path):
 
 @pytest.mark.parametrize("case, match", [
     ("zero_quat", r"base \(/odom\): pose.pose.orientation is a zero quaternion"),
-    ("zero_stamps", r"joint_state: header.stamp is zero in all 100 messages on /joint_states; set inputs.joint_state.stamp: log"),
+    ("zero_stamps", r"joint_state: header.stamp is zero in all 100 messages on /joint_states; "
+                    r"set inputs.joint_state.stamp: log"),
 ])
 def test_rejections_name_role_field_and_reason(tmp_path, case, match):
     path = write_bag(tmp_path / "b", go1_messages(ROBOT, store(), 250.0, 0.4, **{case: True}))

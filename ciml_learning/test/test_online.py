@@ -65,8 +65,8 @@ def stream(n: int, seed: int = 0):
     basis = contact_invariant_bases(dynamics_batch(ROBOT, q, v, a)[1], ROBOT.leg_joints)
     rbd, rbd_observed = generalized_rbd_error(basis, phi, observed, ROBOT.leg_joints)
     return dict(q=q, v=v, a=a, tau=tau, tau_dot=tau_dot, phi=phi, observed=observed, gamma=gamma, valid=valid,
-                stamps=stamps, contacts=~swing, X=learning_inputs(q, v, a, tau, tau_dot), rbd=rbd, rbd_observed=rbd_observed, basis=basis,
-                coupling=leg_coupling(basis, ROBOT.leg_joints))
+                stamps=stamps, contacts=~swing, X=learning_inputs(q, v, a, tau, tau_dot), rbd=rbd,
+                rbd_observed=rbd_observed, basis=basis, coupling=leg_coupling(basis, ROBOT.leg_joints))
 
 
 def state_sample(s, k, valid=None) -> StateSample:
@@ -151,8 +151,8 @@ def test_robot_reference_arrays_by_name_and_rejects_nan():
     q, v, a = s["q"][1], s["v"][1], s["a"][1]
     v[:6] = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
     a[:6] = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
-    state = cv.robot_state_msg(ROBOT, 7, q, v, a, np.zeros(12), np.zeros(12), np.zeros(12), np.array([1, 0, 0, 1], bool),
-                               True)
+    state = cv.robot_state_msg(ROBOT, 7, q, v, a, np.zeros(12), np.zeros(12), np.zeros(12),
+                               np.array([1, 0, 0, 1], bool), True)
     perm = np.random.default_rng(2).permutation(12)
     msg = RobotReference(header=state.header, motion="trot_35", phase=0.3,
                          joint_names=[ROBOT.joint_names[i] for i in perm], base_pose=state.base_pose,
@@ -177,7 +177,8 @@ def test_online_learner_equals_offline_partial_fit_on_the_same_samples(calibrati
     s = stream(n)
     act_obs = np.ones((n, 12), bool)
     act_obs[50, :4] = False              # a partially observed Γ: those entries are not learned
-    learner = OnlineLearner(ROBOT, ModelSet.for_robot(ROBOT, "lwpr"), calibration_samples=calibration, record_stamps=True)
+    learner = OnlineLearner(ROBOT, ModelSet.for_robot(ROBOT, "lwpr"), calibration_samples=calibration,
+                            record_stamps=True)
     reasons = [learner.learn(int(s["stamps"][k]), state_sample(s, k), error_sample(s, k, act_obs[k])) for k in range(n)]
     assert reasons.count("invalid_samples") == int((~s["valid"]).sum())
     assert learner.n_learned == int(s["valid"].sum())

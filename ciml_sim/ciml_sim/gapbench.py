@@ -330,7 +330,8 @@ def run_case(index: int, spec: dict, out_dir: str, scale: float = 1.0) -> dict:
     answer_dir = os.path.join(out_dir, "answers")
     os.makedirs(answer_dir, exist_ok=True)
     scenario_path = os.path.join(answer_dir, f"case_{index:02d}.yaml")
-    atomic_write_text(scenario_path, yaml.safe_dump({"name": f"case_{index:02d}", **scenario_of(spec)}, sort_keys=False))
+    atomic_write_text(scenario_path,
+                      yaml.safe_dump({"name": f"case_{index:02d}", **scenario_of(spec)}, sort_keys=False))
     t0 = time.perf_counter()
     bags = _record_motions(case, scenario_path, spec["seed"], scale)
     reference = []
@@ -371,7 +372,8 @@ def summarise(cases: list[dict]) -> dict:
         "cases": len(cases),
         "failed_cases": sum(1 for c in cases if "error" in c),
         "in_catalogue_effects": len(rows),
-        "named_right_fraction": (sum(r["type_right"] and r["location_right"] for r in rows) / len(rows)) if rows else None,
+        "named_right_fraction": (sum(r["type_right"] and r["location_right"] for r in rows) / len(rows)
+                                 if rows else None),
         "cases_with_spurious_effect": sum(1 for c in in_cat if c.get("spurious")),  # in-catalogue cases
         "median_param_rel_error": float(np.median(rel)) if rel else None,
         "coverage_95": float(cov[0] / cov[2]) if cov[2] else None,
@@ -386,7 +388,8 @@ def summarise(cases: list[dict]) -> dict:
             1 for c in ooc if c["out_of_catalogue"]["unexplained_large"] and c["out_of_catalogue"]["localised_right"]
             and not c["out_of_catalogue"]["named_wrong_with_confidence"]),
         "out_of_catalogue_cases": len(ooc),
-        "reference_cases_named_only_the_difference": sum(1 for c in refs if c["reference"]["named_only_the_difference"]),
+        "reference_cases_named_only_the_difference": sum(1 for c in refs
+                                                         if c["reference"]["named_only_the_difference"]),
         "reference_cases": len(refs),
         "median_diagnose_s": float(np.median([c["diagnose_s"] for c in cases if "diagnose_s" in c])) if cases else None,
         "targets": {"named_right_fraction": ">= 0.95", "spurious share": "<= 0.05", "median_param_rel_error": "<= 0.15",
@@ -415,7 +418,8 @@ def table(cases: list[dict]) -> str:
             continue
         if "out_of_catalogue" in c:
             o = c["out_of_catalogue"]
-            named = f"unexplained: {'yes' if o['unexplained_large'] else 'no'}, leg: {'yes' if o['localised_right'] else 'no'}"
+            named = (f"unexplained: {'yes' if o['unexplained_large'] else 'no'}, "
+                     f"leg: {'yes' if o['localised_right'] else 'no'}")
             if o.get("unexplained_joint"):
                 named += f", at {o['unexplained_joint']}"
         else:
@@ -430,7 +434,8 @@ def table(cases: list[dict]) -> str:
         cv = c.get("coverage", {})
         cov = f"{cv['in_95']}/{cv['params']} / {cv['in_68']}/{cv['params']}" if cv.get("params") else ""
         lines.append(f"| {c['case']} | {true} | {named} | {fmt(max(rel) if rel else None)} | {cov} "
-                     f"| {len(c.get('spurious', []))} | {fmt(c.get('shrink_ratio'))} / {fmt(c.get('shrink_ratio_physical'))} "
+                     f"| {len(c.get('spurious', []))} "
+                     f"| {fmt(c.get('shrink_ratio'))} / {fmt(c.get('shrink_ratio_physical'))} "
                      f"| {', '.join(c.get('worsened_dimensions', []))} | {fmt(c.get('noise_floor_share'))} "
                      f"| {fmt(c.get('unexplained_share'))} | {c.get('diagnose_s', '')} |")
     return "\n".join(lines)
@@ -475,7 +480,8 @@ def _write(out_dir: str, results: list[dict]) -> dict:
     doc = {"summary": summarise(results), "cases": results}
     atomic_write_json(os.path.join(out_dir, "gap_bench.json"), doc)
     atomic_write_text(os.path.join(out_dir, "gap_bench.md"),
-                      "# gap-bench\n\n" + table(results) + "\n\n```json\n" + json.dumps(doc["summary"], indent=1) + "\n```\n")
+                      "# gap-bench\n\n" + table(results) + "\n\n```json\n" + json.dumps(doc["summary"], indent=1)
+                      + "\n```\n")
     return doc
 
 

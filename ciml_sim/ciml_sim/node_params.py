@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from ciml_learning.params import NodeSchema, Param
 
-MUJOCO_BRIDGE = NodeSchema("ciml_sim", "mujoco_bridge", "the simulated robot (MuJoCo, 1 kHz joint loop) on the live graph", (
+MUJOCO_BRIDGE = NodeSchema("ciml_sim", "mujoco_bridge",
+                           "the simulated robot (MuJoCo, 1 kHz joint loop) on the live graph", (
     Param("scenario", "nominal", "Scenario: a YAML file or a shipped scenario name (nominal, default_gap, go1_gap)"),
     Param("seed", 0, "Seed of the sensor noise", "", 0, 2**31 - 1),
     Param("publish_rate", 250.0, "Sensor and /clock publish rate (1000/n; physics runs at 1 kHz)", "Hz", 10.0, 1000.0),

@@ -315,7 +315,8 @@ class Plant:
         mujoco.mj_resetData(m, d)
         q = self.standing_configuration() if q0 is None else np.asarray(q0, dtype=float)
         v = np.zeros(self.robot.nv) if v0 is None else np.asarray(v0, dtype=float)
-        if q.shape != (self.robot.nq,) or v.shape != (self.robot.nv,) or not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+        if q.shape != (self.robot.nq,) or v.shape != (self.robot.nv,) \
+                or not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
             raise PlantError(f"reset: expected finite q ({self.robot.nq}) and v ({self.robot.nv})")
         d.qpos[:], d.qvel[:] = pin_to_mj_state(q, v)
         mujoco.mj_forward(m, d)
@@ -449,10 +450,10 @@ class Plant:
             else:
                 noise_q, noise_qd, k = self._encoder_noise(n - done)
                 joint_loop.run_joint_loop(
-                    self._mj_step, self._mj_step2, m._address, d._address, k, reuse, float(d.time), float(m.opt.timestep),
-                    self._qj, self._vj, self._ctrl, self.encoder_offset, noise_q, noise_qd, self._c, self._c_rate,
-                    self._has_rate, self._stamp, self._kp, self._kd, self.limits, self._has_lag, self._alpha,
-                    self._lag, self._has_gain, self.gain, self.offset, self.u, self.tau)
+                    self._mj_step, self._mj_step2, m._address, d._address, k, reuse, float(d.time),
+                    float(m.opt.timestep), self._qj, self._vj, self._ctrl, self.encoder_offset, noise_q, noise_qd,
+                    self._c, self._c_rate, self._has_rate, self._stamp, self._kp, self._kd, self.limits,
+                    self._has_lag, self._alpha, self._lag, self._has_gain, self.gain, self.offset, self.u, self.tau)
             reuse = False
             done += k
             self._k += k
@@ -579,7 +580,8 @@ class Plant:
                 level[j] += lv
             share = np.divide(friction[6:], level, out=np.zeros_like(level), where=level > 0)
             strib = dict(zip((id(e) for e, _ in self._stribeck), stribeck_levels))
-        side = dict(zip((id(e) for e, _ in self._springs + self._ripples), self._side_torques())) if self._has_side else {}
+        side = (dict(zip((id(e) for e, _ in self._springs + self._ripples), self._side_torques()))
+                if self._has_side else {})
         if "actuator_lag" in kinds:
             lag_share = np.divide(lag - u, self.lag_time_constant, out=np.zeros_like(u),
                                   where=self.lag_time_constant > 0)

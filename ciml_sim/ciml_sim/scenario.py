@@ -179,7 +179,8 @@ def parse_scenario(data: Any, robot: RobotDescription) -> Scenario:
         raise ScenarioError(f"name: expected a non-empty string, got {name!r}")
     noise = data.get("sensor_noise") or {}
     if not isinstance(noise, dict):
-        raise ScenarioError(f"sensor_noise: expected a mapping of standard deviations; valid keys: {', '.join(NOISE_FIELDS)}")
+        raise ScenarioError("sensor_noise: expected a mapping of standard deviations; "
+                            f"valid keys: {', '.join(NOISE_FIELDS)}")
     for k, v in noise.items():
         if k not in NOISE_FIELDS:
             raise ScenarioError(f"sensor_noise.{k}: unknown; valid: {', '.join(NOISE_FIELDS)}")

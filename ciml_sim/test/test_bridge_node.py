@@ -114,8 +114,8 @@ def test_bridge_publishes_damps_without_commands_and_rejects_nan():
             time.sleep(0.01)
         recent = graph.bridge_status()[n_before:]
         assert any(s.level == b"\x00" and s.message == "torque control" for s in recent), [s.message for s in recent]
-        assert graph.wait_for(lambda: any(int(_values(s).get("stale_command_damping", 0)) >= 1 and "damping" in s.message
-                                          for s in graph.bridge_status()), 10)
+        assert graph.wait_for(lambda: any(int(_values(s).get("stale_command_damping", 0)) >= 1
+                                          and "damping" in s.message for s in graph.bridge_status()), 10)
         z = graph.get("/base_state")[-1].pose.pose.position.z
         assert 0.05 < z < 0.8  # damped joints let the robot sink onto its trunk; nothing explodes
 

@@ -77,7 +77,8 @@ def test_out_of_catalogue_scoring():
     assert not o["unexplained_large"] and not o["localised_right"] and o["named_wrong_with_confidence"]
     # localised by the diagnosis' out-of-catalogue probe (unexplained_localised) on that leg, base dims on top
     probe = {**good, "localization": [{"dimension": "base_fz"}],
-             "unexplained_localised": [{"joint": "lh_hfe_joint", "share": 0.7}, {"joint": "rf_kfe_joint", "share": 0.1}]}
+             "unexplained_localised": [{"joint": "lh_hfe_joint", "share": 0.7},
+                                       {"joint": "rf_kfe_joint", "share": 0.1}]}
     o = gapbench.score_case(truth, probe, JOINTS)["out_of_catalogue"]
     assert o["localised_right"] and o["localised_by_probe"] and not o["localised_by_dimension"]
     summary = gapbench.summarise([{"case": 1, **gapbench.score_case(truth, good, JOINTS), "diagnose_s": 1.0}])

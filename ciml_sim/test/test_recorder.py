@@ -126,7 +126,8 @@ def test_bag_without_ground_truth_reveals_nothing_of_the_scenario(tmp_path):
     yaml_path.write_text(yaml.safe_dump(ACTUATOR_ONLY))
     out = tmp_path / "cli_bag"
     r = subprocess.run([CIML, "record", "--scenario", str(yaml_path), "--motion", "stand", "--duration", "0.3",
-                        "--seed", "2", "--out", str(out), "--no-ground-truth"], capture_output=True, text=True, timeout=120)
+                        "--seed", "2", "--out", str(out), "--no-ground-truth"],
+                       capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout.strip().splitlines()[-1])["samples"] == 75
     assert set(list_topics(out)) == LIVE

@@ -103,7 +103,8 @@ def test_recorder_writes_the_same_bag_through_templates_and_through_rclpy(tmp_pa
             self.w.write(topic, ns, msg, msgtype)
 
     with BagWriter(tmp_path / "fast") as a, BagWriter(tmp_path / "slow") as b:
-        fast, slow = recorder._SampleWriter(a, ROBOT, plant, True), recorder._SampleWriter(PlainWriter(b), ROBOT, plant, True)
+        fast = recorder._SampleWriter(a, ROBOT, plant, True)
+        slow = recorder._SampleWriter(PlainWriter(b), ROBOT, plant, True)
         assert fast.serializer is not None and slow.serializer is None
         fast.write(m, out)
         slow.write(m, out)

@@ -96,14 +96,14 @@ def parameter_bounds(robot, cand_type: str, joint: str | None = None) -> tuple[t
 
 def physical_ranges(robot) -> dict:
     """The bounds in the scenario's terms, for diagnosis.json (`bounds`) and the report."""
-    lim = torque_limits(robot)
+    friction_max = FRICTION_FRACTION * float(np.min(torque_limits(robot)))
     return {
         "payload": {"mass": [0.0, PAYLOAD_MASS_FRACTION * float(robot.total_mass)], "com_norm_max": PAYLOAD_LEVER},
         "link_mass_scale": {"value": list(LINK_MASS_SCALE)},
         "encoder_offset": {"value": [-MAX_ANGLE, MAX_ANGLE]},
         "base_imu_tilt": {"roll": [-MAX_ANGLE, MAX_ANGLE], "pitch": [-MAX_ANGLE, MAX_ANGLE]},
-        "joint_coulomb_friction": {"value": [0.0, FRICTION_FRACTION * float(np.min(lim))], "of_torque_limit": FRICTION_FRACTION},
-        "joint_viscous_friction": {"value": [0.0, FRICTION_FRACTION * float(np.min(lim))], "of_torque_limit": FRICTION_FRACTION},
+        "joint_coulomb_friction": {"value": [0.0, friction_max], "of_torque_limit": FRICTION_FRACTION},
+        "joint_viscous_friction": {"value": [0.0, friction_max], "of_torque_limit": FRICTION_FRACTION},
         "actuator_lag": {"time_constant": [0.0, MAX_LAG]},
         "torque_gain": {"value": list(TORQUE_GAIN)},
         "torque_offset": {"value_of_torque_limit": [-OFFSET_FRACTION, OFFSET_FRACTION]},

@@ -288,9 +288,9 @@ class FeatureLayout:
         for j, name in enumerate(r.joint_names):
             g0 = self.generic0 + N_GENERIC * j
             a0 = self.actuation_feature(j, "generic_1")
+            features = tuple(range(g0, g0 + N_GENERIC)) + tuple(range(a0, a0 + N_GENERIC))
             out.append(Candidate(UNMODELLED_SENSOR_TYPE, "sensor", GENERIC_NAMES, (-inf,) * N_GENERIC,
-                                 (inf,) * N_GENERIC, tuple(range(g0, g0 + N_GENERIC)) + tuple(range(a0, a0 + N_GENERIC)),
-                                 joint=name))
+                                 (inf,) * N_GENERIC, features, joint=name))
         return out
 
     def matrix(self, cand: Candidate, payload_com: np.ndarray | None = None,

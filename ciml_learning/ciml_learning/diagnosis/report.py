@@ -54,7 +54,8 @@ OUTSIDE_REPORTED = 0.01
 def answers(result: dict) -> list[str]:
     """The three answers in a few lines of plain text (also printed by `ciml diagnose`)."""
     loc = result["localization"]
-    top = [f"{d['dimension']} ({d['share']:.0%}, RMS {d['rms_error']:.3g} {unit_of(d)})" for d in loc[:3] if d["share"] > 0]
+    top = [f"{d['dimension']} ({d['share']:.0%}, RMS {d['rms_error']:.3g} {unit_of(d)})"
+           for d in loc[:3] if d["share"] > 0]
     legs = sorted(result.get("localization_by_leg", {}).items(), key=lambda x: -x[1])
     where = "Where: " + (", ".join(top) if top else "no dimension stands above its noise level")
     if legs and legs[0][1] > 0:
@@ -101,7 +102,8 @@ def answers(result: dict) -> list[str]:
             if diffs else "no effect distinguishes the logs from the reference")
         shared = [x for x in comp["effects"] if x["status"] == "shared"]
         if shared:
-            line += "; shared by both (not a gap between them): " + ", ".join(f"{x['type']} at {x['where']}" for x in shared)
+            line += "; shared by both (not a gap between them): " + ", ".join(f"{x['type']} at {x['where']}"
+                                                                              for x in shared)
         out.append(line)
     return out
 
@@ -135,7 +137,8 @@ def closed_loop_html(closed_loop: dict | None) -> str:
     head = "".join(f"<th>{html.escape(label)}</th>" for _, label in keys)
     body = ""
     for name, m in closed_loop.items():
-        cells = "".join(f"<td>{m.get(k):.3g}</td>" if isinstance(m.get(k), (int, float)) and not isinstance(m.get(k), bool)
+        cells = "".join(f"<td>{m.get(k):.3g}</td>"
+                        if isinstance(m.get(k), (int, float)) and not isinstance(m.get(k), bool)
                         else f"<td>{html.escape(str(m.get(k, '')))}</td>" for k, _ in keys)
         body += f"<tr><td>{html.escape(name)}</td>{cells}</tr>"
     return f"<table><tr><th>model</th>{head}</tr>{body}</table>"
@@ -254,7 +257,8 @@ def render_report(robot, result: dict, series: dict, rows_ho, selection) -> str:
     e = html.escape
     rows = "".join(
         f"<tr><td>{e(x['type'])}</td><td>{e(_where(x))}</td><td>{e(_fmt_params(x['params'], x['std']))}</td>"
-        f"<td>{x['share']:.1%}</td><td>{e(x.get('confidence', ''))} (spread {x.get('consistency_spread', 0):.0%})</td></tr>"
+        f"<td>{x['share']:.1%}</td>"
+        f"<td>{e(x.get('confidence', ''))} (spread {x.get('consistency_spread', 0):.0%})</td></tr>"
         for x in eff) or "<tr><td colspan=5>none</td></tr>"
     loc_rows = "".join(
         f"<tr><td>{e(d['dimension'])}</td><td>{d['kind']}</td><td>{d['rms_error']:.3g}</td>"
@@ -267,8 +271,10 @@ def render_report(robot, result: dict, series: dict, rows_ho, selection) -> str:
     s = result["shrink"]
     outside_rows = "".join(
         f"<tr><td>&nbsp;&nbsp;of it: joint torque outside the catalogue</td><td>{e(u['joint'])}</td>"
-        f"<td>{u['torque_at_center']:.3g} Nm at q = {u['position_center']:.3g} rad, stiffness {u['stiffness']:.3g} Nm/rad; "
-        f"position-dependent part {u['torque_position_dependent_rms']:.3g} Nm RMS</td><td>{u['share']:.1%}</td><td></td></tr>"
+        f"<td>{u['torque_at_center']:.3g} Nm at q = {u['position_center']:.3g} rad, "
+        f"stiffness {u['stiffness']:.3g} Nm/rad; "
+        f"position-dependent part {u['torque_position_dependent_rms']:.3g} Nm RMS</td>"
+        f"<td>{u['share']:.1%}</td><td></td></tr>"
         for u in result.get("unexplained_localised", []) if u["share"] >= OUTSIDE_REPORTED)
     return f"""<!DOCTYPE html>
 <html><head><meta charset="utf-8"><title>CIML gap diagnosis</title>
@@ -288,22 +294,27 @@ catalogue effect explains; share: of the error above the noise level.</p>
 <h2>2. Which unmodelled effect causes it?</h2>
 <table><tr><th>effect</th><th>where</th><th>parameters ± std</th><th>share</th>
 <th>confidence (parameter spread across contact configurations, bags, sliding speeds)</th></tr>{rows}
-<tr><td colspan=3>unexplained (no candidate explains it)</td><td>{result['unexplained_share']:.1%}</td><td></td></tr>{outside_rows}</table>
+<tr><td colspan=3>unexplained (no candidate explains it)</td><td>{result['unexplained_share']:.1%}</td><td></td></tr>
+{outside_rows}</table>
 <img src="{figs['which']}" style="max-width:100%">
 <p>Selection on held-out data ({len(eff)} of {result['selection']['candidates']} candidates kept):</p><ul>{steps}</ul>
 <h2>3. How far does it shrink?</h2>
 <p>Held-out: {e(d['heldout'])}; {d['heldout_samples']} samples. Noise-normalised RMS
 {s['heldout_rms_nominal']:.3g} → {s['heldout_rms_with_effects']:.3g} (gap removed: {s['ratio']:.1%});
-physical RMS (N and Nm mixed) {s['heldout_rms_nominal_physical']:.3g} → {s['heldout_rms_with_effects_physical']:.3g}.</p>
+physical RMS (N and Nm mixed) {s['heldout_rms_nominal_physical']:.3g} →
+{s['heldout_rms_with_effects_physical']:.3g}.</p>
 <p>With the stiction of the identified Coulomb frictions estimated per sample (shrink.py): {s['ratio']:.1%};
 without: {s['ratio_without_stiction_estimate']:.1%}.</p>
 <img src="{figs['far']}" style="width:100%">
 <h3>Closed loop: feedback effort and tracking, nominal vs identified effects vs learned</h3>
 {CLOSED_LOOP_BEGIN}{closed_loop_html(result.get("closed_loop"))}{CLOSED_LOOP_END}
-<h2>Data</h2><p>Identification bags: {e(', '.join(d['bags']))}<br>Held-out bags: {e(', '.join(d['heldout_bags']) or '(part of the above)')}<br>
-Samples: {d['samples']} identification, {d['heldout_samples']} held-out. Rejected while reading: {e(str(d['rejected']))}.</p>
+<h2>Data</h2><p>Identification bags: {e(', '.join(d['bags']))}<br>
+Held-out bags: {e(', '.join(d['heldout_bags']) or '(part of the above)')}<br>
+Samples: {d['samples']} identification, {d['heldout_samples']} held-out.
+Rejected while reading: {e(str(d['rejected']))}.</p>
 <h3>Baseline: command-update sampling</h3>
-<p>{e(result["baseline"]["description"])} Fitted: {e(_fmt_params(result["baseline"]["params"], result["baseline"]["std"]))}.
+<p>{e(result["baseline"]["description"])}
+Fitted: {e(_fmt_params(result["baseline"]["params"], result["baseline"]["std"]))}.
 Held-out noise-normalised RMS before → after the baseline: {s["baseline"]["heldout_rms_before_baseline"]:.3g} →
 {s["baseline"]["heldout_rms_after_baseline"]:.3g} (the "nominal" above is after it).</p>
 </body></html>

@@ -130,8 +130,9 @@ def shrink(robot, rows: Rows, res: Residuals, sigma: np.ndarray, floor: np.ndarr
     pd_nom = float(np.sqrt(np.mean([e["rms_nominal"] ** 2 for e in per_dim.values()]))) if per_dim else 0.0
     pd_wth = float(np.sqrt(np.mean([e["rms_with_effects"] ** 2 for e in per_dim.values()]))) if per_dim else 0.0
     extra = {
-        "worsened_dimensions": [{"dimension": n, "rms_nominal": e["rms_nominal"], "rms_with_effects": e["rms_with_effects"],
-                                 "unit": e["unit"], "ratio": e["ratio"]} for n, e in worse],
+        "worsened_dimensions": [{"dimension": n, "rms_nominal": e["rms_nominal"],
+                                 "rms_with_effects": e["rms_with_effects"], "unit": e["unit"], "ratio": e["ratio"]}
+                                for n, e in worse],
         "ratio_physical_per_dimension": float(1.0 - pd_wth / pd_nom) if pd_nom > 0 else 0.0,
     }
     if floor is not None:

@@ -13,6 +13,7 @@ Read from the source with `ast`, nothing is imported:
 from __future__ import annotations
 
 import ast
+import importlib.util
 import os
 import re
 import subprocess
@@ -358,12 +359,34 @@ def _ruff() -> subprocess.CompletedProcess:
 
 
 def _has_ruff_module() -> bool:
-    import importlib.util
-
     return importlib.util.find_spec("ruff") is not None
 
 
 def test_ruff_is_clean():
     """ruff.toml's rules (E, F, W, I; lines up to 120 columns) over every tracked Python file."""
     r = _ruff()
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
+# --- (d) types -------------------------------------------------------------------------------------
+
+
+def _mypy(*files: str) -> subprocess.CompletedProcess:
+    assert importlib.util.find_spec("mypy") is not None, \
+        "mypy is not installed (requirements.txt pins it; run make install)"
+    return subprocess.run([sys.executable, "-m", "mypy", "--config-file", os.path.join(ROOT, "mypy.ini"), *files],
+                          cwd=ROOT, capture_output=True, text=True, timeout=1200)
+
+
+def test_mypy_finds_a_type_error(tmp_path):
+    """The check itself: with the project's configuration, a wrong type is an error."""
+    probe = tmp_path / "probe.py"
+    probe.write_text('from ciml_learning.robot import load_robot\n\nn_joints: str = load_robot().n_joints\n')
+    r = _mypy(str(probe))
+    assert r.returncode == 1 and "Incompatible types in assignment" in r.stdout, r.stdout + r.stderr
+
+
+def test_mypy_is_clean():
+    """mypy.ini's modules (every module of the packages but the ROS adapters) type-check."""
+    r = _mypy()
     assert r.returncode == 0, r.stdout + r.stderr

@@ -53,7 +53,9 @@ def library() -> ctypes.CDLL:
 @lru_cache(maxsize=None)
 def address(name: str) -> int:
     """Address of the core's C function `name`."""
-    return int(ctypes.cast(getattr(library(), name), ctypes.c_void_p).value)
+    ptr = ctypes.cast(getattr(library(), name), ctypes.c_void_p).value
+    assert ptr is not None  # a resolved symbol is never NULL
+    return ptr
 
 
 FUNCTIONS = ("ciml_terms", "ciml_difference", "ciml_qp_solve", "ciml_qp_drop", "ciml_foot_kinematics",

@@ -388,8 +388,7 @@ class GaitReference(Reference):
         self._targets: dict[tuple[int, int], tuple[float, float]] = {}
         self._sway: dict[int, tuple[np.ndarray, float, float, float]] = {}
         self._sway_b: dict[int, np.ndarray] = {}  # particular cubic per interval
-        self._sway_ik: LegIK | None = None
-        self._sway_data = None
+        self._sway_solver: tuple[LegIK, pin.Data] | None = None
         self.lateral = np.array([-self.direction[1], self.direction[0]])
 
     # nominal progression of the CoM along the direction of travel
@@ -483,11 +482,11 @@ class GaitReference(Reference):
         target = np.array(self.walk_target(n, half))
         prev = np.array(self.walk_target(n - 1, 1) if half == 0 else self.walk_target(n, 0))
         w, dw, ddw = quintic((tin - shift_start) / WALK_SHIFT)
-        p, dp, ddp = self.base_bal.copy(), np.zeros(3), np.zeros(3)
-        p[:2] = prev + w * (target - prev)
-        dp[:2] = dw / WALK_SHIFT * (target - prev)
-        ddp[:2] = ddw / WALK_SHIFT ** 2 * (target - prev)
-        return BaseState(p, dp, ddp, rpy, zero, zero)
+        pos, vel, acc = self.base_bal.copy(), np.zeros(3), np.zeros(3)
+        pos[:2] = prev + w * (target - prev)
+        vel[:2] = dw / WALK_SHIFT * (target - prev)
+        acc[:2] = ddw / WALK_SHIFT ** 2 * (target - prev)
+        return BaseState(pos, vel, acc, rpy, zero, zero)
 
     def trot_sway(self, t: float) -> tuple[float, float, float]:
         """Lateral base offset y (along `lateral`) and its derivatives for the trot.
@@ -541,10 +540,9 @@ class GaitReference(Reference):
         feet = np.array([self.foothold(i, self._swing_index(i, t_mid)[0]) for i in stance])
         u = (feet[1] - feet[0]) / np.linalg.norm(feet[1] - feet[0])
         model = self.robot.model
-        if self._sway_ik is None:  # its own IK and data: the reference's warm starts stay untouched
-            self._sway_ik = LegIK(self.robot, self.q_stand)
-            self._sway_data = model.createData()
-        ik, data = self._sway_ik, self._sway_data
+        if self._sway_solver is None:  # its own IK and data: the reference's warm starts stay untouched
+            self._sway_solver = (LegIK(self.robot, self.q_stand), model.createData())
+        ik, data = self._sway_solver
         mg = self.robot.total_mass * 9.81
         K = mg * float(u @ np.cross([self.lateral[0], self.lateral[1], 0.0], [0.0, 0.0, 1.0]))
         if abs(K) < 0.2 * mg:  # the line runs along `lateral`: no lateral sway helps

@@ -17,12 +17,16 @@ from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import topics
 from .conversions import stamp_to_ns
 from .errors import CimlError
+
+if TYPE_CHECKING:  # for the annotation only: rosbags is imported where it is used, as elsewhere here
+    from rosbags.interfaces import Connection
 
 
 class BagError(CimlError):
@@ -93,7 +97,7 @@ class BagWriter:
         self._writer = Writer(self._tmp, version=9, storage_plugin=StoragePlugin.MCAP)
         if compression == "zstd":
             self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-        self._connections: dict[str, object] = {}
+        self._connections: dict[str, Connection] = {}
         self.counts: dict[str, int] = {}
 
     def __enter__(self) -> "BagWriter":
@@ -162,29 +166,29 @@ class BagWriter:
 def _open_reader(paths: Sequence[str | os.PathLike]):
     from rosbags.highlevel import AnyReader, AnyReaderError
 
-    paths = [Path(p) for p in paths]
-    for p in paths:
+    bags = [Path(p) for p in paths]
+    for p in bags:
         if not p.exists():
             raise BagError(f"bag not found: {p}")
     from .mcap_check import BagCorruptError, check_bag
 
     try:  # CRCs and framing before any byte is decoded (mcap_check)
-        for p in paths:
+        for p in bags:
             check_bag(p)
     except BagCorruptError as err:
         raise BagError(str(err)) from None
     try:
-        reader = AnyReader(paths, default_typestore=typestore())
+        reader = AnyReader(bags, default_typestore=typestore())
         reader.open()
     except AnyReaderError as err:
         raise BagError(
-            f"cannot read bag {', '.join(map(str, paths))}: {err} — if it was cut short, try "
+            f"cannot read bag {', '.join(map(str, bags))}: {err} — if it was cut short, try "
             "'ros2 bag reindex' (db3) or 'mcap recover' (MCAP)"
         ) from err
     except FileNotFoundError as err:
         missing = os.path.basename(err.filename) if err.filename else "metadata.yaml"
         raise BagError(
-            f"bag {', '.join(map(str, paths))}: {missing} is missing; "
+            f"bag {', '.join(map(str, bags))}: {missing} is missing; "
             "recreate metadata.yaml with 'ros2 bag reindex'"
         ) from None
     return reader

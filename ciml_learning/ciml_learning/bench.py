@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 from importlib.metadata import EntryPoint, entry_points
+from typing import Any
 
 from .fileio import atomic_write_json
 
@@ -54,7 +55,7 @@ def run(names: list[str] | None, out: str) -> dict:
     unknown = [n for n in selected if n not in benchmarks]
     if unknown:
         raise CimlError(f"unknown benchmark(s) {unknown}; available: {sorted(benchmarks)}")
-    result = {"machine": _machine(), "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "benchmarks": {}}
+    result: dict[str, Any] = {"machine": _machine(), "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "benchmarks": {}}
     for name in selected:
         print(f"[bench] {name} ...", file=sys.stderr, flush=True)
         t0 = time.perf_counter()

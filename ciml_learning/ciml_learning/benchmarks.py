@@ -112,8 +112,10 @@ def train_benchmark(learner: str = "sgpr", n_samples: int = 54_000, n_jobs: int 
               "dimensions": ms.n_outputs, "n_jobs": n_jobs, "train_s": round(seconds, 2), "target_s": 300.0,
               "meets_target": seconds <= 300.0, **relative_rmse(ms, test)}
     if learner == "lwpr":
-        result["receptive_fields_rbd"] = [m.n_receptive_fields for m in ms.models_[:ms.n_rbd] if m is not None]
-        result["receptive_fields_actuation"] = [m.n_receptive_fields for m in ms.models_[ms.n_rbd:] if m is not None]
+        result["receptive_fields_rbd"] = [m.n_receptive_fields for m in ms.models_[:ms.n_rbd]
+                                          if isinstance(m, LWPR)]
+        result["receptive_fields_actuation"] = [m.n_receptive_fields for m in ms.models_[ms.n_rbd:]
+                                                if isinstance(m, LWPR)]
     return result
 
 
@@ -141,7 +143,7 @@ def online_benchmark(n_warmup: int = 20_000, n_samples: int = 2_000, seed: int =
         t2 = time.perf_counter()
         times[s] = t2 - t0
         update_times[s] = t1 - t0
-    rfs = [m.n_receptive_fields for m in ms.models_ if m is not None]
+    rfs = [m.n_receptive_fields for m in ms.models_ if isinstance(m, LWPR)]
     return {"warmup_samples": n_warmup, "timed_samples": n_samples,
             "per_sample_ms_mean": round(1e3 * float(times.mean()), 4),
             "per_sample_ms_p99": round(1e3 * float(np.percentile(times, 99)), 4),
@@ -206,6 +208,7 @@ def online_nodes_benchmark(n_warmup: int = 20_000, n_samples: int = 2_000, seed:
         t0 = time.perf_counter()
         pairer.add(STATE, stamp, StateSample(q[k], v[k], a[k], tau[k], tau_dot[k], bool(V[k])))
         pair = pairer.add(ERROR, stamp, ErrorSample(R[k], M[k], A[k], np.ones(nj, bool)))
+        assert pair is not None  # the state of this stamp is pending
         learner.learn(pair[0], pair[1], pair[2])
         t1 = time.perf_counter()
         predict_at_reference(robot, served, ReferenceState(stamp * 1e-9, q[k], v[k], a[k], contacts[k]))
@@ -219,7 +222,7 @@ def online_nodes_benchmark(n_warmup: int = 20_000, n_samples: int = 2_000, seed:
         load_served_model(robot, saved.model_dir, saved.checksum)
         load_s = time.perf_counter() - t0
         size = sum(os.path.getsize(os.path.join(saved.model_dir, f)) for f in os.listdir(saved.model_dir))
-    rfs = [m.n_receptive_fields for m in ms.models_ if m is not None]
+    rfs = [m.n_receptive_fields for m in ms.models_ if isinstance(m, LWPR)]
     ms_ = lambda x: round(1e3 * float(x), 4)  # noqa: E731
     return {"warmup_samples": n_warmup, "timed_samples": n_samples,
             "learn_ms_mean": ms_(t_learn.mean()), "learn_ms_p99": ms_(np.percentile(t_learn, 99)),

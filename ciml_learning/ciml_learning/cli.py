@@ -109,7 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _global_options(p, suppress=False)
     sub = p.add_subparsers(dest="verb", metavar="VERB", required=True)
-    parent = argparse.ArgumentParser(add_help=False)
+    parent = ca.OneLineParser(add_help=False)
     _global_options(parent, suppress=True)
 
     for name, v in installed_verbs():

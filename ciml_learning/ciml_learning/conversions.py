@@ -283,7 +283,8 @@ def robot_state_msg(robot: RobotDescription, stamp_ns: int, q: np.ndarray, v: np
         foot_names=list(robot.foot_frames), in_contact=[bool(c) for c in contacts], valid=bool(valid))
 
 
-def robot_state_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, ...]:
+def robot_state_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                              np.ndarray, np.ndarray, np.ndarray, bool]:
     """(q, v, q̈, τ, τ̇, u, contacts, valid) in the robot's orders from a RobotState."""
     perm = robot.joint_permutation(list(msg.joint_names))
     n = len(msg.joint_names)

@@ -184,7 +184,10 @@ def fill_short_gaps(t: np.ndarray, signals: list[np.ndarray], contacts: np.ndarr
             inserts.append((k, m))
     if not inserts:
         return t, signals, contacts, np.zeros(n, dtype=bool)
-    rows_t, rows_x, rows_c, filled = [], [[] for _ in signals], [], []
+    rows_t: list[np.ndarray] = []
+    rows_x: list[list[np.ndarray]] = [[] for _ in signals]
+    rows_c: list[np.ndarray] = []
+    filled: list[np.ndarray] = []
     prev = 0
     for k, m in inserts:
         rows_t.append(t[prev:k])
@@ -194,7 +197,7 @@ def fill_short_gaps(t: np.ndarray, signals: list[np.ndarray], contacts: np.ndarr
         filled.append(np.zeros(k - prev, dtype=bool))
         for j in range(1, m + 1):
             w = j / (m + 1)
-            rows_t.append([(1 - w) * t[k - 1] + w * t[k]])
+            rows_t.append(np.array([(1 - w) * t[k - 1] + w * t[k]]))
             for i, x in enumerate(signals):
                 rows_x[i].append(_interpolate_row(x[k - 1], x[k], w, quat if i == 0 else None)[None])
             rows_c.append(contacts[k - 1][None])
@@ -229,8 +232,9 @@ class FilteredLog:
     contacts: np.ndarray
     valid: np.ndarray
     invalid_counts: dict[str, int]
-    segment: np.ndarray | None = None
-    rate_hz: float | None = None
+    segment: np.ndarray
+    """Segment id of each sample (the log is split at time gaps and non-finite samples)."""
+    rate_hz: float
     """Rate the filters were designed for [Hz] (the log's measured rate)."""
     segment_rate_hz: np.ndarray | None = None
     """Per segment id, its log's rate [Hz] (logs of different rates concatenated), else None."""
@@ -379,9 +383,9 @@ class OnlineStateFilter:
                 new = (q, np.asarray(v, float), np.asarray(tau, float), np.asarray(u, float))
                 for j in range(1, missing + 1):
                     w = j / (missing + 1)
-                    rows = [_interpolate_row(a, b, w, slice(3, 7) if i == 0 else None)
-                            for i, (a, b) in enumerate(zip((q0, v0, tau0, u0), new))]
-                    self._push_one((1 - w) * t0 + w * t, *rows, c0, filled=True, out=out)
+                    qi, vi, taui, ui = (_interpolate_row(a, b, w, slice(3, 7) if i == 0 else None)
+                                        for i, (a, b) in enumerate(zip((q0, v0, tau0, u0), new)))
+                    self._push_one((1 - w) * t0 + w * t, qi, vi, taui, ui, c0, filled=True, out=out)
         self._push_one(t, q, np.asarray(v, float), np.asarray(tau, float), np.asarray(u, float), contacts,
                        filled=False, out=out)
         return out
@@ -396,7 +400,7 @@ class OnlineStateFilter:
         low = self._low.push(np.concatenate([q, v, tau, u]))
         der = self._der.push(np.concatenate([v, tau]))
         self._history.append((t, contacts, filled))
-        if low is None:
+        if low is None or der is None:  # both filters have the same delay: warm together
             return
         t_out, c_out, filled_out = self._history[self.delay]
         if filled_out:

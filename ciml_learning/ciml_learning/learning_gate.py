@@ -89,7 +89,7 @@ class LearningGate:
         self.references_seen = 0
         self.paused = False
         self.reason = ""
-        self._last_bad: int | None = None
+        self._last_bad = 0  # stamp [ns] of the last refused sample (read while paused)
         self.counts: Counter[str] = Counter()
 
     def add_reference(self, stamp_ns: int, q_ref: np.ndarray) -> None:
@@ -106,10 +106,7 @@ class LearningGate:
             return None
         stamps = [s for s, _ in self._references]
         i = int(np.searchsorted(stamps, stamp_ns))
-        best = None
-        for j in (i - 1, i):
-            if 0 <= j < len(stamps) and (best is None or abs(stamps[j] - stamp_ns) < abs(stamps[best] - stamp_ns)):
-                best = j
+        best = min((j for j in (i - 1, i) if 0 <= j < len(stamps)), key=lambda j: abs(stamps[j] - stamp_ns))
         if abs(stamps[best] - stamp_ns) > self.config.max_reference_age * 1e9:
             return None
         return self._references[best][1]

@@ -616,7 +616,7 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
         contacts = np.zeros((n, robot.n_feet), dtype=bool)
         contacts[ic >= 0] = cflags[ic[ic >= 0]]
     # imu
-    imu_quat = imu_gyro = None
+    imu: tuple[np.ndarray, np.ndarray] | None = None  # orientation (x, y, z, w), angular velocity
     if imu_spec is not None:
         ti, iq, iw = _read_imu(imu_spec, tops, rej)
         ii = hold("imu", imu_spec["topic"], ti)
@@ -624,16 +624,18 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
         imu_quat = np.tile([0.0, 0.0, 0.0, 1.0], (n, 1))
         imu_gyro = np.zeros((n, 3))
         imu_quat[ii >= 0], imu_gyro[ii >= 0] = iq[ii[ii >= 0]], iw[ii[ii >= 0]]
+        imu = (imu_quat, imu_gyro)
         sources["imu"] = f"topic {imu_spec['topic']} (sensor_msgs/msg/Imu)"
     # base (measured)
-    base_pos = base_quat = base_twist = None
+    base: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # position, orientation, twist
     if "estimate" not in base_spec:
         tb, bp, bq, bt, sources["base"] = _read_base(base_spec, tops, rej, warnings)
-        ib = hold("base", base_spec.get("topic", base_spec.get("pose_topic")), tb)
+        ib = hold("base", base_spec["topic"] if "topic" in base_spec else base_spec["pose_topic"], tb)
         ok &= ib >= 0
         base_pos, base_quat, base_twist = np.zeros((n, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)), np.zeros((n, 6))
-        sel = ib >= 0
-        base_pos[sel], base_quat[sel], base_twist[sel] = bp[ib[sel]], bq[ib[sel]], bt[ib[sel]]
+        has = ib >= 0
+        base_pos[has], base_quat[has], base_twist[has] = bp[ib[has]], bq[ib[has]], bt[ib[has]]
+        base = (base_pos, base_quat, base_twist)
     # command
     u_observed = cmd_spec is not None
     u = tau.copy()
@@ -651,12 +653,12 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     sel = np.flatnonzero(ok)
     tj, qj, qdj, tau, u = tj[sel], qj[sel], qdj[sel], tau[sel], u[sel]
     n = len(tj)
-    if imu_quat is not None:
-        imu_quat, imu_gyro = imu_quat[sel], imu_gyro[sel]
+    if imu is not None:
+        imu = (imu[0][sel], imu[1][sel])
     if contacts is not None:
         contacts = contacts[sel]
-    if base_pos is not None:
-        base_pos, base_quat, base_twist = base_pos[sel], base_quat[sel], base_twist[sel]
+    if base is not None:
+        base = (base[0][sel], base[1][sel], base[2][sel])
     if profile.torque_source == "none":
         if cmd_spec is None:
             raise BagError("torque_source none needs inputs.command (the only torque left is the command)")
@@ -669,22 +671,23 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     if contacts is None:
         from .estimation import estimate_contacts
 
-        q_est = np.hstack([base_pos if base_pos is not None else np.zeros((n, 3)),
-                           base_quat if base_quat is not None else (imu_quat if imu_quat is not None
-                                                                     else np.tile([0, 0, 0, 1.0], (n, 1))),
+        q_est = np.hstack([base[0] if base is not None else np.zeros((n, 3)),
+                           base[1] if base is not None else (imu[0] if imu is not None
+                                                             else np.tile([0, 0, 0, 1.0], (n, 1))),
                            qj])
-        v_est = np.hstack([base_twist if base_twist is not None else
-                           np.hstack([np.zeros((n, 3)), imu_gyro if imu_gyro is not None else np.zeros((n, 3))]),
+        v_est = np.hstack([base[2] if base is not None else
+                           np.hstack([np.zeros((n, 3)), imu[1] if imu is not None else np.zeros((n, 3))]),
                            qdj])
         kw = {k: con_spec[k] for k in ("threshold", "hysteresis") if k in con_spec}
         contacts, _ = estimate_contacts(robot, t_s, q_est, v_est, tau, **kw)
         contacts = np.asarray(contacts, dtype=bool)
         sources["contacts"] = "estimated from the legs' dynamics (estimation.estimate_contacts)"
-    if base_pos is None:
+    if base is None:
         from .estimation import estimate_base
 
-        kw = {"imu_frame": imu_spec["frame"]} if "frame" in imu_spec else {}
-        base_pos, base_quat, base_twist = estimate_base(robot, t_s, qj, qdj, imu_quat, imu_gyro, contacts, **kw)
+        assert imu is not None and imu_spec is not None  # the profile allows imu_legs only with inputs.imu
+        frame = {"imu_frame": imu_spec["frame"]} if "frame" in imu_spec else {}
+        base = estimate_base(robot, t_s, qj, qdj, imu[0], imu[1], contacts, **frame)
         sources["base"] = ("estimated: orientation and angular velocity from the IMU, linear velocity from the "
                            "stance legs (estimation.estimate_base)")
     # torque that follows the command: Γ = τ − u carries no actuator information
@@ -702,8 +705,8 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     elif cmd_spec is None:
         warnings.append("no command input: the actuation error Γ = τ − u is not observable; only the rigid-body "
                         "error is learned and diagnosed")
-    q = np.hstack([base_pos, base_quat, qj])
-    v = np.hstack([base_twist, qdj])
+    q = np.hstack([base[0], base[1], qj])
+    v = np.hstack([base[2], qdj])
     rejected = dict(rej.counts)
     n_stale = int((~ok).sum())
     if n_stale:

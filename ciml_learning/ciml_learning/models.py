@@ -458,9 +458,10 @@ class ModelSet:
     def _update_one(self, i: int, xs: np.ndarray, y: float, observed: bool) -> None:
         if not observed or not np.isfinite(y):
             return
-        if self.models_[i] is None:
-            self.models_[i] = self.new_learner(i)
-        self.models_[i].update(xs[self.input_index[i]], y / self.output_scale_[i])
+        model = self.models_[i]
+        if model is None:
+            model = self.models_[i] = self.new_learner(i)
+        model.update(xs[self.input_index[i]], y / self.output_scale_[i])
         self.n_samples_[i] += 1
 
     # ------------------------------------------------------------------ prediction
@@ -571,7 +572,7 @@ class ModelSet:
         from .fileio import atomic_dir, json_dumps
 
         buf = io.BytesIO()
-        np.savez(buf, **self.to_arrays())
+        np.savez(buf, allow_pickle=False, **self.to_arrays())
         data = buf.getvalue()
         files = {MODEL_NPZ: data, **(extra_files or {})}
         meta = self.metadata(hashlib.sha256(data).hexdigest(), len(data))

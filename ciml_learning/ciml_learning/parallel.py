@@ -32,7 +32,7 @@ process (measured: 100 L-BFGS iterations, 2,000 points, 3-D: 11.3 s vs 1.3 s).
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -65,6 +65,7 @@ def fit_dimensions(learner: str, params: Sequence[dict], jobs: Sequence[tuple[in
     results: list[Learner | None] = [None] * len(jobs)
     bar = tqdm(total=len(jobs), desc=f"train {learner}", unit="dim", disable=not progress, leave=False)
     with bar:
+        stream: Iterable[tuple[int, tuple[Learner, float]]]
         if n_jobs == 1:
             stream = ((k, _fit_one(learner, params[k], jobs[k][1], jobs[k][2])) for k in order)
         else:

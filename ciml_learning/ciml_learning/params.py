@@ -55,11 +55,11 @@ class Param:
             value = float(value)
         if type(value) is not kind:
             return f"expected a {self.type_name}, got {type(value).__name__} {value!r}"
-        if kind is float and not math.isfinite(value):
+        if isinstance(value, float) and not math.isfinite(value):
             return "must be finite"
-        if self.lo is not None and value < self.lo:
+        if self.lo is not None and isinstance(value, (int, float)) and value < self.lo:
             return f"{value!r} is below the minimum {self.lo:g}"
-        if self.hi is not None and value > self.hi:
+        if self.hi is not None and isinstance(value, (int, float)) and value > self.hi:
             return f"{value!r} is above the maximum {self.hi:g}"
         if self.choices and value not in self.choices:
             return f"{value!r} is not one of: {', '.join(self.choices)}"

@@ -64,7 +64,8 @@ def load_dataset(robot: RobotDescription, bags: Sequence[str], progress: bool = 
     """Read (through the robot profile; None: CIML's own topics), filter (offline,
     zero-phase, designed for each log's measured rate) and extract every bag; raise if
     nothing is valid."""
-    logs, index, rejected, inputs, warnings = [], [], {}, [], []
+    logs, index, inputs, warnings = [], [], [], []
+    rejected: dict[str, int] = {}
     iterator = bags
     if progress and len(bags) > 1:
         from tqdm import tqdm

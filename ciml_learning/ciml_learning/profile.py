@@ -186,6 +186,7 @@ def _threshold(where: str, key: str, spec: dict, out: dict) -> None:
 def _validate_inputs(where: str, inputs: Any) -> dict[str, dict]:
     inputs = _keys(where, "inputs", inputs if inputs is not None else {}, ROLES)
     out: dict[str, dict] = {}
+    spec: dict[str, Any]  # one role's input map (topics, types, field paths), checked
     if "joint_state" not in inputs:
         raise _err(where, "inputs.joint_state", "missing (every log needs joint states)")
     k = "inputs.joint_state"

@@ -54,7 +54,7 @@ def play_bag(path: str, rate: float = 1.0, exclude_prefixes: Iterable[str] = (),
             executor.spin_once(timeout_sec=0.05)
         time.sleep(0.3)
         start_wall = None
-        start_log = None
+        start_log = 0  # log time of the first message played (set with start_wall)
         bar = None
         if progress:
             from tqdm import tqdm

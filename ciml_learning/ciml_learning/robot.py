@@ -20,6 +20,7 @@ import os
 import sys
 from dataclasses import dataclass, field
 from functools import cached_property
+from xml.etree import ElementTree
 
 import numpy as np
 import pinocchio as pin
@@ -34,6 +35,14 @@ HYQ_FEET: tuple[str, ...] = ("lf_foot", "lh_foot", "rf_foot", "rh_foot")
 
 class RobotDescriptionError(CimlError):
     """The URDF or the foot names do not describe a supported point-foot robot."""
+
+
+def urdf_child(element: ElementTree.Element, tag: str) -> ElementTree.Element:
+    """The <tag> inside a URDF element, which the URDF format requires there."""
+    child = element.find(tag)
+    if child is None:
+        raise RobotDescriptionError(f"URDF <{element.tag} name={element.get('name')!r}> has no <{tag}>")
+    return child
 
 
 def example_robot_data_dir() -> str:
@@ -130,17 +139,31 @@ class RobotDescription:
     def link_names(self) -> tuple[str, ...]:
         """Body frames that carry inertia (URDF links), in model order."""
         return tuple(
-            f.name for f in self.model.frames if f.type == pin.FrameType.BODY and f.name in self._link_bodies
+            f.name for f in self.model.frames if f.type == pin.FrameType.BODY and f.name in self.link_inertias
         )
 
     @cached_property
-    def _link_bodies(self) -> frozenset[str]:
-        from xml.etree import ElementTree
-
-        root = ElementTree.parse(self.urdf_path).getroot()
-        return frozenset(
-            link.get("name") for link in root.findall("link") if link.find("inertial") is not None
-        )
+    def link_inertias(self) -> dict[str, tuple[int, pin.Inertia]]:
+        """URDF links with an <inertial>, in URDF order: the index of the joint that moves each and the
+        link's own inertia in that joint's frame (Pinocchio merges the links of a joint into
+        model.inertias; scaling or identifying one link needs its own)."""
+        out = {}
+        for link in ElementTree.parse(self.urdf_path).getroot().findall("link"):
+            inertial, name = link.find("inertial"), link.attrib["name"]
+            if inertial is None or not self.model.existFrame(name):
+                continue
+            origin = inertial.find("origin")
+            placement = origin.attrib if origin is not None else {}
+            xyz, rpy = (np.array([float(x) for x in placement.get(k, "0 0 0").split()]) for k in ("xyz", "rpy"))
+            mass = float(urdf_child(inertial, "mass").attrib["value"])
+            a = urdf_child(inertial, "inertia").attrib
+            I_c = np.array([[float(a["ixx"]), float(a["ixy"]), float(a["ixz"])],
+                            [float(a["ixy"]), float(a["iyy"]), float(a["iyz"])],
+                            [float(a["ixz"]), float(a["iyz"]), float(a["izz"])]])
+            R = pin.rpy.rpyToMatrix(*rpy)
+            frame = self.model.frames[self.model.getFrameId(name)]
+            out[name] = (int(frame.parentJoint), frame.placement.act(pin.Inertia(mass, xyz, R @ I_c @ R.T)))
+        return out
 
     def joint_permutation(self, names: list[str] | tuple[str, ...]) -> np.ndarray:
         """Index array p such that values_in_model_order = values[p] for data ordered by `names`.

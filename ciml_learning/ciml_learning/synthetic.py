@@ -47,7 +47,8 @@ def synthetic_training_set(robot, n_samples: int = 54_000, seed: int = 0, noise:
     fs = 250.0
     nj, nf = robot.n_joints, robot.n_feet
     seg_len = int(5 * fs)
-    X_parts, C_parts = [], []
+    X_parts: list[np.ndarray] = []
+    C_parts: list[np.ndarray] = []
     # the gaits themselves are fixed (like the paper's motions); executions vary around them
     g_rng = np.random.default_rng(20180301)
     gaits = []
@@ -148,10 +149,12 @@ def states_from_inputs(robot, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
     return q, X[:, 2 + nj:2 + nj + nv], X[:, 2 + nj + nv:2 + nj + 2 * nv]
 
 
-def fit_arguments(data: dict[str, np.ndarray], rows=slice(None)) -> tuple[np.ndarray, ...]:
+def fit_arguments(data: dict[str, np.ndarray], rows=slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                          np.ndarray, np.ndarray, np.ndarray]:
     """(X, Φ̃, mask, Γ, valid, C) of a synthetic_training_set, in ModelSet.fit's order."""
-    return tuple(data[k][rows] for k in ("inputs", "generalized_error", "generalized_observed", "actuation_error",
-                                         "valid", "leg_coupling"))
+    X, R, M, A, V, C = (data[k][rows] for k in ("inputs", "generalized_error", "generalized_observed",
+                                                "actuation_error", "valid", "leg_coupling"))
+    return X, R, M, A, V, C
 
 
 def relative_rmse(model_set: ModelSet, data: dict[str, np.ndarray]) -> dict[str, float]:

@@ -14,7 +14,7 @@ from xml.etree import ElementTree
 import numpy as np
 import pinocchio as pin
 
-from .robot import RobotDescription, RobotDescriptionError
+from .robot import RobotDescription, RobotDescriptionError, urdf_child
 
 
 @dataclass(frozen=True)
@@ -46,7 +46,7 @@ class LinkTree:
         root = ElementTree.parse(robot.urdf_path).getroot()
         edges = []
         for joint in root.findall("joint"):
-            parent, child = joint.find("parent").get("link"), joint.find("child").get("link")
+            parent, child = (urdf_child(joint, tag).attrib["link"] for tag in ("parent", "child"))
             ids = []
             for link in (parent, child):
                 if not model.existFrame(link, pin.FrameType.BODY):
@@ -55,7 +55,7 @@ class LinkTree:
             edges.append(_Edge(parent, child, joint.get("type") == "fixed", ids[0], ids[1]))
         self._edges = tuple(edges)
         children = {e.child for e in edges}
-        roots = [link.get("name") for link in root.findall("link") if link.get("name") not in children]
+        roots = [link.attrib["name"] for link in root.findall("link") if link.attrib["name"] not in children]
         if len(roots) != 1:
             raise RobotDescriptionError(f"the URDF's link tree must have one root link, found {roots}")
         self.root_link: str = roots[0]

@@ -244,8 +244,8 @@ def score_case(truth_effects: Sequence[dict], diagnosis: dict, all_joints: Seque
         row_cov = None
         if loc_hits:
             truth_p = _main_param(t)
-            errs = [_relative_error(truth_p, _main_param(found[i]), t["type"]) for i in loc_hits]
-            errs = [e for e in errs if e is not None]
+            errs = [e for e in (_relative_error(truth_p, _main_param(found[i]), t["type"]) for i in loc_hits)
+                    if e is not None]
             rel = float(np.median(errs)) if errs else None
             exact = [i for i in loc_hits if _location(found[i]) == t_loc] or loc_hits[:1]
             row_cov = _coverage(truth_p, found[exact[0]])
@@ -279,7 +279,8 @@ def score_case(truth_effects: Sequence[dict], diagnosis: dict, all_joints: Seque
         top = [d["dimension"] for d in diagnosis.get("localization", [])[:3]]
         confident_wrong = [f for f in found if float(f.get("share", 0.0)) > 0.3]
         # the out-of-catalogue probe's joint with the largest share (diagnosis.json unexplained_localised)
-        probe = max(diagnosis.get("unexplained_localised", []), key=lambda u: u["share"], default={}).get("joint")
+        probes = diagnosis.get("unexplained_localised", [])
+        probe = max(probes, key=lambda u: u["share"]).get("joint") if probes else None
         by_dimension = any(leg in d for d in top if not d.startswith("base"))
         by_probe = probe is not None and _leg_of(probe) == leg
         out["out_of_catalogue"] = {

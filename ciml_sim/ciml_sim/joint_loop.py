@@ -54,7 +54,9 @@ def mj_function(name: str) -> int:
     if not libs:  # pragma: no cover - every mujoco wheel for Linux ships it
         raise ImportError(f"libmujoco not found next to {mujoco.__file__}")
     lib = ctypes.CDLL(libs[-1])
-    return int(ctypes.cast(getattr(lib, name), ctypes.c_void_p).value)
+    ptr = ctypes.cast(getattr(lib, name), ctypes.c_void_p).value
+    assert ptr is not None  # a resolved symbol is never NULL
+    return ptr
 
 
 @intrinsic

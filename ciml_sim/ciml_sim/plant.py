@@ -52,7 +52,6 @@ between — a changed state is detected and stepped in full).
 from __future__ import annotations
 
 import math
-import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass, field
 
 import mujoco
@@ -129,27 +128,6 @@ class GroundTruth:
 # --- inertial effects on the Pinocchio model ----------------------------------------------
 
 
-def link_inertia(robot: RobotDescription, link: str) -> tuple[int, pin.Inertia]:
-    """(parent joint index, the URDF link's own inertia expressed in that joint's frame)."""
-    root = ElementTree.parse(robot.urdf_path).getroot()
-    node = next((ln for ln in root.findall("link") if ln.get("name") == link), None)
-    inertial = node.find("inertial") if node is not None else None
-    if inertial is None:
-        raise CimlError(f"link {link!r} has no inertial in {robot.urdf_path}")
-    origin = inertial.find("origin")
-    xyz = np.zeros(3) if origin is None else np.fromstring(origin.get("xyz", "0 0 0"), sep=" ")
-    rpy = np.zeros(3) if origin is None else np.fromstring(origin.get("rpy", "0 0 0"), sep=" ")
-    mass = float(inertial.find("mass").get("value"))
-    a = inertial.find("inertia").attrib
-    I = np.array([[float(a["ixx"]), float(a["ixy"]), float(a["ixz"])],
-                  [float(a["ixy"]), float(a["iyy"]), float(a["iyz"])],
-                  [float(a["ixz"]), float(a["iyz"]), float(a["izz"])]])
-    R = pin.rpy.rpyToMatrix(*rpy)
-    local = pin.Inertia(mass, xyz, R @ I @ R.T)
-    frame = robot.model.frames[robot.model.getFrameId(link)]
-    return frame.parentJoint, frame.placement.act(local)
-
-
 def _add_inertial_effect(robot: RobotDescription, model: pin.Model, e: Effect) -> None:
     if e.type == "payload":
         # a point mass at `com` in the trunk frame (the root body when there is no trunk)
@@ -158,7 +136,10 @@ def _add_inertial_effect(robot: RobotDescription, model: pin.Model, e: Effect) -
         point = pin.Inertia(e.params["mass"], np.asarray(e.params["com"], float), np.zeros((3, 3)))
         model.inertias[frame.parentJoint] = model.inertias[frame.parentJoint] + frame.placement.act(point)
     elif e.type == "link_mass_scale":
-        joint, inertia = link_inertia(robot, e.link)
+        found = robot.link_inertias.get(e.link) if e.link else None
+        if found is None:
+            raise CimlError(f"link {e.link!r} has no inertial in {robot.urdf_path}")
+        joint, inertia = found
         s = e.params["value"] - 1.0  # scales the link's mass and rotational inertia about its CoM
         # dynamic parameters are linear in the inertia: adds s times the link (s < 0 removes mass)
         model.inertias[joint] = pin.Inertia.FromDynamicParameters(
@@ -547,6 +528,7 @@ class Plant:
         (same instant and torque as measure(); see the module docstring)."""
         if self._meas is None:
             self.measure()
+        assert self._meas is not None  # measure() holds it
         _, u, lag, tau, forces = self._meas
         d = self.data
         # mjcf.mj_to_pin_state / mj_to_pin_acceleration, inlined (same arithmetic, no np.cross)
@@ -603,7 +585,7 @@ class Plant:
                 f = joint_force(j, (p["value"] - 1.0) * lag[j])
             elif e.type == "torque_offset":
                 f = joint_force(j, np.full(len(j), p["value"]))
-            elif e.type in ("payload", "link_mass_scale"):
+            elif inertial is not None:  # payload, link_mass_scale: the true model and its data
                 m, md = inertial
                 f = -(pin.rnea(m, md, q, v, vdot) - nominal_id)
             else:  # encoder_offset, base_imu_tilt: measurement only

@@ -79,11 +79,11 @@ class MessageTemplate:
                 raise TemplateError("message layout changes with its values (not a fixed-layout message)")
             a_bytes, b_bytes = self._pack(slot, a_vals[k]), self._pack(slot, b_vals[k])
             off = _locate(base, other, a_bytes, b_bytes)
-            if slot == STAMP:
-                self._views.append(np.frombuffer(self._buf, "<u4", count=2, offset=off))
-            else:
+            if isinstance(slot, tuple):
                 dtype, count = slot
                 self._views.append(np.frombuffer(self._buf, dtype, count=count, offset=off))
+            else:  # STAMP
+                self._views.append(np.frombuffer(self._buf, "<u4", count=2, offset=off))
         for _ in range(3):  # byte-identical to the canonical serialisation for random values
             vals = [self._random(s, rng) for s in self.slots]
             if self.serialize(*vals) != _serialize(build(*vals)):

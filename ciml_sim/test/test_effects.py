@@ -17,7 +17,7 @@ import pytest
 from ciml_learning.dynamics import RigidBodyDynamics
 from ciml_learning.robot import load_robot
 from ciml_sim.mjcf import mj_to_pin_force
-from ciml_sim.plant import Plant, link_inertia, true_pinocchio_model
+from ciml_sim.plant import Plant, true_pinocchio_model
 from ciml_sim.scenario import nominal_scenario, parse_scenario
 
 ROBOT = load_robot()
@@ -247,7 +247,7 @@ def test_link_mass_scale_acts_on_the_base_and_that_legs_joints_only(scale):
     _only_truth(g1, df, "link_mass_scale_lf_lowerleg")
     # the link's mass changed by (scale − 1)·m_link, everything else equal
     plant = Plant(ROBOT, _scenario({"type": "link_mass_scale", "link": "lf_lowerleg", "value": scale}))
-    _, inertia = link_inertia(ROBOT, "lf_lowerleg")
+    _, inertia = ROBOT.link_inertias["lf_lowerleg"]
     assert plant.model.body_mass.sum() - ROBOT.total_mass == pytest.approx((scale - 1) * inertia.mass, rel=1e-9)
     body = plant.model.body("lf_kfe").id
     nominal = Plant(ROBOT, nominal_scenario())

@@ -54,7 +54,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from xml.etree import ElementTree
 
 import numpy as np
 import pinocchio as pin
@@ -104,38 +103,10 @@ class LinkInertia:
 
 
 def link_inertias(robot: RobotDescription, min_mass: float = MIN_LINK_MASS) -> list[LinkInertia]:
-    """Inertias of the URDF links with mass ≥ MIN_LINK_MASS, expressed in their parent joints.
-
-    Pinocchio merges links rigidly attached to a joint into model.inertias; the link-level
-    inertia (needed to scale one link) is read from the URDF and moved by the link frame's
-    placement.
-    """
-    root = ElementTree.parse(robot.urdf_path).getroot()
-    model = robot.model
-    out = []
-    for link in root.findall("link"):
-        inertial = link.find("inertial")
-        name = link.get("name")
-        if inertial is None or not model.existFrame(name):
-            continue
-        mass = float(inertial.find("mass").get("value"))
-        if mass < min_mass:
-            continue
-        origin = inertial.find("origin")
-        xyz = np.zeros(3)
-        rpy = np.zeros(3)
-        if origin is not None:
-            xyz = np.array([float(x) for x in origin.get("xyz", "0 0 0").split()])
-            rpy = np.array([float(x) for x in origin.get("rpy", "0 0 0").split()])
-        el = inertial.find("inertia")
-        g = {k: float(el.get(k, 0.0)) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
-        I_c = np.array([[g["ixx"], g["ixy"], g["ixz"]], [g["ixy"], g["iyy"], g["iyz"]], [g["ixz"], g["iyz"], g["izz"]]])
-        R = pin.rpy.rpyToMatrix(*rpy)
-        inertia = pin.Inertia(mass, xyz, R @ I_c @ R.T)
-        frame = model.frames[model.getFrameId(name)]
-        in_joint = frame.placement.act(inertia)
-        out.append(LinkInertia(name, int(frame.parentJoint), np.asarray(in_joint.toDynamicParameters(), float)))
-    return out
+    """Inertias of the URDF links with mass ≥ MIN_LINK_MASS, expressed in their parent joints
+    (RobotDescription.link_inertias: the link-level inertia, needed to scale one link)."""
+    return [LinkInertia(name, joint, np.asarray(inertia.toDynamicParameters(), float))
+            for name, (joint, inertia) in robot.link_inertias.items() if inertia.mass >= min_mass]
 
 
 def point_mass_rotational(com: np.ndarray) -> np.ndarray:
@@ -342,7 +313,8 @@ def coulomb_regressor(v_joints: np.ndarray, segment: np.ndarray | None, fs: "flo
 
 def _segment_rate(fs: "float | np.ndarray", seg: int) -> float:
     """The rate [Hz] of a segment: fs, or fs[seg] for logs of different rates (FilteredLog.segment_rate_hz)."""
-    return float(fs[seg]) if np.ndim(fs) else float(fs)
+    rates = np.asarray(fs, float)
+    return float(rates[seg]) if rates.ndim else float(rates)
 
 
 def generic_joint_basis(q_joints: np.ndarray, layout: "FeatureLayout", segment: np.ndarray | None,

@@ -60,10 +60,9 @@ class Rows:
 
 def command_rate(log) -> np.ndarray:
     """u̇ (N × n_j) of the low-passed command, per segment (central differences)."""
-    seg = log.segment if log.segment is not None else np.zeros(len(log.t), int)
     out = np.zeros_like(log.u)
-    for s in np.unique(seg):
-        idx = np.flatnonzero(seg == s)
+    for s in np.unique(log.segment):
+        idx = np.flatnonzero(log.segment == s)
         if len(idx) >= 2:
             out[idx] = np.gradient(log.u[idx], log.t[idx], axis=0)
     return out
@@ -76,7 +75,7 @@ def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples:
     samples = np.asarray(samples, dtype=int)
     samples = samples[targets.valid[samples]]
     # the regressors pass through the same low-pass as the log: designed for each log's rate
-    fs = log.segment_rate_hz if log.segment_rate_hz is not None else (log.rate_hz or 250.0)
+    fs = log.segment_rate_hz if log.segment_rate_hz is not None else log.rate_hz
     coulomb = coulomb_regressor(log.v[:, 6:], log.segment, fs=fs)
     generic = generic_joint_basis(log.q[:, 7:], layout, log.segment, fs=fs)
     u_dot = command_rate(log)

@@ -12,9 +12,11 @@ share_d = n_d · max(0, mean((e/σ_d)²) − 1) / Σ_d (…).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+from ..pipeline import Dataset
 from ..robot import RobotDescription
 from .features import Rows
 
@@ -49,7 +51,7 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else 0.0
 
 
-def collect(robot: RobotDescription, parts: list[tuple[object, Rows]]) -> list[DimensionErrors]:
+def collect(robot: RobotDescription, parts: list[tuple[Dataset, Rows]]) -> list[DimensionErrors]:
     """Error entries per dimension from (dataset, rows) pairs (identification and held-out).
 
     Speed: the base linear speed [m/s] for the base entries, the joint speed of the leg
@@ -83,18 +85,18 @@ def collect(robot: RobotDescription, parts: list[tuple[object, Rows]]) -> list[D
     return out
 
 
-def localize(robot: RobotDescription, parts: list[tuple[object, Rows]], sigma: np.ndarray) -> list[dict]:
+def localize(robot: RobotDescription, parts: list[tuple[Dataset, Rows]], sigma: np.ndarray) -> list[dict]:
     """The localization list of diagnosis.json (docs/ARCHITECTURE.md §6), sorted by share, largest first."""
     dims = collect(robot, parts)
     n_rbd = 6 + 3 * robot.n_feet
     leg_of_joint = {j: i for i, leg in enumerate(robot.leg_joints) for j in leg}
     excess = []
-    entries = []
+    entries: list[dict[str, Any]] = []
     for d, de in enumerate(dims):
         n = len(de.error)
         ms = float(np.mean((de.error / sigma[d]) ** 2)) if n else 0.0
         excess.append(n * max(0.0, ms - 1.0))
-        item = {
+        item: dict[str, Any] = {
             "dimension": de.name,
             "kind": de.kind,
             "rms_error": _rms(de.error),

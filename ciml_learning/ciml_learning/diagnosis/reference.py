@@ -15,6 +15,8 @@ Estimates "at bound — not identified" in either diagnosis are listed, never co
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 SIGNIFICANCE = 1.959964
@@ -45,7 +47,7 @@ def compare(real: dict, reference: dict) -> dict:
     """The `reference_comparison` object of diagnosis.json from two diagnoses (module docstring)."""
     ref_by_key = {effect_key(e): e for e in reference.get("effects", [])}
     real_by_key = {effect_key(e): e for e in real.get("effects", [])}
-    rows = []
+    rows: list[dict[str, Any]] = []
     for key, e in real_by_key.items():
         base = {"type": key[0], "where": key[1]}
         if key not in ref_by_key:

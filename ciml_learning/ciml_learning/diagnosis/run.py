@@ -127,9 +127,9 @@ Z95, Z68 = 1.959964, 0.994458
 
 
 def _interval(params: dict, std: dict, z: float) -> dict:
-    out = {}
+    out: dict[str, list] = {}
     for k, v in params.items():
-        s = std.get(k)
+        s = std[k]
         if isinstance(v, list):
             out[k] = [[float(a - z * b), float(a + z * b)] for a, b in zip(v, s)]
         else:
@@ -173,6 +173,7 @@ def _unmodelled_entry(layout: FeatureLayout, dataset, samples: np.ndarray, cand,
     from .candidates import generic_joint_basis
 
     j = layout.robot.joint_names.index(cand.joint)
+    assert layout.q_center is not None and layout.q_scale is not None  # FeatureLayout sets both
     basis = generic_joint_basis(dataset.log.q[samples, 7:], layout, None)[:, j]
     varying = basis[:, 1:] @ coefficients[1:]
     return {"joint": cand.joint, "share": float(share),
@@ -230,6 +231,8 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     sel = select(layout, g_id, g_ho, subsets=consistency_subsets(robot, ds_id, rows_id),
                  relevance=relevance_function(rows_id, g_id),
                  candidate_subsets=friction_speed_subsets(robot, ds_id, rows_id))
+    noise_floor = sel.noise_floor
+    assert noise_floor is not None  # select() measures it
     _say(progress, "parameter uncertainty (block bootstrap)")
     sel.model.tick = 1.0 / ds_id.rate_hz  # the lag's command-update sampling correction (lag_time_constant)
     std_all, uncertainty = parameter_uncertainty(sel, rows_id, g_ho, fs=ds_id.rate_hz)
@@ -245,7 +248,7 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     for x in loc:
         x["rms_error_before_baseline"] = raw_loc[x["dimension"]]
     res = residuals(corr_ho, effects_model, sel.weights, ds_ho.log.v[rows_ho.samples, 6:])
-    shr = shrink(robot, corr_ho, res, sel.sigma, sel.noise_floor)
+    shr = shrink(robot, corr_ho, res, sel.sigma, noise_floor)
     raw = shrink(robot, rows_ho, residuals(rows_ho, baseline, sel.weights, ds_ho.log.v[rows_ho.samples, 6:]), sel.sigma)
     shr["baseline"] = {"heldout_rms_before_baseline": raw["heldout_rms_nominal"],
                        "heldout_rms_after_baseline": raw["heldout_rms_with_effects"]}
@@ -287,7 +290,7 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
                            "every catalogue term on the held-out data, capped at its pool's median; "
                            "unexplained_share and the effects' shares count only the gap above it",
             "share_of_nominal": float(sel.floor_ss / sel.nominal_ss) if sel.nominal_ss > 0 else 0.0,
-            "per_dimension": {n: float(f) for n, f in zip(dimension_names(robot), sel.noise_floor)},
+            "per_dimension": {n: float(f) for n, f in zip(dimension_names(robot), noise_floor)},
         },
         "not_identified": sel.not_identified,
         "bounds": physical_ranges(robot),

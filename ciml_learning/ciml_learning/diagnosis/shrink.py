@@ -17,6 +17,7 @@ without this per-sample estimate.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -98,7 +99,7 @@ def shrink(robot, rows: Rows, res: Residuals, sigma: np.ndarray, floor: np.ndarr
     n_rbd = len(sigma) - rows.y_act.shape[1]
     units = {n: ("Nm" if (d >= n_rbd or n in ("base_roll", "base_pitch", "base_yaw")) else "N")
              for d, n in enumerate(names)}
-    per_dim = {}
+    per_dim: dict[str, dict[str, Any]] = {}
     for d, name in enumerate(names):
         if d < n_rbd:
             m = rows.dim_rbd == d

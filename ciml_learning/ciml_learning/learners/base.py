@@ -6,12 +6,14 @@ CLI, the model server and the diagnosis:
 - hyper-parameters are keyword arguments of ``__init__`` and stored unchanged as
   attributes of the same name (``get_params()`` returns them);
 - ``fit(X, y)`` learns from scratch and returns ``self``; incremental learners also
-  have ``partial_fit(X, y)`` (``supports_partial_fit = True``), which returns ``self``;
+  have ``partial_fit(X, y)`` (``supports_partial_fit = True``), which returns ``self``,
+  and ``update(x, y)``, one sample without input checks (online learning);
 - learned state lives in attributes whose names end in ``_`` and exists only after
   fitting (``is_fitted``);
 - ``predict(X)`` returns the mean (N,), ``predict(X, return_std=True)`` returns
   ``(mean, std)``, std being the uncertainty of the learned function (not of a new
-  noisy measurement);
+  noisy measurement); ``predict_one(x)`` the same (mean, std) at one input, without input
+  checks (the 250 Hz serving path);
 - away from the training data every learner falls back to a zero mean with a large
   std (the prior): a learned model error then reverts to the nominal model;
 - the learned state is exported as plain arrays (``get_state``) and rebuilt from them
@@ -42,6 +44,8 @@ class Learner(ABC):
     name: ClassVar[str] = ""
     """Allow-listed learner name used in model files ("lwpr", "sgpr")."""
     supports_partial_fit: ClassVar[bool] = False
+    n_features_in_: int
+    """Input dimension, set by fitting (or restoring) the learner."""
 
     # ------------------------------------------------------------------ hyper-parameters
     @classmethod
@@ -68,6 +72,14 @@ class Learner(ABC):
     @abstractmethod
     def predict(self, X: np.ndarray, return_std: bool = False):
         """Mean (N,) or (mean, std) at X (N × n_features)."""
+
+    @abstractmethod
+    def predict_one(self, x: np.ndarray) -> tuple[float, float]:
+        """(mean, std) at one input x (n_features,); no input checks."""
+
+    def update(self, x: np.ndarray, y: float) -> None:
+        """Learn one sample (x (n_features,), y finite; unchecked): incremental learners only."""
+        raise LearnerError(f"{type(self).__name__} is batch-only (no partial_fit)")
 
     @abstractmethod
     def get_state(self) -> dict[str, np.ndarray]:

@@ -246,7 +246,7 @@ class SparseGPR(Learner):
 
     def _predict(self, X: np.ndarray, return_std: bool):
         out_mean = np.empty(len(X))
-        out_std = np.empty(len(X)) if return_std else None
+        out_std = np.empty(len(X))
         step = int(self.chunk_size)
         for i in range(0, len(X), step):
             K = self._kernel(X[i:i + step])

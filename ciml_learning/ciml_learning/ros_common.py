@@ -26,6 +26,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from . import topics
 from .errors import CimlError
+from .executor import DirectExecutor
 
 if TYPE_CHECKING:
     from .params import NodeSchema
@@ -98,8 +99,6 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
     DDS discovery defaults to this machine only; set ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET
     explicitly to talk to other hosts.
     """
-    from .executor import DirectExecutor
-
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     signalled: list[int] = []
     wake: list = []  # a guard condition of the first node, once there is one

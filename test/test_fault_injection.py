@@ -106,7 +106,7 @@ SNAPSHOT = """
     import sys
     import numpy as np
     from ciml_learning.models import ModelSet
-    from ciml_learning.online import Snapshot, SnapshotWriter
+    from ciml_learning.snapshots import Snapshot, SnapshotWriter
     ms = ModelSet.load(sys.argv[1])
     w = SnapshotWriter(sys.argv[2], keep=1)
     for k in range(2):  # the second write also removes the first snapshot
@@ -117,7 +117,7 @@ SNAPSHOT = """
 
 @pytest.mark.slow
 def test_snapshot_writer_killed_at_every_step_leaves_loadable_snapshots(old_model, tmp_path):
-    from ciml_learning.online import Snapshot  # noqa: F401 - the fields the script uses exist
+    from ciml_learning.snapshots import Snapshot  # noqa: F401 - the fields the script uses exist
 
     root = tmp_path / "online"
 

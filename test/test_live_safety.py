@@ -134,7 +134,8 @@ def _reference_msg(stamp: int):
 def _good_model(path) -> dict:
     """An online-learned snapshot (physical targets: a 40 N payload, 3 Nm of knee friction)."""
     from ciml_learning.models import ModelSet
-    from ciml_learning.online import ErrorSample, OnlineLearner, SnapshotWriter, StateSample
+    from ciml_learning.online import ErrorSample, OnlineLearner, StateSample
+    from ciml_learning.snapshots import SnapshotWriter
 
     learner = OnlineLearner(ROBOT, ModelSet.for_robot(ROBOT, "lwpr"))
     rng = np.random.default_rng(0)
@@ -162,8 +163,9 @@ def test_model_server_refuses_poisoned_and_unchecksummed_models(tmp_path):
     from ciml_msgs.msg import ModelError, ModelUpdate, RobotReference
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from ciml_learning.online import PROBE_FILE, load_served_model
     from ciml_learning.ros_common import COMMAND_QOS
+    from ciml_learning.serving import load_served_model
+    from ciml_learning.snapshots import PROBE_FILE
 
     good = _good_model(tmp_path / "online")
     saved = good["saved"]

@@ -22,9 +22,10 @@ from synthetic import write_synthetic_bag
 from ciml_learning.dynamics import ReferenceState, ReferenceTorque
 from ciml_learning.extraction import learning_inputs
 from ciml_learning.models import ModelSet, read_metadata
-from ciml_learning.online import STAMPS_FILE, predict_at_reference, served_model
 from ciml_learning.pipeline import load_dataset
 from ciml_learning.robot import load_robot
+from ciml_learning.serving import predict_at_reference, served_model
+from ciml_learning.snapshots import STAMPS_FILE
 
 ROBOT = load_robot()
 CALIBRATION = 0
@@ -307,7 +308,7 @@ def test_model_server_nominal_hot_swap_refusal_and_nan(tmp_path):
     assert set(sources[:swap]) == {"nominal"} and set(sources[swap:]) == {"lwpr:model_a"}, sources
     assert int(diag["refused_models"]) == 1 and int(diag["model_swaps"]) == 1, diag
     assert int(diag["rejected_references"]) == 1, diag
-    # served values are online.predict_at_reference at the reference, exactly (float64 over CDR),
+    # served values are serving.predict_at_reference at the reference, exactly (float64 over CDR),
     # with τ̇_ref over the stream of references the model served
     served = served_model(ROBOT, ms, "lwpr:model_a")
     reference_torque = ReferenceTorque(ROBOT)

@@ -8,7 +8,7 @@ a corrupted file) can be wrong everywhere, so per entry i of ε (nv: base wrench
 1. Gate by confidence: a predicted entry (of the rigid-body error and of Γ) is used only if
    its predictive variance is at most `max_variance_ratio` × its prior variance σ₀² — the
    variance of "we do not know", the nominal model's (models.default_scaling,
-   online.nominal_prediction: 5 % of the weight for base forces, ×0.1 m for base torques, a
+   serving.nominal_prediction: 5 % of the weight for base forces, ×0.1 m for base torques, a
    quarter of it per foot, 5 % of each torque limit per joint). A model less certain than
    the prior has nothing to add; the entry falls back to the nominal model (0).
 2. Clip to physics: |ε_i| ≤ the robot's physical bound (ciml_learning.physical_bounds:
@@ -98,7 +98,7 @@ class TrustLaw:
         prior = self.prior_variance[GENERALIZED]
         if basis is not None and rbd_variance is not None:
             # the prior of Φ̃ mapped to Φ̃' as the model server maps the predicted variance
-            # (online.predict_at_reference: Φ̃' = J'⁻ᵀΦ̃, independent entries)
+            # (serving.predict_at_reference: Φ̃' = J'⁻ᵀΦ̃, independent entries)
             prior = np.linalg.inv(basis.T) ** 2 @ prior
         rbd_t, gated_rbd = self.gate(rbd, rbd_variance, prior)
         gamma_t, gated_act = self.gate(gamma, gamma_variance, self.prior_variance["actuation"])

@@ -20,19 +20,10 @@ from .dynamics import ReferenceState
 from .filters import filter_state_log
 from .learners import LWPR
 from .models import ModelSet
-from .online import (
-    ERROR,
-    STATE,
-    ErrorSample,
-    OnlineLearner,
-    SnapshotWriter,
-    StampPairer,
-    StateSample,
-    load_served_model,
-    predict_at_reference,
-    served_model,
-)
+from .online import ERROR, STATE, ErrorSample, OnlineLearner, StampPairer, StateSample
 from .robot import load_robot
+from .serving import load_served_model, predict_at_reference, served_model
+from .snapshots import SnapshotWriter
 from .synthetic import cross_function, fit_arguments, relative_rmse, synthetic_training_set
 
 

@@ -16,23 +16,18 @@ from ciml_learning.extraction import dynamics_batch, learning_inputs
 from ciml_learning.models import ModelFileError, ModelSet, ModelSetError
 from ciml_learning.online import (
     ERROR,
-    LATEST,
-    NOMINAL,
-    STAMPS_FILE,
     STATE,
     ErrorSample,
-    LatestOnlyWorker,
     OnlineLearner,
-    SnapshotWriter,
     StampPairer,
     StateSample,
-    load_served_model,
     model_error_sample,
-    nominal_prediction,
-    predict_at_reference,
 )
 from ciml_learning.projection import contact_invariant_bases, generalized_rbd_error, leg_coupling
 from ciml_learning.robot import load_robot
+from ciml_learning.serving import NOMINAL, load_served_model, nominal_prediction, predict_at_reference
+from ciml_learning.snapshots import LATEST, STAMPS_FILE, SnapshotWriter
+from ciml_learning.workers import LatestOnlyWorker
 
 ROBOT = load_robot()
 
@@ -451,7 +446,7 @@ def test_online_learner_does_not_learn_a_fall_or_targets_beyond_physics():
 
 def test_model_server_refuses_unannounced_checksums_and_models_beyond_physical_bounds(tmp_path):
     from ciml_learning.models import read_metadata
-    from ciml_learning.online import PROBE_FILE
+    from ciml_learning.snapshots import PROBE_FILE
 
     learner, s = _trained()
     saved = SnapshotWriter(str(tmp_path / "online")).write(learner.snapshot())

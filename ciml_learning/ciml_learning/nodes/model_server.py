@@ -1,19 +1,19 @@
 """`model_server`: /reference + /model_update → /model_error/predicted (mean and variance).
 
-Thin adapter around ciml_learning.online (load_served_model, predict_at_reference,
-LatestOnlyWorker). For every /reference (qᵈ, q̇ᵈ, q̈ᵈ, contacts) it publishes a ciml_msgs/ModelError
-stamped like the reference: Φ̃' (18) and Γ (n_j) predicted at the reference's state and the
-torque it asks for (τ_ref and its rate over the reference stream, dynamics.ReferenceTorque)
-with their predictive variances (the set learns Φ̃ = J'ᵀΦ̃'; Φ̃' = J'⁻ᵀΦ̃ with
+Thin adapter around ciml_learning.serving (load_served_model, predict_at_reference) and
+ciml_learning.workers (LatestOnlyWorker). For every /reference (qᵈ, q̇ᵈ, q̈ᵈ, contacts) it
+publishes a ciml_msgs/ModelError stamped like the reference: Φ̃' (18) and Γ (n_j) predicted
+at the reference's state and the torque it asks for (τ_ref and its rate over the reference
+stream, dynamics.ReferenceTorque) with their predictive variances (the set learns Φ̃ = J'ᵀΦ̃'; Φ̃' = J'⁻ᵀΦ̃ with
 the basis at qᵈ), `source` = the model's name ("<learner>:<folder name>"), observed = the
 entry is backed by learned models.
 
 Nominal model (source "nominal"): zeros, all observed flags false and the prior variance
-of online.nominal_prediction (large: (5 % of the weight-derived force scale)²) — served
+of serving.nominal_prediction (large: (5 % of the weight-derived force scale)²) — served
 when no model is loaded (model_dir '') or when a prediction is non-finite (counted).
 
 Hot swap without a gap: a /model_update (or the initial model_dir) is loaded and
-validated on a worker thread (online.load_served_model: ModelSet.load's checks with the
+validated on a worker thread (serving.load_served_model: ModelSet.load's checks with the
 whole-model checksum; an announcement must carry that checksum; predictions on the model's
 own training inputs within the robot's physical bounds); the node swaps its served model
 in its own thread between two references, so the old model serves until the new one is
@@ -32,9 +32,10 @@ from .. import topics
 from ..dynamics import ReferenceState, ReferenceTorque
 from ..errors import CimlError
 from ..node_params import MODEL_SERVER
-from ..online import LatestOnlyWorker, ServedModel, load_served_model, predict_at_reference
 from ..robot import load_robot
 from ..ros_common import COMMAND_QOS, Health, declare_schema, run_node
+from ..serving import ServedModel, load_served_model, predict_at_reference
+from ..workers import LatestOnlyWorker
 
 
 class ModelServerNode(Node):

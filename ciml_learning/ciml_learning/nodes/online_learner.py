@@ -1,6 +1,6 @@
 """`online_learner`: /filtered_state + /model_error/measured → LWPR snapshots + /model_update.
 
-Thin adapter around ciml_learning.online (StampPairer, OnlineLearner, SnapshotWriter):
+Thin adapter around ciml_learning.online (StampPairer, OnlineLearner) and snapshots (SnapshotWriter):
 each filtered state (q, q̇, q̈ → x of eq. 12) is paired by header stamp with the measured
 error of eq. (11)/(14) and learned at once with ModelSet.partial_fit_one (all 30
 dimensions, ~0.5 ms per sample: real time at 250 Hz). Every `snapshot_period` seconds,
@@ -42,20 +42,12 @@ from ..errors import CimlError
 from ..learning_gate import GateConfig, LearningGate
 from ..models import ModelSet
 from ..node_params import ONLINE_LEARNER
-from ..online import (
-    ERROR,
-    STATE,
-    LatestOnlyWorker,
-    OnlineLearner,
-    SnapshotWriter,
-    StampPairer,
-    StateSample,
-    model_error_sample,
-    warm_up,
-)
+from ..online import ERROR, STATE, OnlineLearner, StampPairer, StateSample, model_error_sample, warm_up
 from ..robot import load_robot
 from ..ros_common import COMMAND_QOS, OK, WARN, Health, declare_schema, run_node
 from ..ros_common import ERROR as DIAG_ERROR
+from ..snapshots import SnapshotWriter
+from ..workers import LatestOnlyWorker
 
 DEFAULT_MODEL_DIR = os.path.join("~", ".ros", "ciml", "online_model")
 

@@ -128,6 +128,8 @@ class GraphProbe:
         self.keep_samples = keep_samples
         self.receipts: dict[str, list[float]] = defaultdict(list)
         self.diagnostics: dict[str, dict[str, str]] = {}
+        self.published: dict[str, list[tuple[float, float]]] = defaultdict(list)
+        """`<topic>_rate_hz` / `_jitter_p99_ms` of PublishPeriods: (rate, jitter) per window, while recording."""
         self.diag_levels: dict[str, int] = {}
         self.base_z: list[tuple[float, float]] = []       # (stamp [s], z [m])
         self.base_x: list[tuple[float, float]] = []
@@ -194,7 +196,12 @@ class GraphProbe:
     def _on_diagnostics(self, msg) -> None:
         with self.lock:
             for s in msg.status:
-                self.diagnostics[s.name] = {kv.key: kv.value for kv in s.values}
+                values = {kv.key: kv.value for kv in s.values}
+                for key, value in values.items():
+                    topic = key.removesuffix("_jitter_p99_ms")
+                    if key != topic and self.recording and self.diagnostics.get(s.name, {}).get(key) != value:
+                        self.published[topic].append((float(values[f"{topic}_rate_hz"]), float(value)))
+                self.diagnostics[s.name] = values
                 self.diag_levels[s.name] = s.level[0] if isinstance(s.level, bytes) else int(s.level)
 
     def node_names(self) -> set[str]:
@@ -350,6 +357,12 @@ def _rates_run(arguments: dict[str, str], duration: float, warmup: float, startu
                 t: round(len(probe.receipts.get(t, [])) / sim, 1) if sim > 0 else None
                 for t in (topics.JOINT_STATES, topics.TORQUE_COMMAND, topics.FILTERED_STATE,
                           topics.MODEL_ERROR_PREDICTED)}
+            # rates and jitter as the nodes publish them (PublishPeriods, 10 s windows): the worst window
+            with probe.lock:
+                result["as_published"] = {
+                    f"/{topic}": {"windows": len(w), "rate_hz_min": min(r for r, _ in w),
+                                  "jitter_p99_ms_max": max(j for _, j in w)}
+                    for topic, w in probe.published.items() if w}
             result["base_height_min_m"] = round(min(z), 3) if z else None
             result["fell"] = bool(z) and min(z) < FALL_HEIGHT
             bridge = {k: probe.counter("mujoco_bridge", k) for k in

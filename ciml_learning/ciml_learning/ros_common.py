@@ -16,6 +16,7 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
@@ -239,6 +240,27 @@ def declare_schema(node: Node, schema: NodeSchema,
 
         node.add_on_set_parameters_callback(on_set)
     return values
+
+
+class PublishPeriods:
+    """Wall-clock periods between a node's publications on one topic: the rate as the node
+    publishes it, before transport and readers add their own delays (a reader on a busy
+    machine measures its own scheduling too). Every `window` publications (10 s at 250 Hz) the node's
+    /diagnostics counters `<key>_rate_hz` and `<key>_jitter_p99_ms` (p99 of |period − 1/nominal_hz|)
+    are updated."""
+
+    def __init__(self, health: Health, key: str, nominal_hz: float, window: int = 2500) -> None:
+        self.health, self.key, self.nominal, self.window = health, key, 1.0 / nominal_hz, window
+        self._times: list[float] = []
+
+    def mark(self) -> None:
+        self._times.append(time.monotonic())
+        if len(self._times) > self.window:
+            dt = np.diff(self._times)
+            self.health.counts[f"{self.key}_rate_hz"] = round(len(dt) / (self._times[-1] - self._times[0]), 1)
+            jitter = float(np.percentile(np.abs(dt - self.nominal), 99))
+            self.health.counts[f"{self.key}_jitter_p99_ms"] = round(1e3 * jitter, 3)
+            self._times = self._times[-1:]
 
 
 class Health:

@@ -130,3 +130,24 @@ def test_spin_ends_when_the_context_shuts_down(ctx):
             ex.spin_once(timeout_sec=0.1)
     assert type(err.value).__name__ == "ExternalShutdownException"
     assert time.monotonic() - t0 < 5.0
+
+
+def test_publish_periods_report_rate_and_jitter(monkeypatch):
+    """PublishPeriods (ros_common): after a window of publications, the rate and the p99 of
+    |period − nominal| on the node's /diagnostics counters."""
+    from collections import Counter
+    from types import SimpleNamespace
+
+    from ciml_learning import ros_common
+
+    health = SimpleNamespace(counts=Counter())
+    clock = iter([k * 0.004 + (0.003 if k % 50 == 7 else 0.0) for k in range(1000)])  # 2 % of samples 3 ms late
+    monkeypatch.setattr(ros_common.time, "monotonic", lambda: next(clock))
+    periods = ros_common.PublishPeriods(health, "torque_command", 250.0, window=500)
+    for _ in range(400):
+        periods.mark()
+    assert "torque_command_rate_hz" not in health.counts
+    for _ in range(200):
+        periods.mark()
+    assert abs(health.counts["torque_command_rate_hz"] - 250.0) < 1.0
+    assert abs(health.counts["torque_command_jitter_p99_ms"] - 3.0) < 1e-6

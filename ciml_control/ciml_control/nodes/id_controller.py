@@ -44,7 +44,7 @@ from ciml_learning import topics
 from ciml_learning.errors import CimlError
 from ciml_learning.projection import contact_invariant_basis
 from ciml_learning.robot import load_robot
-from ciml_learning.ros_common import COMMAND_QOS, OK, WARN, Health, declare_schema, run_node
+from ciml_learning.ros_common import COMMAND_QOS, OK, WARN, Health, PublishPeriods, declare_schema, run_node
 
 from ..controller import IdController
 from ..conversions import model_error_arrays, reference_point
@@ -75,6 +75,7 @@ class IdControllerNode(Node):
         self.controller = self._build_controller(p)
         self._warm_up()
         self.health = Health(self)
+        self.periods = PublishPeriods(self.health, "torque_command", rate)  # commands as published
         self.joints = None       # (receipt time, stamp ns, (q, qd, tau))
         self.base = None
         self.contacts = None
@@ -233,6 +234,7 @@ class IdControllerNode(Node):
                                      position_target=out.q_target, velocity_target=out.qd_target,
                                      stiffness=out.kp, damping=out.kd)
         self.pub.publish(cv.torque_command_msg(self.robot, stamp, cmd))
+        self.periods.mark()
         self.health.counts["commands"] += 1
         if not self.commanding or self._damped:
             self.commanding, self._damped = True, False

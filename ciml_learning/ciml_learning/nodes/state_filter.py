@@ -29,7 +29,7 @@ from ..filters import OnlineStateFilter
 from ..node_params import STATE_FILTER
 from ..pairing import is_strict, partner
 from ..robot import load_robot
-from ..ros_common import COMMAND_QOS, SENSOR_QOS, Health, declare_schema, run_node
+from ..ros_common import COMMAND_QOS, SENSOR_QOS, Health, PublishPeriods, declare_schema, run_node
 from ..stamps import measure_rate
 
 RATE_SAMPLES = 32
@@ -45,6 +45,7 @@ class StateFilterNode(Node):
         if 0.0 < fs < 50.0:
             raise CimlError(f"rate {fs} Hz is too low for the 10 Hz low-pass (20 Hz stopband); give ≥ 50 Hz or 0")
         self.filter = OnlineStateFilter(fs) if fs > 0 else None
+        self.periods: PublishPeriods | None = None  # /filtered_state as published, once the rate is known
         self._rate_samples: list = []  # held while the rate is measured
         self.health = Health(self)
         self.base: deque = deque(maxlen=16)
@@ -150,10 +151,13 @@ class StateFilterNode(Node):
         except ValueError as err:
             self.health.count("rejected_samples", str(err))
             return
+        if self.periods is None:
+            self.periods = PublishPeriods(self.health, "filtered_state", self.filter.fs)
         for out in ready:
             ns = int(round(out.t * 1e9))
             self.pub.publish(cv.robot_state_msg(self.robot, ns, out.q, out.v, out.a, out.tau, out.tau_dot, out.u,
                                                 out.contacts, out.valid))
+            self.periods.mark()
 
 
 def main(args=None) -> None:

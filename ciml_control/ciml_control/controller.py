@@ -7,8 +7,8 @@
 - u_fb,lin: `ciml_control.feedback.feedback_linearization` at the measured state, eq. (24).
 - PD targets and gains for the robot's 1 kHz joint loop.
 
-The step runs compiled (kernels.control_step, its inputs and outputs named by the records
-kernels.ControlWorkspace / ControlParameters / ControlInput / ControlOutputBuffers); its
+The step runs compiled (ciml_control.compiled.control_step, its inputs and outputs named by the
+records ControlWorkspace / ControlParameters / ControlInput / ControlOutputBuffers); its
 specification is ciml_control.specification (eq. 18–24 in numpy, test_specification).
 
 Safety (documented contract of `compute`):
@@ -33,7 +33,19 @@ from ciml_learning.dynamics import RigidBodyDynamics
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import RobotDescription
 
-from . import kernels, native
+from . import native
+from .compiled.control_step import (
+    EPSILON_REJECTED,
+    REFERENCE_NON_FINITE,
+    STATE_NON_FINITE,
+    ControlParameters,
+    ControlWorkspace,
+    control_step_arrays,
+    desired_terms,
+)
+from .compiled.feedback_linearization import clip_feedback
+from .compiled.feedforward_qp import QP_SOLVED
+from .compiled.linalg import all_finite, arg
 from .feedback import CONTACT_RANK_TOL, FeedbackGains
 from .qp import DEFAULT_F_MIN, DEFAULT_MU, RANK_TOL, FeedforwardQP, failure_message, friction_cone_matrix
 from .references import ReferencePoint
@@ -81,18 +93,18 @@ class IdController:
         self.limits = np.ascontiguousarray(robot.torque_limits, dtype=float)
         self.dyn_des = RigidBodyDynamics(robot)  # the fallback torque after a QP failure
         self.qp = FeedforwardQP()
-        # the compiled step's records (kernels.ControlWorkspace, ControlParameters): Pinocchio
+        # the compiled step's records (ControlWorkspace, ControlParameters): Pinocchio
         # models in the core, buffers, the cache key of the terms at the reference (qᵈ, q̇ᵈ, valid flag)
         self._core_des, self._core_meas = native.Dynamics(robot), native.Dynamics(robot)
         nv, nf = robot.nv, robot.n_feet
-        self.workspace = kernels.ControlWorkspace(
+        self.workspace = ControlWorkspace(
             functions=native.function_table(), dyn_des=self._core_des.handle, dyn_meas=self._core_meas.handle,
             qp=self.qp._solvers.handle, key=np.zeros(robot.nq + nv + 1),
             M_des=np.zeros((nv, nv)), h_des=np.zeros(nv), J_des=np.zeros((nf, 3, nv)),
             M_meas=np.zeros((nv, nv)), h_meas=np.zeros(nv), J_meas=np.zeros((nf, 3, nv)))
         self._kp_lin = np.ascontiguousarray(self.gains.kp_lin, dtype=float)
         self._kd_lin = np.ascontiguousarray(self.gains.kd_lin, dtype=float)
-        self.parameters = kernels.ControlParameters(
+        self.parameters = ControlParameters(
             H=np.eye(robot.n_joints), g=np.zeros(robot.n_joints), limits=self.limits,  # W_u = I
             cone=friction_cone_matrix(mu), f_min=float(f_min), rank_tol=RANK_TOL, qp_tolerance=self.qp.tolerance,
             kp_lin=self._kp_lin, kd_lin=self._kd_lin, feedback_rank_tol=CONTACT_RANK_TOL,
@@ -110,18 +122,16 @@ class IdController:
         them from here before compute(ref) without a second pass. M has only its upper
         triangle filled; the arrays are the controller's buffers (read them, do not keep
         them past the next call)."""
-        arg = kernels.arg
         q, v = arg(ref.q), arg(ref.v)
         if q.shape != (self.robot.nq,) or v.shape != (self.robot.nv,):
             raise ControllerInputError("reference sizes do not match the robot")
         w = self.workspace
-        kernels.desired_terms(w.functions, w.dyn_des, q, v, w.key, w.M_des, w.h_des, w.J_des)
+        desired_terms(w.functions, w.dyn_des, q, v, w.key, w.M_des, w.h_des, w.J_des)
         return w.M_des, w.h_des, w.J_des
 
     def _check(self, q, v, contacts, ref: ReferencePoint):
         """Sizes (finiteness is checked in the compiled step)."""
         r = self.robot
-        arg = kernels.arg
         q, v = arg(q), arg(v)
         contacts = arg(contacts, np.bool_)
         if q.shape != (r.nq,) or v.shape != (r.nv,) or contacts.shape != (r.n_feet,):
@@ -139,32 +149,32 @@ class IdController:
                 epsilon: np.ndarray | None = None) -> ControlOutput:
         """One 250 Hz step: measured state (Pinocchio q, v), measured contacts, reference
         point, model error ε (nv, eq. 17; None or zeros = nominal model). The step itself
-        is one compiled call (kernels.control_step: QP eq. 18–21, feedback eq. 24)."""
+        is one compiled call (compiled.control_step: QP eq. 18–21, feedback eq. 24)."""
         t0 = time.perf_counter()
         q, v, contacts, ref_q, ref_v, ref_a, ref_contacts = self._check(q, v, contacts, ref)
         r = self.robot
-        eps = self._zeros if epsilon is None else kernels.arg(epsilon)
+        eps = self._zeros if epsilon is None else arg(epsilon)
         eps_rejected = eps.shape != (r.nv,)
         if eps_rejected:
             eps = self._zeros
         u_ff, u_lin, forces = np.empty(r.n_joints), np.empty(r.n_joints), np.empty((r.n_feet, 3))
-        # kernels.control_step's records, field by field (kernels.control_step_arrays says why)
-        flags, status, _, unrealizable, worst = kernels.control_step_arrays(
+        # the compiled step's records, field by field (control_step_arrays says why)
+        flags, status, _, unrealizable, worst = control_step_arrays(
             *self._records, q, v, contacts, ref_q, ref_v, ref_a, ref_contacts, eps, u_ff, u_lin, forces)
-        if flags & kernels.STATE_NON_FINITE:
+        if flags & STATE_NON_FINITE:
             raise ControllerInputError("non-finite measured state")
-        if flags & kernels.REFERENCE_NON_FINITE:
+        if flags & REFERENCE_NON_FINITE:
             raise ControllerInputError("non-finite reference")
-        if eps_rejected or flags & kernels.EPSILON_REJECTED:
+        if eps_rejected or flags & EPSILON_REJECTED:
             eps_rejected = True
             self.epsilon_rejections += 1
-        qp_failed, qp_error = status != kernels.QP_SOLVED, ""
+        qp_failed, qp_error = status != QP_SOLVED, ""
         if qp_failed:
             qp_error = failure_message(status, worst, int(np.count_nonzero(ref_contacts)))
             self.qp_failures += 1
             u_ff = np.clip(gravity_compensation(self.dyn_des, ref_q, ref_contacts), -self.limits, self.limits)
-            kernels.clip_feedback(u_ff, u_lin, self.limits)
-        if not (kernels.all_finite(u_ff) and kernels.all_finite(u_lin)):  # not expected with finite inputs
+            clip_feedback(u_ff, u_lin, self.limits)
+        if not (all_finite(u_ff) and all_finite(u_lin)):  # not expected with finite inputs
             raise ControllerInputError("controller produced a non-finite torque")
         self.steps += 1
         return ControlOutput(

@@ -16,8 +16,8 @@ go to the robot's 1 kHz joint loop in the TorqueCommand.
 The gains (FeedbackGains) and CONTACT_RANK_TOL are the controller's. The specification of
 eq. 24 is ciml_control.specification.feedback_linearization (literal pinv, tested equal to
 the compiled step in test_specification); `feedback_linearization` here calls the compiled
-kernel the product path runs (kernels.projected_pinv_apply, also inside
-kernels.control_step), for tests and tools.
+kernel the product path runs (compiled.feedback_linearization.projected_pinv_apply, also
+inside compiled.control_step), for tests and tools.
 """
 from __future__ import annotations
 
@@ -28,7 +28,8 @@ import pinocchio as pin
 
 from ciml_learning.robot import RobotDescription
 
-from . import kernels
+from .compiled.feedback_linearization import projected_pinv_apply
+from .compiled.linalg import arg
 
 CONTACT_RANK_TOL = 1e-9
 """Relative eigenvalue tolerance of the rank test (as ciml_control.qp.contact_decomposition)."""
@@ -108,10 +109,9 @@ def feedback_linearization(M: np.ndarray, foot_jacobians: np.ndarray, contacts: 
     Computed as (Q_uᵀ Sᵀ)⁺ Q_uᵀ M q̈_fb; where Q_uᵀ Sᵀ loses rank (two feet on a line) its
     zero rows are dropped first (ciml_control.qp.contact_decomposition), leaving a
     full-row-rank A with A⁺ = Aᵀ (A Aᵀ)⁻¹ (one compiled call:
-    ciml_control.kernels.projected_pinv_apply). M: the mass matrix; only its upper
-    triangle is read (as Pinocchio's CRBA fills it).
+    ciml_control.compiled.feedback_linearization.projected_pinv_apply). M: the mass matrix;
+    only its upper triangle is read (as Pinocchio's CRBA fills it).
     """
     qdd_fb = -kd_lin * e_dot - kp_lin * e
-    arg = kernels.arg
-    return kernels.projected_pinv_apply(arg(M), arg(foot_jacobians), arg(contacts, np.bool_), arg(qdd_fb),
+    return projected_pinv_apply(arg(M), arg(foot_jacobians), arg(contacts, np.bool_), arg(qdd_fb),
                                         CONTACT_RANK_TOL)

@@ -3,7 +3,7 @@
 
 The 250 Hz control step makes two Pinocchio passes and one proxsuite solve around a few
 small matrix kernels. Called from Python each call costs more in wrappers than in
-arithmetic; called from the compiled control step (ciml_control.kernels.control_step)
+arithmetic; called from the compiled control step (ciml_control.compiled.control_step)
 through their C addresses, they cost what the algorithms cost. The library is compiled
 by tools/install.sh against the headers of the installed pin and proxsuite wheels
 (Pinocchio for every dynamics quantity, proxsuite for every QP, as before; only the

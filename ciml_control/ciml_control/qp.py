@@ -4,9 +4,9 @@ Python interface to the compiled QP the controller runs.
 The specification of the controller is ciml_control.specification (eq. 18–24 in numpy; the
 compiled path is tested against it in test_specification). This module does not restate
 it: `build_feedforward_qp` returns the very matrices of the compiled step
-(kernels.feedforward_matrices) and `FeedforwardQP.solve` runs its solve
-(kernels.solve_feedforward), for tests and tools that want the problem as data; the product
-path (IdController.compute → kernels.control_step) calls the kernels directly. The
+(compiled.feedforward_qp.feedforward_matrices) and `FeedforwardQP.solve` runs its solve
+(compiled.feedforward_qp.solve_feedforward), for tests and tools that want the problem as
+data; the product path (IdController.compute → compiled.control_step) calls them directly. The
 constants here (DEFAULT_MU, DEFAULT_F_MIN, RANK_TOL, friction_cone_matrix) are the
 controller's.
 
@@ -38,15 +38,15 @@ corrects what the reference asks for but the contacts cannot deliver.
 
 Solving: eq. (19) is eliminated before the solver sees the problem — u = u₀ + N z with
 u₀ the equality's minimum-norm solution and N an orthonormal basis of its null space
-(kernels.eliminate_equality), so proxsuite solves a QP in 12 − rank(Q_uᵀSᵀ) variables
-(1 in a trot's two-foot support, 6 in four-foot support) with inequalities only; the
+(compiled.feedforward_qp.eliminate_equality), so proxsuite solves a QP in 12 − rank(Q_uᵀSᵀ)
+variables (1 in a trot's two-foot support, 6 in four-foot support) with inequalities only; the
 answer is then checked against every constraint of the problem above.
 
 `build_feedforward_qp` only builds matrices (tested without a solver);
 `FeedforwardQP.solve` solves (proxsuite in the controller's C++ core, the controller's own
 compiled path) and raises `QPFailedError` (carrying the problem) instead of returning a
 torque when the solve fails or the answer violates a constraint. The small dense algebra
-runs in compiled kernels (ciml_control.kernels); this module keeps the interfaces.
+runs compiled (ciml_control.compiled); this module keeps the interfaces.
 """
 from __future__ import annotations
 
@@ -59,13 +59,24 @@ import proxsuite
 
 from ciml_learning.errors import CimlError
 
-from . import kernels, native
+from . import native
+from .compiled import contact_space
+from .compiled.feedforward_qp import (
+    INFINITY,
+    QP_EXCEPTION,
+    QP_NON_FINITE,
+    QP_SOLVED,
+    QP_VIOLATION,
+    feedforward_matrices,
+    max_violation,
+    solve_feedforward,
+)
+from .compiled.linalg import arg
 
 DEFAULT_MU = 0.5
 """Friction coefficient of the cone (paper §IV)."""
 DEFAULT_F_MIN = 5.0
 """[N] smallest normal force of a stance foot (keeps stance feet loaded)."""
-INFINITY = kernels.INFINITY
 RANK_TOL = 1e-9
 """Relative eigenvalue tolerance of the rank test of Q_uᵀSᵀ (contact_decomposition)."""
 
@@ -120,10 +131,10 @@ def contact_decomposition(foot_jacobians: np.ndarray, contacts: np.ndarray, tol:
     any base motion without contacts): then w = Q_uᵀ [n_b; 0] satisfies wᵀ Q_uᵀ Sᵀ = 0.
     U_r spans the orthogonal complement of those w (one Householder reflection when
     there is one such w, the common two-feet case). Computed by
-    ciml_control.kernels.contact_decomposition.
+    ciml_control.compiled.contact_space.contact_decomposition.
     """
-    Q_c, Q_u, R, U_r, has_ur = kernels.contact_decomposition(
-        kernels.arg(foot_jacobians), kernels.arg(contacts, np.bool_), float(tol))
+    Q_c, Q_u, R, U_r, has_ur = contact_space.contact_decomposition(
+        arg(foot_jacobians), arg(contacts, np.bool_), float(tol))
     return ContactDecomposition(Q_c, Q_u, R, U_r if has_ur else None)
 
 
@@ -160,8 +171,7 @@ class FeedforwardProblem:
 
     def violation(self, u: np.ndarray) -> float:
         """Largest violation of any constraint at u [N, Nm] (0 if feasible, NaN for NaN)."""
-        arg = kernels.arg
-        return float(kernels.max_violation(arg(self.A), arg(self.b), arg(self.C), arg(self.l), arg(self.c_u),
+        return float(max_violation(arg(self.A), arg(self.b), arg(self.C), arg(self.l), arg(self.c_u),
                                            arg(self.lb), arg(self.ub), arg(u)))
 
 
@@ -187,8 +197,7 @@ def build_feedforward_qp(
     nv = M.shape[0]
     nj = nv - 6
     contacts = np.array(contacts, dtype=np.bool_)  # a copy: the problem keeps it
-    arg = kernels.arg
-    A, b, unrealizable, lam0, G, C, c_u, Q_u, rhs = kernels.feedforward_matrices(
+    A, b, unrealizable, lam0, G, C, c_u, Q_u, rhs = feedforward_matrices(
         arg(M), arg(h), arg(foot_jacobians), contacts, arg(qdd_des), arg(epsilon), arg(_cone(float(mu))),
         float(f_min), float(rank_tol))
     H = _constant("eye", nj) if W_u is None else np.asarray(W_u, float)
@@ -209,7 +218,7 @@ class FeedforwardSolution:
 class FeedforwardQP:
     """proxsuite dense QP for eq. (18–21), solved in the controller's C++ core
     (ciml_control.native; the same compiled path as the controller's step,
-    kernels.solve_feedforward).
+    compiled.feedforward_qp.solve_feedforward).
 
     One solver per problem size is kept and updated in place (a trot alternates two- and
     four-foot support, each keeps its own); every solve starts from proxsuite's
@@ -227,11 +236,10 @@ class FeedforwardQP:
 
     def solve(self, p: FeedforwardProblem) -> FeedforwardSolution:
         """Solve; raise QPFailedError (with the problem) if no valid torque is found."""
-        arg = kernels.arg
-        status, u, lam, iterations, worst = kernels.solve_feedforward(
+        status, u, lam, iterations, worst = solve_feedforward(
             self._functions, self._solvers.handle, arg(p.H), arg(p.g), arg(p.A), arg(p.b), arg(p.C), arg(p.l),
             arg(p.c_u), arg(p.lb), arg(p.ub), arg(p.lam0), arg(p.G), arg(p.rhs), self.tolerance)
-        if status != kernels.QP_SOLVED:
+        if status != QP_SOLVED:
             raise QPFailedError(failure_message(status, worst, p.n_contacts), p, status_name(status))
         return FeedforwardSolution(u=u, contact_forces=lam.reshape(-1, 3), iterations=int(iterations), problem=p)
 
@@ -240,15 +248,15 @@ _PROXSUITE_STATUS = {v.value + 1: k for k, v in proxsuite.proxqp.QPSolverOutput.
 
 
 def status_name(status: int) -> str:
-    """Name of a kernels.solve_feedforward status."""
-    return {kernels.QP_NON_FINITE: "non_finite", kernels.QP_VIOLATION: "violation",
-            kernels.QP_EXCEPTION: "exception"}.get(status) or _PROXSUITE_STATUS.get(status, str(status))
+    """Name of a compiled.feedforward_qp.solve_feedforward status."""
+    return {QP_NON_FINITE: "non_finite", QP_VIOLATION: "violation",
+            QP_EXCEPTION: "exception"}.get(status) or _PROXSUITE_STATUS.get(status, str(status))
 
 
 def failure_message(status: int, worst: float, n_contacts: int) -> str:
     """One line on why the QP gave no torque."""
-    if status == kernels.QP_NON_FINITE:
+    if status == QP_NON_FINITE:
         return "feedforward QP: non-finite problem data"
-    if status == kernels.QP_VIOLATION:
+    if status == QP_VIOLATION:
         return f"feedforward QP answer violates its constraints by {worst:.3g}"
     return f"feedforward QP not solved ({status_name(status)}, {n_contacts} contacts)"

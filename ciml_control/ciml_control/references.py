@@ -51,7 +51,9 @@ from scipy.optimize import linprog
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import RobotDescription
 
-from . import kernels, native
+from . import native
+from .compiled.leg_ik import leg_ik, leg_rates
+from .compiled.linalg import arg
 
 
 class ReferenceError_(CimlError):
@@ -203,7 +205,7 @@ class BaseState:
 
 class LegIK:
     """Per-leg inverse kinematics on the foot position (damped Newton, Pinocchio's
-    kinematics in the controller's C++ core: kernels.leg_ik)."""
+    kinematics in the controller's C++ core: compiled.leg_ik.leg_ik)."""
 
     def __init__(self, robot: RobotDescription, q_seed: np.ndarray, tol: float = 1e-11, max_iter: int = 50) -> None:
         self.robot = robot
@@ -235,21 +237,21 @@ class LegIK:
         elif self._last is not None and np.max(np.abs(self._last[0] - feet_p)) < 0.05 \
                 and np.max(np.abs(self._last[1] - q[:7])) < 0.05:
             q[7:] = self._last[2]  # warm start from the previous solution (same branch)
-        feet_p = kernels.arg(feet_p)
-        # damped Newton per leg (kernels.leg_ik, leg_newton_step): (BᵀB + 1e-12 I) s = Bᵀ e, |s| ≤ 0.5
+        feet_p = arg(feet_p)
+        # damped Newton per leg (compiled.leg_ik.leg_ik, leg_newton_step): (BᵀB + 1e-12 I) s = Bᵀ e, |s| ≤ 0.5
         J = self._J
-        done, worst = kernels.leg_ik(self._functions, self._core.handle, q, feet_p, self._qidx2, self._cols2, self.tol,
+        done, worst = leg_ik(self._functions, self._core.handle, q, feet_p, self._qidx2, self._cols2, self.tol,
                                      self.max_iter, J, self._feet)
         if not done:
             raise InverseKinematicsError(
                 f"leg inverse kinematics did not converge (foot error {worst:.2e} m): "
                 "a foot target is out of reach")
         self._last = (feet_p.copy(), q[:7].copy(), q[7:].copy())
-        # velocities and accelerations of the legs that carry the feet along (kernels.leg_rates)
-        v, a = kernels.leg_rates(self._functions, self._core.handle, q, J, R,
+        # velocities and accelerations of the legs that carry the feet along (compiled.leg_ik.leg_rates)
+        v, a = leg_rates(self._functions, self._core.handle, q, J, R,
                                  pin.rpy.computeRpyJacobian(base.rpy, pin.LOCAL),
                                  pin.rpy.computeRpyJacobianTimeDerivative(base.rpy, base.drpy, pin.LOCAL),
-                                 *(kernels.arg(x) for x in (base.dp, base.ddp, base.drpy, base.ddrpy, feet_v, feet_a)),
+                                 *(arg(x) for x in (base.dp, base.ddp, base.drpy, base.ddrpy, feet_v, feet_a)),
                                  self._cols2)
         return q, v, a
 

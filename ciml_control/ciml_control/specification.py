@@ -1,6 +1,6 @@
 """The controller of the paper (§IV, eq. 18–24) written out in numpy: the specification.
 
-This module is what the compiled control step (ciml_control.kernels.control_step, with the
+This module is what the compiled control step (ciml_control.compiled.control_step, with the
 C++ core of ciml_control.native, called by ciml_control.controller.IdController and by the
 headless closed loop ciml_sim.joint_loop.closed_loop) is tested against
 (ciml_control/test/test_specification.py: the same torques on random states, references,

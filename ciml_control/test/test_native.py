@@ -7,7 +7,9 @@ import pinocchio as pin
 import proxsuite
 import pytest
 
-from ciml_control import kernels, native
+from ciml_control import native
+from ciml_control.compiled.control_step import desired_terms
+from ciml_control.compiled.feedforward_qp import eliminate_equality
 from ciml_control.controller import IdController
 from ciml_control.qp import FeedforwardQP, build_feedforward_qp
 from ciml_control.references import make_reference, standing_configuration
@@ -20,7 +22,7 @@ def _terms(robot, q, v):
     nv, nf = robot.nv, robot.n_feet
     M, h, J = np.zeros((nv, nv)), np.zeros(nv), np.zeros((nf, 3, nv))
     key = np.zeros(robot.nq + nv + 1)
-    kernels.desired_terms(fns, dyn.handle, q, v, key, M, h, J)
+    desired_terms(fns, dyn.handle, q, v, key, M, h, J)
     return M, h, J
 
 
@@ -65,7 +67,7 @@ def test_eliminate_equality_parametrises_the_equality():
     H, g = W @ W.T + np.eye(n), rng.standard_normal(n)
     C, c_u = rng.standard_normal((nc, n)), rng.standard_normal(nc)
     l, lb, ub = np.full(nc, -1e20), -np.ones(n), np.ones(n)
-    u0, N, H_z, g_z, C_z, l_z, c_z = kernels.eliminate_equality(A, b, H, g, C, l, c_u, lb, ub)
+    u0, N, H_z, g_z, C_z, l_z, c_z = eliminate_equality(A, b, H, g, C, l, c_u, lb, ub)
     np.testing.assert_allclose(A @ u0, b, atol=1e-12)
     np.testing.assert_allclose(u0, np.linalg.pinv(A) @ b, atol=1e-12)
     np.testing.assert_allclose(A @ N, 0.0, atol=1e-12)

@@ -1,4 +1,4 @@
-"""The compiled control step (IdController.compute → kernels.control_step → the C++ core)
+"""The compiled control step (IdController.compute → compiled.control_step → the C++ core)
 computes what its specification, ciml_control.specification (eq. 18–24 in numpy), computes."""
 import numpy as np
 import pinocchio as pin

@@ -36,14 +36,14 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
-from ciml_control.kernels import (
+from ciml_control.compiled.control_step import (
     ControlInput,
     ControlOutputBuffers,
     ControlParameters,
     ControlWorkspace,
-    all_finite,
     control_step,
 )
+from ciml_control.compiled.linalg import all_finite
 
 
 @lru_cache(maxsize=None)
@@ -350,7 +350,7 @@ def closed_loop(plant: PlantState, work: ControlWorkspace, par: ControlParameter
                 cos_tilt: float, logs: ClosedLoopLogs) -> ClosedLoopResult:
     """Ticks k0 … k1−1 of the headless closed loop (ciml_sim.recorder.run_headless) without
     leaving compiled code: at each tick the plant's sample (`actuation` and `sense`, as
-    Plant.measure), the controller's step (ciml_control.kernels.control_step, nominal
+    Plant.measure), the controller's step (ciml_control.compiled.control_step, nominal
     model), the logs of the paper metrics, the command (`command_coefficients`, as
     Plant.set_command) and `steps_per_tick` physics steps (`run_joint_loop`, as Plant.step).
     The same functions, in the same order, as the step-by-step path; `plant` is

@@ -1,11 +1,13 @@
-"""Compiled linear algebra of the control step (ciml_control.kernels) against numpy."""
+"""The compiled kernels of the control step (ciml_control.compiled) against numpy."""
 from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin
 import pytest
 
-from ciml_control import kernels
+from ciml_control.compiled.feedforward_qp import max_violation
+from ciml_control.compiled.leg_ik import leg_newton_step
+from ciml_control.compiled.linalg import min_norm_correction, qr_complete
 from ciml_control.controller import IdController
 from ciml_control.qp import contact_decomposition
 from ciml_control.references import make_reference, standing_configuration
@@ -24,7 +26,7 @@ def test_qr_complete_is_numpys_complete_qr(shape):
     A = rng.standard_normal(shape)
     if shape[1] > 2:
         A[:, 2] = 0.0  # a zero column: a reflection-free step
-    Q, R = kernels.qr_complete(A)
+    Q, R = qr_complete(A)
     Qn, Rn = np.linalg.qr(A, mode="complete")
     n = shape[1]
     np.testing.assert_allclose(Q, Qn, atol=1e-12)
@@ -60,15 +62,15 @@ def test_contact_decomposition_spans_the_right_spaces(robot, contacts):
 def test_min_norm_correction_and_violation():
     rng = np.random.default_rng(0)
     A, b, x = rng.standard_normal((5, 12)), rng.standard_normal(5), rng.standard_normal(12)
-    u = kernels.min_norm_correction(A, b, x)
+    u = min_norm_correction(A, b, x)
     np.testing.assert_allclose(A @ u, b, atol=1e-12)
     np.testing.assert_allclose(u, x - np.linalg.pinv(A) @ (A @ x - b), atol=1e-12)
     C, l, c_u = rng.standard_normal((4, 12)), np.full(4, -1e20), np.full(4, 0.5)
     lb, ub = np.full(12, -1.0), np.full(12, 1.0)
     worst = max(np.abs(A @ x - b).max(), (C @ x - c_u).max(), (np.abs(x) - 1.0).max(), 0.0)
-    assert kernels.max_violation(A, b, C, l, c_u, lb, ub, x) == pytest.approx(worst, abs=1e-12)
+    assert max_violation(A, b, C, l, c_u, lb, ub, x) == pytest.approx(worst, abs=1e-12)
     x[3] = np.nan
-    assert np.isnan(kernels.max_violation(A, b, C, l, c_u, lb, ub, x))
+    assert np.isnan(max_violation(A, b, C, l, c_u, lb, ub, x))
 
 
 def test_leg_newton_step_converges_only_on_finite_small_errors(robot):
@@ -79,13 +81,13 @@ def test_leg_newton_step_converges_only_on_finite_small_errors(robot):
         J[i][:, c] = np.eye(3)  # each foot moves with its own joints, identity blocks
     feet = np.zeros((robot.n_feet, 3))
     q = np.zeros(robot.nq)
-    done, worst = kernels.leg_newton_step(J, feet, feet + 1e-13, q, qidx, cols, 1e-11, 1e-12, 0.5)
+    done, worst = leg_newton_step(J, feet, feet + 1e-13, q, qidx, cols, 1e-11, 1e-12, 0.5)
     assert done and worst == pytest.approx(1e-13) and not q.any()
     targets = feet + 0.1
-    done, _ = kernels.leg_newton_step(J, feet, targets, q, qidx, cols, 1e-11, 1e-12, 0.5)
+    done, _ = leg_newton_step(J, feet, targets, q, qidx, cols, 1e-11, 1e-12, 0.5)
     assert not done and np.allclose(q[qidx], 0.1)  # one Newton step on an identity block
     targets[1, 2] = np.nan
-    done, worst = kernels.leg_newton_step(J, feet, targets, q, qidx, cols, 1e-11, 1e-12, 0.5)
+    done, worst = leg_newton_step(J, feet, targets, q, qidx, cols, 1e-11, 1e-12, 0.5)
     assert not done and np.isnan(worst)
 
 

@@ -65,8 +65,9 @@ def _launch(s: argparse.ArgumentParser) -> None:
                    help="launch file, or a package name followed by a file of its share/PKG/launch")
     s.add_argument("arguments", nargs="*", metavar="name:=value", help="launch arguments")
     s.add_argument("-s", "--show-args", action="store_true", help="list the file's arguments and exit")
-    s.add_argument("--print", action="store_true", help="print each node's command line and exit")
-    s.add_argument("--log-dir", help="also write each node's output to LOG_DIR/<node>.log")
+    s.add_argument("--print", action="store_true",
+                   help="print each process's command line (a node's, or a container's) and exit")
+    s.add_argument("--log-dir", help="also write each process's output to LOG_DIR/<node or container>.log")
     s.add_argument("--stop-timeout", type=ca.finite(0, 3600, " s"), default=10.0,
                    help="[s] after SIGINT before SIGTERM")
 
@@ -111,9 +112,11 @@ BENCH = Verb(
     epilog="example: ciml bench --out bench.json --only extraction_throughput")
 
 LAUNCH = Verb(
-    help="start the nodes of a YAML launch file (the file ros2 launch reads)", arguments=_launch,
+    help="start the nodes of a YAML launch file (the file ros2 launch reads); a `containers` launch "
+         "argument composes nodes in one process per group", arguments=_launch,
     run="ciml_learning.launcher:launch_command", order=100,
-    epilog="example: ciml launch ciml_sim closed_loop.launch.yaml motion:=trot_35")
+    epilog="example: ciml launch ciml_sim closed_loop.launch.yaml motion:=trot_35 lockstep:=false "
+           "(containers:='' starts one process per node)")
 
 INSPECT = Verb(
     help="what a bag holds and which roles CIML can read from it; drafts a robot profile", arguments=_inspect,

@@ -74,25 +74,98 @@ def _call_model_data(typingctx, fn, m, d):
     return sig, codegen
 
 
+class MujocoCalls(NamedTuple):
+    """MuJoCo's C functions by address (mj_function) and the mjModel*, mjData* of the Python
+    bindings they act on."""
+
+    mj_step: int
+    mj_step2: int
+    mj_forward: int
+    mj_rne_post_constraint: int
+    model: int
+    data: int
+
+
+class Actuators(NamedTuple):
+    """The joint loop's torque limits and the scenario's actuator effects (ciml_sim.plant):
+    what `actuation` applies after the law. Arrays per joint; `lag` is the lag's state."""
+
+    encoder_offset: np.ndarray  # added to the true joint positions [rad]
+    limits: np.ndarray          # torque limits of the joint loop [Nm]
+    has_lag: bool               # first-order lag: α per joint and the lag state (updated by run_joint_loop)
+    alpha: np.ndarray
+    lag: np.ndarray
+    has_gain: bool              # τ = gain · lag + offset
+    gain: np.ndarray
+    offset: np.ndarray
+
+
+class HeldCommand(NamedTuple):
+    """The TorqueCommand the joint loop holds, as its coefficients (command_coefficients):
+    u = c − K_p q_m − K_d q̇_m + ċ (t − stamp)."""
+
+    c: np.ndarray               # u_ff + K_p q_t + K_d q̇_t
+    c_rate: np.ndarray          # ċ = K_p q̇_t
+    kp: np.ndarray
+    kd: np.ndarray
+    has_rate: bool              # any ċ ≠ 0
+    stamp: float                # the command's stamp [s of simulation time]
+
+
+class JointReading(NamedTuple):
+    """What `actuation` writes: the joint loop at one reading (arrays per joint)."""
+
+    q_m: np.ndarray             # measured joint positions and velocities (offset and noise included)
+    qd_m: np.ndarray
+    u: np.ndarray               # commanded torque (the law, clipped)
+    lag: np.ndarray             # the lag state after this reading
+    tau: np.ndarray             # the torque the actuators deliver
+
+
+class Sensors(NamedTuple):
+    """What `sense` reads besides the state: MjData views, the feet and the sensor effects."""
+
+    xmat_base: np.ndarray       # the base body's rotation (MjData.xmat row, 9)
+    cfrc_ext: np.ndarray        # MjData.cfrc_ext
+    foot_bodies: np.ndarray     # body ids of the feet (int)
+    imu_tilt: np.ndarray        # IMU mounting tilt (w, x, y, z; empty for none)
+    noise_std: np.ndarray       # sensor noise: orientation, torque, position, twist
+    contact_threshold: float    # normal force of a contact [N]
+    sensor: np.ndarray          # torque-sensor gain, offset, ripple amplitude and period per joint (0 rows: ideal)
+
+
+class SensorReading(NamedTuple):
+    """What `sense` writes: one sample of the robot's sensors."""
+
+    quat_xyzw: np.ndarray       # base orientation
+    pos: np.ndarray             # base position (world) [m]
+    lin: np.ndarray             # base twist in the base frame [m/s, rad/s]
+    ang: np.ndarray
+    tau_meas: np.ndarray        # joint torque sensors [Nm]
+    forces: np.ndarray          # contact force of each foot (world frame) [N]
+    contacts: np.ndarray        # contact flag of each foot (bool)
+
+
 @njit(cache=True)
-def actuation(q: np.ndarray, qd: np.ndarray, encoder_offset: np.ndarray, noise_q: np.ndarray,
-              noise_qd: np.ndarray, t: float, c: np.ndarray, c_rate: np.ndarray, has_rate: bool, stamp: float,
-              kp: np.ndarray, kd: np.ndarray, limits: np.ndarray, has_lag: bool, alpha: np.ndarray,
-              lag: np.ndarray, has_gain: bool, gain: np.ndarray, offset: np.ndarray, q_m: np.ndarray,
-              qd_m: np.ndarray, u: np.ndarray, lag_out: np.ndarray, tau: np.ndarray) -> None:
-    """The joint loop at one reading (ciml_sim.plant's docstring), into q_m, qd_m, u, lag_out, τ:
+def actuation(q: np.ndarray, qd: np.ndarray, act: Actuators, cmd: HeldCommand, noise_q: np.ndarray,
+              noise_qd: np.ndarray, t: float, out: JointReading) -> None:
+    """The joint loop at one reading (ciml_sim.plant's docstring) under the held command `cmd`,
+    into `out`:
 
         q_m = q + offset (+ noise),  q̇_m = q̇ (+ noise)
         u = clip(c − K_p q_m − K_d q̇_m + ċ (t − t_c), ±limits),   c = u_ff + K_p q_t + K_d q̇_t
 
     u is a compiled copy of ciml_learning.conversions.commanded_torque (the specification;
     test_joint_loop_law asserts they agree on random inputs); the lag, gain and offset are
-    the scenario's actuator effects (the "reality" after the law):
-        lag_out = lag + α (u − lag)   (backward-Euler first-order lag; u without lag)
-        τ = g · lag_out + o           (lag_out without gain/offset)
+    the scenario's actuator effects (`act`, the "reality" after the law):
+        out.lag = act.lag + α (u − act.lag)   (backward-Euler first-order lag; u without lag)
+        τ = g · out.lag + o                   (out.lag without gain/offset)
 
     noise_q, noise_qd: this reading's encoder noise, or empty arrays for none.
     """
+    encoder_offset, limits, has_lag, alpha, lag, has_gain, gain, offset = act  # the records' fields, in order
+    c, c_rate, kp, kd, has_rate, stamp = cmd
+    q_m, qd_m, u, lag_out, tau = out
     noisy = noise_q.shape[0] > 0
     for j in range(q.shape[0]):
         qm = q[j] + encoder_offset[j]
@@ -112,31 +185,25 @@ def actuation(q: np.ndarray, qd: np.ndarray, encoder_offset: np.ndarray, noise_q
 
 
 @njit(cache=True)
-def run_joint_loop(mj_step: int, mj_step2: int, model: int, data: int, n: int, reuse_first: bool, t: float,
-                   dt: float, q: np.ndarray, qd: np.ndarray, ctrl: np.ndarray, encoder_offset: np.ndarray,
-                   noise_q: np.ndarray, noise_qd: np.ndarray, c: np.ndarray, c_rate: np.ndarray, has_rate: bool,
-                   stamp: float, kp: np.ndarray, kd: np.ndarray, limits: np.ndarray, has_lag: bool,
-                   alpha: np.ndarray, lag: np.ndarray, has_gain: bool, gain: np.ndarray, offset: np.ndarray,
-                   u: np.ndarray, tau: np.ndarray) -> None:
+def run_joint_loop(mj: MujocoCalls, n: int, reuse_first: bool, t: float, dt: float, q: np.ndarray,
+                   qd: np.ndarray, ctrl: np.ndarray, act: Actuators, cmd: HeldCommand, noise_q: np.ndarray,
+                   noise_qd: np.ndarray, u: np.ndarray, tau: np.ndarray) -> None:
     """n physics steps: the joint loop's τ into ctrl, then MuJoCo's step (mj_step2 for the
     first if `reuse_first`: mj_forward's position and velocity stages are already in
     mjData). q, qd, ctrl: views of mjData's joint qpos, qvel and ctrl; t: mjData's time
     (advanced by dt per step as MuJoCo does); noise_q, noise_qd: n rows of encoder noise
-    or empty (0 × n_j) for none; lag is updated in place, u and τ hold the last step's."""
+    or empty (0 × n_j) for none; act.lag is updated in place, u and τ hold the last step's."""
     nj = q.shape[0]
-    q_m = np.empty(nj)
-    qd_m = np.empty(nj)
-    lag_new = np.empty(nj)
+    reading = JointReading(np.empty(nj), np.empty(nj), u, np.empty(nj), tau)
     no_noise = np.empty(0)
     noisy = noise_q.shape[0] > 0
     for i in range(n):
         nq = noise_q[i] if noisy else no_noise
         nqd = noise_qd[i] if noisy else no_noise
-        actuation(q, qd, encoder_offset, nq, nqd, t, c, c_rate, has_rate, stamp, kp, kd, limits,
-                  has_lag, alpha, lag, has_gain, gain, offset, q_m, qd_m, u, lag_new, tau)
-        lag[:] = lag_new
+        actuation(q, qd, act, cmd, nq, nqd, t, reading)
+        act.lag[:] = reading.lag
         ctrl[:] = tau
-        _call_model_data(mj_step2 if (i == 0 and reuse_first) else mj_step, model, data)
+        _call_model_data(mj.mj_step2 if (i == 0 and reuse_first) else mj.mj_step, mj.model, mj.data)
         t += dt
 
 
@@ -187,13 +254,10 @@ def _quat_integrate(quat: np.ndarray, rotation: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def sense(mj_forward: int, mj_rne_post_constraint: int, model: int, data: int, qpos: np.ndarray, qvel: np.ndarray,
-          xmat_base: np.ndarray, cfrc_ext: np.ndarray, foot_bodies: np.ndarray, imu_tilt: np.ndarray,
-          noise_std: np.ndarray, z: np.ndarray, tau: np.ndarray, contact_threshold: float,
-          quat_xyzw: np.ndarray, pos: np.ndarray, lin: np.ndarray, ang: np.ndarray, tau_meas: np.ndarray,
-          forces: np.ndarray, contacts: np.ndarray, sensor: np.ndarray) -> None:
+def sense(mj: MujocoCalls, qpos: np.ndarray, qvel: np.ndarray, sensors: Sensors, z: np.ndarray, tau: np.ndarray,
+          out: SensorReading) -> None:
     """MuJoCo's forward pass at the current state under the applied torque, then the
-    sensors of ciml_sim.plant.Plant.measure into the output arrays: base orientation
+    sensors of ciml_sim.plant.Plant.measure into `out`: base orientation
     (IMU tilt imu_tilt (w, x, y, z; empty for none), orientation noise), position, base-frame
     twist and torque with their noise (noise_std: orientation, torque, position, twist;
     z: this sample's standard-normal draws of the enabled ones, in that order), each foot's
@@ -203,8 +267,10 @@ def sense(mj_forward: int, mj_rne_post_constraint: int, model: int, data: int, q
     empty `sensor` (0 rows) reads τ_j.
     A foot's contact force is the external force on its body (cfrc_ext after
     mj_rnePostConstraint, linear part): its sphere is the body's only colliding geom (mjcf.py)."""
-    _call_model_data(mj_forward, model, data)
-    _call_model_data(mj_rne_post_constraint, model, data)  # cfrc_ext: the contact forces on the bodies
+    xmat_base, cfrc_ext, foot_bodies, imu_tilt, noise_std, contact_threshold, sensor = sensors  # fields, in order
+    quat_xyzw, pos, lin, ang, tau_meas, forces, contacts = out
+    _call_model_data(mj.mj_forward, mj.model, mj.data)
+    _call_model_data(mj.mj_rne_post_constraint, mj.model, mj.data)  # cfrc_ext: the contact forces on the bodies
     for i in range(foot_bodies.shape[0]):
         for a in range(3):
             forces[i, a] = cfrc_ext[foot_bodies[i], 3 + a]
@@ -273,47 +339,24 @@ class PlantState(NamedTuple):
     with the Plant and its MjData and updated in place; the scalars come back through
     ClosedLoopResult and Plant.compiled_done). Units SI, joint order of the robot."""
 
-    mj_step: int              # addresses of MuJoCo's C functions (mj_function)
-    mj_step2: int
-    mj_forward: int
-    mj_rne_post_constraint: int
-    model: int                # mjModel* and mjData* of the Python bindings
-    data: int
+    mujoco: MujocoCalls
     qpos: np.ndarray          # MjData.qpos (quaternion w, x, y, z), qvel
     qvel: np.ndarray
     qj: np.ndarray            # the joints' views of qpos, qvel, ctrl
     vj: np.ndarray
     ctrl: np.ndarray
-    xmat_base: np.ndarray     # the base body's rotation (MjData.xmat row, 9)
-    cfrc_ext: np.ndarray      # MjData.cfrc_ext
-    foot_bodies: np.ndarray   # body ids of the feet (int)
-    imu_tilt: np.ndarray      # IMU mounting tilt (w, x, y, z; empty for none)
-    noise_std: np.ndarray     # sensor noise: orientation, torque, position, twist
+    actuators: Actuators      # (its lag state updated)
+    command: HeldCommand      # the held command (its arrays updated; stamp and rate flag come back)
+    sensors: Sensors
     noisy: bool               # encoder noise drawn (enc_q, enc_qd hold a block)
     enc_q: np.ndarray         # encoder noise block (physics steps × n_j), row enc_i next
     enc_qd: np.ndarray
     enc_i: int
     meas_noise: np.ndarray    # sensor noise draws (samples × draws per sample; 0 columns: none), row meas_i next
     meas_i: int
-    encoder_offset: np.ndarray
-    limits: np.ndarray        # torque limits of the joint loop
-    has_lag: bool             # actuator lag: α per joint and the lag state (updated)
-    alpha: np.ndarray
-    lag: np.ndarray
-    has_gain: bool            # actuator gain and offset
-    gain: np.ndarray
-    offset: np.ndarray
-    c: np.ndarray             # the held command's coefficients (command_coefficients, updated)
-    c_rate: np.ndarray
-    has_rate: bool
-    stamp: float              # the held command's stamp [s]
-    kp_cmd: np.ndarray        # the held command's gains (updated)
-    kd_cmd: np.ndarray
     u: np.ndarray             # the last physics step's commanded torque u and actuator torque τ (out)
     tau: np.ndarray
     dt: float                 # physics step [s]
-    contact_threshold: float  # normal force of a contact [N]
-    sensor: np.ndarray        # torque-sensor gain, offset, ripple amplitude and period per joint (0 rows: ideal)
 
 
 class ReferenceRows(NamedTuple):
@@ -361,33 +404,33 @@ def closed_loop(plant: PlantState, work: ControlWorkspace, par: ControlParameter
     measurement-noise block position after the last tick run, the last command's stamp and
     rate flag (Plant.compiled_done takes them back)."""
     p = plant
-    qpos, qj, vj, ctrl, foot_bodies = p.qpos, p.qj, p.vj, p.ctrl, p.foot_bodies
+    qpos, qj, vj, ctrl = p.qpos, p.qj, p.vj, p.ctrl
     noisy, enc_q, enc_qd, enc_i, meas_noise, meas_i = p.noisy, p.enc_q, p.enc_qd, p.enc_i, p.meas_noise, p.meas_i
-    c, c_rate, has_rate, stamp, kp_cmd, kd_cmd = p.c, p.c_rate, p.has_rate, p.stamp, p.kp_cmd, p.kd_cmd
+    held = p.command  # its arrays updated in place; a new record at each command (stamp, rate flag)
     ref_q, ref_v, ref_a, ref_contacts = refs.q, refs.v, refs.a, refs.contacts
     t_log, effort_log, qpos_log, q_ref_log = logs.t, logs.effort, logs.qpos, logs.q_ref
     nj = qj.shape[0]
-    nf = foot_bodies.shape[0]
+    nf = p.sensors.foot_bodies.shape[0]
     nv = nj + 6
     no_noise = np.empty(0)
     q_m, qd_m, u_now, lag_now, tau_now = np.empty(nj), np.empty(nj), np.empty(nj), np.empty(nj), np.empty(nj)
     quat, pos, lin, ang, tau_meas = np.empty(4), np.empty(3), np.empty(3), np.empty(3), np.empty(nj)
     forces, contacts = np.empty((nf, 3)), np.empty(nf, dtype=np.bool_)
+    reading = JointReading(q_m, qd_m, u_now, lag_now, tau_now)
+    sample = SensorReading(quat, pos, lin, ang, tau_meas, forces, contacts)
     q, v, eps = np.empty(nj + 7), np.empty(nv), np.zeros(nv)
     u_ff, u_lin, planned = np.empty(nj), np.empty(nj), np.empty((nf, 3))
     total = np.empty(nj)
     for k in range(k0, k1):
         if (noisy and enc_i + steps_per_tick > enc_q.shape[0]) or (meas_noise.shape[1] > 0
                                                                     and meas_i >= meas_noise.shape[0]):
-            return ClosedLoopResult(k, CLOSED_LOOP_HANDBACK, meas_i, stamp, has_rate)
+            return ClosedLoopResult(k, CLOSED_LOOP_HANDBACK, meas_i, held.stamp, held.has_rate)
         # the sample (Plant.measure)
-        actuation(qj, vj, p.encoder_offset, enc_q[enc_i] if noisy else no_noise,
-                  enc_qd[enc_i] if noisy else no_noise, t, c, c_rate, has_rate, stamp, kp_cmd, kd_cmd, p.limits,
-                  p.has_lag, p.alpha, p.lag, p.has_gain, p.gain, p.offset, q_m, qd_m, u_now, lag_now, tau_now)
+        actuation(qj, vj, p.actuators, held, enc_q[enc_i] if noisy else no_noise,
+                  enc_qd[enc_i] if noisy else no_noise, t, reading)
         ctrl[:] = tau_now
-        sense(p.mj_forward, p.mj_rne_post_constraint, p.model, p.data, qpos, p.qvel, p.xmat_base, p.cfrc_ext,
-              foot_bodies, p.imu_tilt, p.noise_std, meas_noise[meas_i] if meas_noise.shape[1] > 0 else no_noise,
-              tau_now, p.contact_threshold, quat, pos, lin, ang, tau_meas, forces, contacts, p.sensor)
+        sense(p.mujoco, qpos, p.qvel, p.sensors, meas_noise[meas_i] if meas_noise.shape[1] > 0 else no_noise,
+              tau_now, sample)
         q[:3] = pos  # the measured configuration (recorder.measured_configuration)
         q[3:7] = quat
         q[7:] = q_m
@@ -398,7 +441,7 @@ def closed_loop(plant: PlantState, work: ControlWorkspace, par: ControlParameter
         step = control_step(work, par, ControlInput(q, v, contacts, ref_q[k], ref_v[k], ref_a[k], ref_contacts[k], eps),
                             ControlOutputBuffers(u_ff, u_lin, planned))
         if step.flags != 0 or step.status != 0 or not (all_finite(u_ff) and all_finite(u_lin)):
-            return ClosedLoopResult(k, CLOSED_LOOP_HANDBACK, meas_i, stamp, has_rate)
+            return ClosedLoopResult(k, CLOSED_LOOP_HANDBACK, meas_i, held.stamp, held.has_rate)
         # the tick is committed from here: noise consumed, logs written
         if meas_noise.shape[1] > 0:
             meas_i += 1
@@ -412,20 +455,20 @@ def closed_loop(plant: PlantState, work: ControlWorkspace, par: ControlParameter
         qpos_log[k] = qpos
         q_ref_log[k] = ref_q[k]
         if fallen(qpos, min_base_height, cos_tilt):
-            return ClosedLoopResult(k + 1, CLOSED_LOOP_FELL, meas_i, stamp, has_rate)
+            return ClosedLoopResult(k + 1, CLOSED_LOOP_FELL, meas_i, held.stamp, held.has_rate)
         # the command (Plant.set_command, stamped with the sample's time) and the physics (Plant.step)
-        command_coefficients(total, ref_q[k, 7:], ref_v[k, 6:], kp, kd, False, c, c_rate, kp_cmd, kd_cmd)
-        stamp = t
+        command_coefficients(total, ref_q[k, 7:], ref_v[k, 6:], kp, kd, False, held.c, held.c_rate, held.kp,
+                             held.kd)
         has_rate = False
         for j in range(nj):
-            if c_rate[j] != 0.0:
+            if held.c_rate[j] != 0.0:
                 has_rate = True
-        run_joint_loop(p.mj_step, p.mj_step2, p.model, p.data, steps_per_tick, True, t, p.dt, qj, vj, ctrl,
-                       p.encoder_offset, enc_q[enc_i:enc_i + steps_per_tick] if noisy else enc_q,
-                       enc_qd[enc_i:enc_i + steps_per_tick] if noisy else enc_qd, c, c_rate, has_rate, stamp,
-                       kp_cmd, kd_cmd, p.limits, p.has_lag, p.alpha, p.lag, p.has_gain, p.gain, p.offset, p.u, p.tau)
+        held = HeldCommand(held.c, held.c_rate, held.kp, held.kd, has_rate, t)
+        run_joint_loop(p.mujoco, steps_per_tick, True, t, p.dt, qj, vj, ctrl, p.actuators, held,
+                       enc_q[enc_i:enc_i + steps_per_tick] if noisy else enc_q,
+                       enc_qd[enc_i:enc_i + steps_per_tick] if noisy else enc_qd, p.u, p.tau)
         for _ in range(steps_per_tick):
             t += p.dt
         if noisy:
             enc_i += steps_per_tick
-    return ClosedLoopResult(k1, CLOSED_LOOP_DONE, meas_i, stamp, has_rate)
+    return ClosedLoopResult(k1, CLOSED_LOOP_DONE, meas_i, held.stamp, held.has_rate)

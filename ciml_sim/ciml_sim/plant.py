@@ -242,10 +242,6 @@ class Plant:
         self._sensor = np.empty((0, 4)) if identity else self.sensor  # empty: the sensor reads τ
         self._has_side = bool(self._springs or self._ripples)
         self._extra = bool(self._stribeck) or self._has_side  # effects evaluated in Python between steps
-        self._mj_step = joint_loop.mj_function("mj_step")
-        self._mj_step2 = joint_loop.mj_function("mj_step2")
-        self._mj_forward = joint_loop.mj_function("mj_forward")
-        self._mj_rne_post_constraint = joint_loop.mj_function("mj_rnePostConstraint")
         self._no_noise = np.empty((0, nj))
         tilt = pin.Quaternion(pin.rpy.rpyToMatrix(roll, pitch, 0.0)).coeffs()  # x y z w
         self._imu_tilt = np.empty(0) if roll == pitch == 0.0 else np.array([tilt[3], tilt[0], tilt[1], tilt[2]])
@@ -269,6 +265,13 @@ class Plant:
         self._qfrc_j = d.qfrc_applied[6:]
         self._xmat_base = d.xmat[self._base_body]
         self._no_sample_noise = np.empty(0)
+        # the compiled joint loop's records (ciml_sim.joint_loop): the fixed ones; reset() makes the held
+        # command and the actuators (with the lag's state)
+        fn = joint_loop.mj_function
+        self._mujoco = joint_loop.MujocoCalls(fn("mj_step"), fn("mj_step2"), fn("mj_forward"),
+                                              fn("mj_rnePostConstraint"), self.model._address, d._address)
+        self._sensors = joint_loop.Sensors(self._xmat_base, d.cfrc_ext, self._foot_bodies, self._imu_tilt,
+                                           self._noise_std, CONTACT_THRESHOLD, self._sensor)
         self.reset()
 
     # --- state -----------------------------------------------------------------------------
@@ -309,13 +312,9 @@ class Plant:
         self._meas_noise_i = _NOISE_BLOCK
         self._k = 0
         self._forward_state: bytes | None = None
-        self._lag = np.zeros(nj)
-        self._c = np.zeros(nj)  # u_ff + K_p q_t + K_d q̇_t
-        self._c_rate = np.zeros(nj)  # K_p q̇_t, d(_c)/ds since the stamp
-        self._has_rate = False
-        self._stamp = 0.0  # the command's stamp t_c [s of simulation time]
-        self._kp = np.zeros(nj)
-        self._kd = np.zeros(nj)
+        self._actuators = joint_loop.Actuators(self.encoder_offset, self.limits, self._has_lag, self._alpha,
+                                               np.zeros(nj), self._has_gain, self.gain, self.offset)
+        self._command = joint_loop.HeldCommand(np.zeros(nj), np.zeros(nj), np.zeros(nj), np.zeros(nj), False, 0.0)
         self.damping_mode = False
         self.u = np.zeros(nj)
         self.tau = np.zeros(nj)
@@ -324,7 +323,7 @@ class Plant:
     def rewind_clock(self) -> None:
         """Set simulation time to 0 without touching the state (after a settling pre-roll);
         the held command's stamp moves with the clock."""
-        self._stamp -= float(self.data.time)
+        self._command = self._command._replace(stamp=self._command.stamp - float(self.data.time))
         self.data.time = 0.0
         self._meas = None
         self._forward_state = None
@@ -355,9 +354,7 @@ class Plant:
             raise PlantError(f"command: expected {nj} finite values per field" if status == 1
                              else "command: negative stiffness or damping")
         self.damping_mode = bool(damping_mode)
-        self._stamp = stamp
-        self._c, self._c_rate, self._kp, self._kd = c, c_rate, kp_j, kd_j
-        self._has_rate = bool(c_rate.any())
+        self._command = joint_loop.HeldCommand(c, c_rate, kp_j, kd_j, bool(c_rate.any()), stamp)
 
     # --- the 1 kHz joint loop -------------------------------------------------------------------
     def _encoder_noise(self, n: int) -> tuple[np.ndarray, np.ndarray, int]:
@@ -374,18 +371,16 @@ class Plant:
         m = min(n, _NOISE_BLOCK - i)
         return self._noise_q[i:i + m], self._noise_qd[i:i + m], m
 
-    def _actuation(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _actuation(self) -> joint_loop.JointReading:
         """(q_meas, q̇_meas, u, lag state, τ) at the current step under the held command
         (ciml_sim.joint_loop.actuation, the law the compiled loop runs)."""
         noise_q, noise_qd, _ = self._encoder_noise(1)
         none = np.empty(0)
         nj = self.robot.n_joints
-        q_m, qd_m, u, lag, tau = (np.empty(nj) for _ in range(5))
-        joint_loop.actuation(self._qj, self._vj, self.encoder_offset, noise_q[0] if len(noise_q) else none,
-                             noise_qd[0] if len(noise_qd) else none, float(self.data.time), self._c, self._c_rate,
-                             self._has_rate, self._stamp, self._kp, self._kd, self.limits, self._has_lag,
-                             self._alpha, self._lag, self._has_gain, self.gain, self.offset, q_m, qd_m, u, lag, tau)
-        return q_m, qd_m, u, lag, tau
+        out = joint_loop.JointReading(*(np.empty(nj) for _ in range(5)))
+        joint_loop.actuation(self._qj, self._vj, self._actuators, self._command, noise_q[0] if len(noise_q) else none,
+                             noise_qd[0] if len(noise_qd) else none, float(self.data.time), out)
+        return out
 
     def _stribeck_levels(self) -> list[np.ndarray]:
         qd = self._vj
@@ -424,17 +419,16 @@ class Plant:
         done = 0
         while done < n:
             if self._extra:
-                _, _, self.u, self._lag, self.tau = self._actuation()
+                _, _, self.u, lag, self.tau = self._actuation()
+                self._actuators.lag[:] = lag
                 self._apply(self.tau)
                 (mujoco.mj_step2 if reuse else mujoco.mj_step)(m, d)
                 k = 1
             else:
                 noise_q, noise_qd, k = self._encoder_noise(n - done)
-                joint_loop.run_joint_loop(
-                    self._mj_step, self._mj_step2, m._address, d._address, k, reuse, float(d.time),
-                    float(m.opt.timestep), self._qj, self._vj, self._ctrl, self.encoder_offset, noise_q, noise_qd,
-                    self._c, self._c_rate, self._has_rate, self._stamp, self._kp, self._kd, self.limits,
-                    self._has_lag, self._alpha, self._lag, self._has_gain, self.gain, self.offset, self.u, self.tau)
+                joint_loop.run_joint_loop(self._mujoco, k, reuse, float(d.time), float(m.opt.timestep), self._qj,
+                                          self._vj, self._ctrl, self._actuators, self._command, noise_q, noise_qd,
+                                          self.u, self.tau)
             reuse = False
             done += k
             self._k += k
@@ -464,16 +458,10 @@ class Plant:
         else:
             meas, meas_i = np.empty((0, self._meas_noise_len)), 0
         return joint_loop.PlantState(
-            mj_step=self._mj_step, mj_step2=self._mj_step2, mj_forward=self._mj_forward,
-            mj_rne_post_constraint=self._mj_rne_post_constraint, model=m._address, data=d._address,
-            qpos=d.qpos, qvel=d.qvel, qj=self._qj, vj=self._vj, ctrl=self._ctrl, xmat_base=self._xmat_base,
-            cfrc_ext=d.cfrc_ext, foot_bodies=self._foot_bodies, imu_tilt=self._imu_tilt, noise_std=self._noise_std,
-            noisy=self._encoder_noisy, enc_q=enc_q, enc_qd=enc_qd, enc_i=i, meas_noise=meas, meas_i=meas_i,
-            encoder_offset=self.encoder_offset, limits=self.limits, has_lag=self._has_lag, alpha=self._alpha,
-            lag=self._lag, has_gain=self._has_gain, gain=self.gain, offset=self.offset, c=self._c,
-            c_rate=self._c_rate, has_rate=self._has_rate, stamp=self._stamp, kp_cmd=self._kp, kd_cmd=self._kd,
-            u=self.u, tau=self.tau, dt=float(m.opt.timestep), contact_threshold=CONTACT_THRESHOLD,
-            sensor=self._sensor)
+            mujoco=self._mujoco, qpos=d.qpos, qvel=d.qvel, qj=self._qj, vj=self._vj, ctrl=self._ctrl,
+            actuators=self._actuators, command=self._command, sensors=self._sensors, noisy=self._encoder_noisy,
+            enc_q=enc_q, enc_qd=enc_qd, enc_i=i, meas_noise=meas, meas_i=meas_i, u=self.u, tau=self.tau,
+            dt=float(m.opt.timestep))
 
     def compiled_done(self, physics_steps: int, meas_i: int, stamp: float, has_rate: bool) -> None:
         """After joint_loop.closed_loop: the steps it ran, the measurement-noise position,
@@ -481,7 +469,7 @@ class Plant:
         self._k += physics_steps
         if self._meas_noise_len and self._meas_noise_i < _NOISE_BLOCK:  # a block was in use
             self._meas_noise_i = meas_i
-        self._stamp, self._has_rate = float(stamp), bool(has_rate)
+        self._command = self._command._replace(stamp=float(stamp), has_rate=bool(has_rate))
         self.damping_mode = False
         self._meas = None
         self._forward_state = None
@@ -508,14 +496,13 @@ class Plant:
         self._apply(tau)
         d = self.data
         nj, nf = self.robot.n_joints, self.robot.n_feet
-        quat, pos, lin, ang, tau_meas = np.empty(4), np.empty(3), np.empty(3), np.empty(3), np.empty(nj)
-        forces, contacts = np.empty((nf, 3)), np.empty(nf, dtype=np.bool_)
+        reading = joint_loop.SensorReading(np.empty(4), np.empty(3), np.empty(3), np.empty(3), np.empty(nj),
+                                           np.empty((nf, 3)), np.empty(nf, dtype=np.bool_))
         z = self._measurement_noise()
         # mj_forward: accelerations and contact forces at t under τ(t); then the sensors
-        joint_loop.sense(self._mj_forward, self._mj_rne_post_constraint, self.model._address, d._address, d.qpos,
-                         d.qvel, self._xmat_base, d.cfrc_ext, self._foot_bodies, self._imu_tilt, self._noise_std,
-                         self._no_sample_noise if z is None else z, tau, CONTACT_THRESHOLD, quat, pos, lin, ang,
-                         tau_meas, forces, contacts, self._sensor)
+        joint_loop.sense(self._mujoco, d.qpos, d.qvel, self._sensors, self._no_sample_noise if z is None else z, tau,
+                         reading)
+        quat, pos, lin, ang, tau_meas, forces, contacts = reading
         self._forward_state = d.qpos.tobytes() + d.qvel.tobytes()
         meas = Measurement(time=float(d.time), q=q_m, qd=qd_m, tau_measured=tau_meas, u_commanded=u.copy(),
                            base_position=pos, base_orientation=quat, base_linear_velocity=lin,

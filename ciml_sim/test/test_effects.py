@@ -295,7 +295,7 @@ def test_torque_sensor_effects_in_the_compiled_closed_loop_match_the_step_by_ste
     expected[J["rh_hfe_joint"]] *= 1.2
     expected[J["lf_haa_joint"]] += 2.5
     np.testing.assert_allclose(m.tau_measured, expected, rtol=1e-12, atol=1e-12)
-    assert plant.compiled_state().sensor.shape == (NJ, 4)
+    assert plant.compiled_state().sensors.sensor.shape == (NJ, 4)
 
 
 def test_encoder_offset_changes_only_the_measured_position():

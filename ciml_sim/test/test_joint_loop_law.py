@@ -16,12 +16,13 @@ def _compiled_u(ff, fb, q_t, qd_t, kp, kd, q, qd, limits, elapsed):
     c, c_rate, kp_j, kd_j = np.empty(NJ), np.empty(NJ), np.empty(NJ), np.empty(NJ)
     assert joint_loop.command_coefficients(ff + fb, q_t, qd_t, kp, kd, False, c, c_rate, kp_j, kd_j) == 0
     zeros, none = np.zeros(NJ), np.empty(0)
-    q_m, qd_m, u, lag, tau = (np.empty(NJ) for _ in range(5))
+    out = joint_loop.JointReading(*(np.empty(NJ) for _ in range(5)))
     stamp = 3.25
-    joint_loop.actuation(q, qd, zeros, none, none, stamp + elapsed, c, c_rate, bool(c_rate.any()), stamp, kp_j,
-                         kd_j, limits, False, zeros, zeros, False, np.ones(NJ), zeros, q_m, qd_m, u, lag, tau)
-    np.testing.assert_array_equal(tau, u)  # no actuator effect: τ = u
-    return u
+    actuators = joint_loop.Actuators(zeros, limits, False, zeros, zeros, False, np.ones(NJ), zeros)
+    command = joint_loop.HeldCommand(c, c_rate, kp_j, kd_j, bool(c_rate.any()), stamp)
+    joint_loop.actuation(q, qd, actuators, command, none, none, stamp + elapsed, out)
+    np.testing.assert_array_equal(out.tau, out.u)  # no actuator effect: τ = u
+    return out.u
 
 
 def test_compiled_joint_loop_equals_commanded_torque_on_random_inputs():

@@ -25,6 +25,7 @@ import tempfile
 import threading
 import time
 from collections import defaultdict
+from collections.abc import Callable
 
 import numpy as np
 
@@ -147,7 +148,7 @@ class GraphProbe:
             if topic in (topics.TORQUE_COMMAND, topics.JOINT_STATES, topics.BASE_STATE):
                 continue
             self._subs.append(self.node.create_subscription(
-                _message_class(type_name), topic, lambda _m, t=topic: self._stamp(t), best_effort, raw=True))
+                _message_class(type_name), topic, self._stamper(topic), best_effort, raw=True))
         self.node.create_subscription(TorqueCommand, topics.TORQUE_COMMAND, self._on_command, reliable)
         self.node.create_subscription(JointState, topics.JOINT_STATES, self._on_joints, best_effort)
         self.node.create_subscription(Odometry, topics.BASE_STATE, self._on_base, best_effort)
@@ -161,6 +162,9 @@ class GraphProbe:
     def _spin(self) -> None:
         while not self._stop.is_set():
             self.executor.spin_once(timeout_sec=0.05)
+
+    def _stamper(self, topic: str) -> Callable[[object], None]:
+        return lambda _msg: self._stamp(topic)
 
     def _stamp(self, topic: str) -> None:
         if self.recording:
@@ -239,6 +243,10 @@ class GraphProbe:
 
 def _growth(start: float | None, end: float | None) -> float | None:
     return None if start is None or end is None else round(end - start, 1)
+
+
+def _rate(start: float | None, end: float | None, seconds: float) -> float | None:
+    return None if start is None or end is None else round((end - start) / seconds, 3)
 
 
 def _message_class(type_name: str) -> type:
@@ -337,8 +345,7 @@ def _rates_run(arguments: dict[str, str], duration: float, warmup: float, startu
                                                                   rss_end[k]),
                                     "series": rss_series[k]} for k in pids}
             # CPU demand of each node: 1.0 = one core busy the whole window
-            result["cpu_cores"] = {k: None if cpu_start[k] is None or cpu_end[k] is None
-                                   else round((cpu_end[k] - cpu_start[k]) / wall, 3) for k in pids}
+            result["cpu_cores"] = {k: _rate(cpu_start[k], cpu_end[k], wall) for k in pids}
             result["cpu_cores_total"] = round(sum(v for v in result["cpu_cores"].values() if v), 3)
             # CPU per cycle [ms]: what 250 Hz costs a process, less dependent on other load than
             # rates; a node alone per message it handles, a container per joint sample
@@ -412,6 +419,7 @@ def _effort_run(arguments: dict[str, str], duration: float, window: float, start
             if not probe.wait_for(lambda: probe.first_torque_stamp is not None, startup_timeout):
                 raise CimlError(f"the graph sent no torque command within {startup_timeout:g} s")
             t0 = probe.first_torque_stamp
+            assert t0 is not None
             # simulated time: wait until the trot has run `duration` seconds of it
             probe.wait_for(lambda: bool(probe.base_z) and probe.base_z[-1][0] - t0 * 1e-9 >= duration,
                            duration * 10 + 60)  # lockstep on a loaded machine: sim time runs slower
@@ -424,15 +432,15 @@ def _effort_run(arguments: dict[str, str], duration: float, window: float, start
     with probe.lock:
         commands, joints = list(probe.commands), dict(probe.joints)
         z = [v for _t, v in probe.base_z]
-    t, effort = [], []
+    times, efforts = [], []
     for stamp, _mode, msg in commands:
         js = joints.get(stamp)
         if js is None:
             continue
         q, qd, _tau = cv.joint_state_arrays(robot, js)
-        effort.append(feedback_effort(cv.torque_command_arrays(robot, msg), q, qd))
-        t.append((stamp - t0) * 1e-9)
-    t, effort = np.asarray(t), np.asarray(effort)
+        efforts.append(feedback_effort(cv.torque_command_arrays(robot, msg), q, qd))
+        times.append((stamp - t0) * 1e-9)
+    t, effort = np.asarray(times), np.asarray(efforts)
 
     def rms(mask) -> float | None:
         return round(float(np.sqrt(np.mean(effort[mask] ** 2))), 2) if mask.any() else None

@@ -111,7 +111,7 @@ class StampPairer:
         self.max_age_ns = int(max_age_ns)
         self.max_pending = int(max_pending)
         self.pending: tuple[dict[int, Any], dict[int, Any]] = ({}, {})
-        self.newest = None
+        self.newest: int | None = None
         self.counts: Counter[str] = Counter()
 
     _NAMES = ("states", "errors")
@@ -127,7 +127,7 @@ class StampPairer:
             return None
         if self.newest is None or stamp > self.newest:
             self.newest = stamp
-            self._evict()
+            self._evict(stamp - self.max_age_ns)
         if stamp in other:
             partner = other.pop(stamp)
             return (stamp, item, partner) if side == STATE else (stamp, partner, item)
@@ -137,8 +137,7 @@ class StampPairer:
             self.counts[f"unmatched_{self._NAMES[side]}"] += 1
         return None
 
-    def _evict(self) -> None:
-        limit = self.newest - self.max_age_ns
+    def _evict(self, limit: int) -> None:
         for side, pending in enumerate(self.pending):
             old = [s for s in pending if s < limit]
             for s in old:

@@ -148,7 +148,8 @@ class IdControllerNode(Node):
         self.base = self._convert("base_state", cv.odometry_arrays, msg) or self.base
 
     def on_contacts(self, msg) -> None:
-        self.contacts = self._convert("contact_state", lambda m: cv.contact_state_arrays(self.robot, m), msg) or self.contacts
+        self.contacts = (self._convert("contact_state", lambda m: cv.contact_state_arrays(self.robot, m), msg)
+                         or self.contacts)
 
     def on_reference(self, msg) -> None:
         self.reference = self._convert("reference", lambda m: reference_point(self.robot, m), msg) or self.reference
@@ -183,7 +184,8 @@ class IdControllerNode(Node):
         """Not ready yet: publish nothing, say what is missing."""
         missing = [name for name, item, timeout in (
             ("/joint_states", self.joints, self.state_timeout), ("/base_state", self.base, self.state_timeout),
-            ("/contact_state", self.contacts, self.state_timeout), ("/reference", self.reference, self.reference_timeout))
+            ("/contact_state", self.contacts, self.state_timeout),
+            ("/reference", self.reference, self.reference_timeout))
             if not self._fresh(item, timeout, now)]
         self.health.set(WARN, f"waiting for {', '.join(missing) or 'inputs'} before the first command")
 

@@ -79,10 +79,12 @@ class StateFilterNode(Node):
         self._store(self.base, msg, self._convert("base_state", cv.odometry_arrays, msg))
 
     def on_contacts(self, msg) -> None:
-        self._store(self.contacts, msg, self._convert("contact_state", lambda m: cv.contact_state_arrays(self.robot, m), msg))
+        self._store(self.contacts, msg,
+                    self._convert("contact_state", lambda m: cv.contact_state_arrays(self.robot, m), msg))
 
     def on_command(self, msg) -> None:
-        self._store(self.commands, msg, self._convert("torque_command", lambda m: cv.torque_command_arrays(self.robot, m), msg))
+        self._store(self.commands, msg,
+                    self._convert("torque_command", lambda m: cv.torque_command_arrays(self.robot, m), msg))
 
     def on_joints(self, msg) -> None:
         stamp = cv.stamp_to_ns(msg.header.stamp)
@@ -90,7 +92,8 @@ class StateFilterNode(Node):
         if stamp <= newest:
             self.health.count("out_of_order_stamps", "joint_states stamp did not increase")
             return
-        self._store(self.pending, msg, self._convert("joint_states", lambda m: cv.joint_state_arrays(self.robot, m), msg))
+        self._store(self.pending, msg,
+                    self._convert("joint_states", lambda m: cv.joint_state_arrays(self.robot, m), msg))
 
     def drain(self) -> None:
         """Process joint samples in stamp order once their partners are final.

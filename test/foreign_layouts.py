@@ -25,7 +25,14 @@ samples. Each writer returns the matching robot profile (a dict, docs/ROBOT_PROF
 
 The command convention (what CIML's reader expects of an effort array): the array stamped
 t_{k−1} is the torque that acts over (t_{k−1}, t_k], so the sample at t_k pairs with it —
-written here as the native log's u_k (the joint loop's total torque at t_k) at t_{k−1}.
+written here as the native log's u_k (the joint loop's total torque at t_k) at t_{k−1}. That
+says when each command acted only if every controller command instant is a sample (the array
+then changes where the command did); the diagnosis reads the actuator lag from it (the
+samples' phase in the command period, docs/DIAGNOSIS.md). When the samples fall between the
+command instants (e.g. 500 Hz from a 1 kHz log without them), a per-sample value cannot say
+when the command changed, and u_k is stamped half a sample period before t_k instead: a hold
+centred on the sample, which shifts nothing in time on average over the samples' phases
+(`command_stamps`).
 
 From the command line (e.g. to try `ciml inspect` on a log in another robot's layout):
 
@@ -62,6 +69,8 @@ class NativeLog:
     u: np.ndarray
     contacts: np.ndarray
     foot_force: np.ndarray
+    command_t: np.ndarray | None = None
+    """[s] the stamps of the native log's controller commands (/torque_command)."""
 
     def __len__(self) -> int:
         return len(self.t)
@@ -77,7 +86,9 @@ def read_native(robot: RobotDescription, path: str | os.PathLike) -> NativeLog:
     perm = robot.foot_permutation(list(msgs[0][1].foot_names))
     fz = np.array([np.asarray(m.force_z, float)[perm] for _, m in msgs])
     idx = np.clip(np.searchsorted(ts, np.round(log.t * 1e9).astype(np.int64)), 0, len(ts) - 1)
-    return NativeLog(t=log.t, q=log.q, v=log.v, tau=log.tau, u=log.u, contacts=log.contacts, foot_force=fz[idx])
+    cmd = bagio.read_messages(path, ["/torque_command"]).get("/torque_command", [])
+    return NativeLog(t=log.t, q=log.q, v=log.v, tau=log.tau, u=log.u, contacts=log.contacts, foot_force=fz[idx],
+                     command_t=np.array([s for s, _ in cmd], dtype=float) * 1e-9 if cmd else None)
 
 
 def resample(log: NativeLog, rate_hz: float) -> NativeLog:
@@ -92,12 +103,24 @@ def resample(log: NativeLog, rate_hz: float) -> NativeLog:
     q[:, 3:7] /= np.linalg.norm(q[:, 3:7], axis=1, keepdims=True)
     held = np.clip(np.searchsorted(log.t, t + 1e-9) - 1, 0, len(log.t) - 1)
     return NativeLog(t=t, q=q, v=lin(log.v), tau=lin(log.tau), u=lin(log.u), contacts=log.contacts[held],
-                     foot_force=lin(log.foot_force))
+                     foot_force=lin(log.foot_force), command_t=log.command_t)
 
 
 def decimate(log: NativeLog, factor: int) -> NativeLog:
     """Every `factor`-th sample (an exact lower rate of a log whose rate it divides)."""
-    return NativeLog(*(getattr(log, f)[::factor] for f in ("t", "q", "v", "tau", "u", "contacts", "foot_force")))
+    return NativeLog(*(getattr(log, f)[::factor] for f in ("t", "q", "v", "tau", "u", "contacts", "foot_force")),
+                     command_t=log.command_t)
+
+
+def command_stamps(log: NativeLog) -> np.ndarray:
+    """[s] the stamp of the effort array holding u_k, for k = 1 … N−1 (module docstring): t_{k−1}
+    when every command instant inside the log is a sample, else t_k − half a sample period."""
+    if log.command_t is not None:
+        inside = log.command_t[(log.command_t > log.t[0]) & (log.command_t <= log.t[-1])]
+        k = np.clip(np.searchsorted(log.t, inside - 1e-7), 0, len(log.t) - 1)
+        if not np.all(np.abs(log.t[k] - inside) < 1e-7):
+            return log.t[1:] - 0.5 * np.median(np.diff(log.t))
+    return log.t[:-1]
 
 
 # --- message construction (rosbags typestores) --------------------------------------------------
@@ -226,6 +249,7 @@ def write_unitree(robot: RobotDescription, log: NativeLog, path: str | os.PathLi
     feet = list(robot.foot_frames)
     imu_q, imu_w = _noisy_imu(log, rng, *imu_noise)
     force = np.maximum(log.foot_force + rng.normal(0.0, force_noise, log.foot_force.shape), 0.0)
+    cmd_t = command_stamps(log)
     with _Bag(path, storage) as bag:
         for k in range(len(log)):
             ns = _ns(log.t[k])
@@ -235,7 +259,7 @@ def write_unitree(robot: RobotDescription, log: NativeLog, path: str | os.PathLi
             bag.write("/imu", "sensor_msgs/msg/Imu", ns, bag.imu(ns, imu_q[k], imu_w[k]))
             bag.write("/foot_force", "std_msgs/msg/Float64MultiArray", ns, bag.float_array(force[k]))
             if command and k + 1 < len(log):
-                bag.write("/effort_command", "std_msgs/msg/Float64MultiArray", ns,
+                bag.write("/effort_command", "std_msgs/msg/Float64MultiArray", _ns(cmd_t[k]),
                           bag.float_array(log.u[k + 1][perm]))
     inputs = {
         "joint_state": {"topic": "/joint_states", "type": "sensor_msgs/msg/JointState"},
@@ -261,6 +285,7 @@ def write_ros2_control(robot: RobotDescription, log: NativeLog, path: str | os.P
     R = _rotations(log.q[:, 3:7])
     lin_world = np.einsum("kij,kj->ki", R, log.v[:, :3])
     ang_world = np.einsum("kij,kj->ki", R, log.v[:, 3:6])
+    cmd_t = command_stamps(log)
     with _Bag(path, storage) as bag:
         for k in range(len(log)):
             ns = _ns(log.t[k])
@@ -270,7 +295,7 @@ def write_ros2_control(robot: RobotDescription, log: NativeLog, path: str | os.P
             bag.write("/odom", "nav_msgs/msg/Odometry", ns,
                       bag.odometry(ns, log.q[k, :3], log.q[k, 3:7], lin_world[k], ang_world[k]))
             if command and k + 1 < len(log):
-                bag.write("/effort_controller/commands", "std_msgs/msg/Float64MultiArray", ns,
+                bag.write("/effort_controller/commands", "std_msgs/msg/Float64MultiArray", _ns(cmd_t[k]),
                           bag.float_array(log.u[k + 1][perm]))
     inputs = {
         "joint_state": {"topic": "/joint_states", "type": "sensor_msgs/msg/JointState"},

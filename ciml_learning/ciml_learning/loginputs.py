@@ -659,6 +659,8 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
         contacts = contacts[sel]
     if base is not None:
         base = (base[0][sel], base[1][sel], base[2][sel])
+    if cmd_spec is not None and profile.torque_source != "none":  # what the actuator lag reads (diagnosis)
+        stamp_report["command_sampling"] = _command_sampling(robot, cmd, iu[sel], tj, qj, qdj, tau, u, rate)
     if profile.torque_source == "none":
         if cmd_spec is None:
             raise BagError("torque_source none needs inputs.command (the only torque left is the command)")
@@ -718,6 +720,53 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     return SensorLog(bag=str(path), t=t_s, q=q, v=v, tau=tau, u=u, contacts=np.asarray(contacts, dtype=bool),
                      rejected=rejected, rate_hz=float(rate), stamp_report=stamp_report, u_observed=u_observed,
                      sources=sources, warnings=warnings, torque_command_correlation=corr)
+
+
+PHASE_BINS = 20
+"""Bins of the command period in which command_sampling reports where the samples fall."""
+
+
+def _command_sampling(robot: RobotDescription, cmd: _Command, idx: np.ndarray, tj: np.ndarray, qj: np.ndarray,
+                      qdj: np.ndarray, tau: np.ndarray, u: np.ndarray, rate: float) -> dict:
+    """How the log samples its command, which sets what a lag's coefficient reads
+    (diagnosis.identification.lag_reading):
+
+    - period_s: the command period Δ (median step of the command stamps);
+    - phases: [phase, share] per occupied bin of the period: the samples' mean φ/Δ ∈ (0, 1], φ the
+      time since the stamp of the command paired with them (1: on a command instant), and the
+      share of the samples in the bin;
+    - staircase_share: per joint and "all", the share f of the command's rate (projected on the
+      torque's, both low-passed: filters.derivative_taps) made at the command updates — between two
+      samples, the new command minus the old one at the same state and time; the rest is the joint
+      loop's feedback on the measured state, continuous in time. Clipped to [0, 1]; 1 where the
+      log is too short to tell.
+    """
+    from .filters import derivative_taps, filter_offline
+
+    period = float(np.median(np.diff(cmd.t))) * 1e-9 if len(cmd.t) > 1 else float("nan")
+    if not period > 0:
+        return {}
+    phase = np.clip((tj - cmd.t[idx]) * 1e-9 / period, 1e-9, 1.0)  # a lost command: held, read as at its end
+    k = np.minimum((np.ceil(phase * PHASE_BINS) - 1).astype(int), PHASE_BINS - 1)
+    phases = [[float(phase[k == b].mean()), float(np.mean(k == b))] for b in range(PHASE_BINS) if np.any(k == b)]
+    steps = np.zeros_like(u)
+    for i in np.flatnonzero(idx[1:] != idx[:-1]) + 1:
+        steps[i] = u[i] - cmd.u(idx[i - 1], qj[i], qdj[i], (tj[i] - cmd.t[idx[i - 1]]) * 1e-9)
+    num = den = np.zeros(u.shape[1])
+    try:
+        taps = derivative_taps(rate)
+        tau_dot, ok = filter_offline(tau, taps)
+        if ok.any():
+            num = np.sum(filter_offline(np.cumsum(steps, axis=0), taps)[0][ok] * tau_dot[ok], axis=0)
+            den = np.sum(filter_offline(u, taps)[0][ok] * tau_dot[ok], axis=0)
+    except ValueError:  # a rate too low for the low-pass: nothing measured
+        pass
+
+    def share(a, b) -> float:
+        return float(np.clip(a / b, 0.0, 1.0)) if b > 0 else 1.0
+    out = {j: share(a, b) for j, a, b in zip(robot.joint_names, num, den)}
+    out["all"] = share(num.sum(), den.sum())
+    return {"samples": len(tj), "period_s": period, "phases": phases, "staircase_share": out}
 
 
 def _correlations(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -4,7 +4,9 @@
   claim on linear regressions with autocorrelated (AR(1)) regressors and noise;
 - every catalogue parameter has its physical bound (bounds.py), and an estimate on a bound is
   "at bound — not identified", never an effect;
-- the actuator lag's sampling correction inverts the staircase relation exactly.
+- the actuator lag's reading of a staircase command (staircase_reading) is what a regression of
+  Γ = τ − u on the filtered τ̇ gives on a simulated lag, at any phase of the samples in the
+  command period, and lag_time_constant inverts it exactly.
 """
 from __future__ import annotations
 
@@ -16,11 +18,13 @@ from ciml_learning.diagnosis import uncertainty as unc
 from ciml_learning.diagnosis.candidates import N_ACT, FeatureLayout, link_inertias
 from ciml_learning.diagnosis.features import Rows, grams
 from ciml_learning.diagnosis.identification import (
+    CommandSampling,
     fit_model,
+    lag_reading,
     lag_time_constant,
     physical_parameters,
     select,
-    staircase_lag,
+    staircase_reading,
 )
 from ciml_learning.robot import load_robot
 
@@ -62,17 +66,65 @@ def test_intervals_cover_the_truth_under_autocorrelated_noise():
     assert unc.integrated_autocorrelation_time(rng.normal(size=20000)) < 1.2
 
 
-def test_lag_sampling_correction_inverts_the_staircase_relation_and_covers_both_readings():
-    tick = 0.004
-    for T in (0.002, 0.01, 0.02, 0.05):
-        beta = np.exp(-tick / T)
-        c = tick * beta / (1 - beta)  # what Γ = −c τ̇ reads on a staircase command
-        assert staircase_lag(c, tick) == pytest.approx(T, rel=1e-9)
-        mid, std = lag_time_constant(c, tick)
-        # a staircase (T) and a continuous command (c) both lie within one conversion std
-        assert abs(mid - T) <= std * (1 + 1e-9) and abs(mid - c) <= std * (1 + 1e-9) and std > 0
-    assert lag_time_constant(0.0077, None) == (0.0077, 0.0)  # no tick known: the raw coefficient
-    assert lag_time_constant(-1e-4, tick) == (0.0, 0.0)
+def _lagged_staircase(T: float, period: float, rate: float, offset: float, share: float = 1.0):
+    """A first-order lag T of a command whose share `share` is a staircase (held for `period`) and the
+    rest continuous, sampled at `rate` from `offset` after a command instant; exact within each hold
+    (a 0.1 ms grid), each sample paired with the command in force (strictly before it).
+    Returns t, the torque τ and the command u in force at the samples."""
+    dt = 1e-4
+    t = np.arange(0.0, 20.0, dt)
+    s = sum(a * np.sin(2 * np.pi * f * t + p) for a, f, p in ((30, 0.7, 0.0), (20, 1.9, 1.0), (10, 3.1, 2.0)))
+    held = s[(np.floor(t / period + 1e-9) * period / dt).round().astype(int)]  # the staircase: value at its update
+    u = share * held + (1 - share) * s
+    a = np.exp(-dt / T)
+    tau = np.empty_like(u)
+    tau[0] = u[0]
+    for k in range(1, len(t)):  # exact for u constant over each dt step (u[k−1] acts on [t_{k−1}, t_k))
+        tau[k] = a * tau[k - 1] + (1 - a) * u[k - 1]
+    idx = np.round((offset + np.arange(0.0, 19.9 - offset, 1.0 / rate)) / dt).astype(int)
+    return t[idx], tau[idx], u[idx - 1]
+
+
+@pytest.mark.parametrize("rate,offset,share", [(250.0, 0.004, 1.0), (250.0, 0.002, 1.0), (250.0, 0.001, 1.0),
+                                               (1000.0, 0.001, 1.0), (250.0, 0.004, 0.0), (250.0, 0.004, 0.5)])
+def test_lag_reading_is_what_the_regression_on_the_filtered_torque_rate_reads(rate, offset, share):
+    """c of Γ = τ − u = −c τ̇ (τ̇ by the diagnosis' own low-pass differentiator) on a simulated lag of
+    10 ms: lag_reading at the samples' phases, within 1 %; 7.7 ms for a staircase sampled on its
+    command instants, 10 ms for a continuous command."""
+    from ciml_learning.filters import derivative_taps, filter_offline
+
+    T, period = 0.010, 0.004
+    t, tau, u = _lagged_staircase(T, period, rate, offset, share)
+    tau_dot, ok = filter_offline(tau, derivative_taps(rate))
+    gamma, _ = filter_offline(tau - u, np.eye(1, len(derivative_taps(rate)), (len(derivative_taps(rate)) - 1) // 2)[0])
+    c = -np.sum(gamma[ok] * tau_dot[ok]) / np.sum(tau_dot[ok] ** 2)
+    phase = np.round(((t - 1e-9) % period + 1e-9) / period, 6)  # φ/Δ ∈ (0, 1]: time since the paired command
+    phase[phase == 0] = 1.0
+    x, n = np.unique(phase, return_counts=True)
+    sampling = CommandSampling(period, x, n / n.sum(), {"all": share}, 1.0 / rate)
+    assert c == pytest.approx(lag_reading(T, sampling), rel=0.01)
+    assert lag_time_constant(c, sampling)[0] == pytest.approx(T, rel=0.01)
+
+
+def test_lag_conversion_inverts_the_reading_exactly():
+    period = 0.004
+    uniform = (np.arange(400) + 0.5) / 400
+    for T in (0.0005, 0.002, 0.01, 0.02, 0.05):
+        beta = np.exp(-period / T)
+        # on the command instants: Δβ/(1 − β) ≈ T − Δ/2; uniform phases: T
+        assert staircase_reading(T, period, np.array([1.0]), np.array([1.0])) == pytest.approx(
+            period * beta / (1 - beta), rel=1e-12)
+        assert staircase_reading(T, period, uniform, np.full(400, 1 / 400)) == pytest.approx(T, rel=1e-4)
+        for phase, share in (([1.0], 1.0), ([0.5], 1.0), ([0.25, 0.5, 0.75, 1.0], 0.7), ([1.0], 0.0)):
+            x = np.array(phase)
+            s = CommandSampling(period, x, np.full(len(x), 1 / len(x)), {"all": share, "j": 0.2}, 0.001)
+            for joint in (None, "j"):
+                T_back, std = lag_time_constant(lag_reading(T, s, joint), s, joint)
+                assert T_back == pytest.approx(T, rel=1e-9) and std == pytest.approx(0.001 / np.sqrt(12))
+    assert staircase_reading(0.0, period, np.array([1.0]), np.array([1.0])) == 0.0  # no lag reads no lag
+    assert lag_time_constant(0.0077, None) == (0.0077, 0.0)  # no command period known: the raw coefficient
+    on_ticks = CommandSampling(period, np.array([1.0]), np.array([1.0]), {"all": 1.0}, period)
+    assert lag_time_constant(-1e-4, on_ticks) == (0.0, 0.0)
 
 
 @pytest.mark.parametrize("typ", ["joint_coulomb_friction", "joint_viscous_friction", "encoder_offset", "base_imu_tilt",

@@ -122,7 +122,7 @@ class Model:
     theta: np.ndarray
     payload_com: np.ndarray | None = None
     lag_scale: dict[str, float] | None = None
-    tick: float | None = None  # [s] the log's sample period (the lag's sampling correction, lag_time_constant)
+    sampling: CommandSampling | None = None  # how the logs sample the command (the lag's reading, lag_time_constant)
 
     def matrix(self) -> np.ndarray:
         if not self.candidates:
@@ -145,7 +145,7 @@ class Model:
         sl = self.slices()
         theta = [self.theta[sl[self.candidates.index(c)]] for c in cands]
         return Model(self.layout, list(cands), np.concatenate(theta) if theta else np.zeros(0), self.payload_com,
-                     self.lag_scale, self.tick)
+                     self.lag_scale, self.sampling)
 
     def params_of(self, cand: Candidate) -> np.ndarray:
         i = self.candidates.index(cand)
@@ -159,13 +159,13 @@ def _bounds(cands: list[Candidate]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fit_model(layout: FeatureLayout, cands: list[Candidate], G: np.ndarray, c: np.ndarray,
-              refine_payload: int = 3, tick: float | None = None) -> Model:
+              refine_payload: int = 3, sampling: CommandSampling | None = None) -> Model:
     """Fit the parameters of a candidate set on weighted Grams (G = Σ w_d G_d, c = Σ w_d c_d).
 
     Two terms are bilinear and refined by refitting (refine iterations): a payload's point-mass
     rotational inertia depends on its CoM; the all-joint lag's coefficient on a joint with an
     identified torque gain is T/g_j."""
-    model = Model(layout, list(cands), np.zeros(sum(k.n_params for k in cands)), tick=tick)
+    model = Model(layout, list(cands), np.zeros(sum(k.n_params for k in cands)), sampling=sampling)
     if not cands:
         return model
     lo, hi = _bounds(model.candidates)
@@ -661,31 +661,83 @@ def _on(t: float, b: float, rel: float = 1e-6) -> bool:
 
 # --- physical parameters ---------------------------------------------------------------------
 
-def staircase_lag(c: float, tick: float) -> float:
-    """T of a first-order lag whose staircase command reads as Γ = −c τ̇ in a log sampled at the tick.
+@dataclass(frozen=True)
+class CommandSampling:
+    """How the logs sample their command: what a first-order lag's coefficient reads (lag_reading).
 
-    Why a raw c is ~20 % low (7.7 ms for a 10 ms lag at a 4 ms tick): the log samples, at each
-    tick, the command in force *before* it (the last step of a staircase) and the torque that has
-    followed that step for one tick only. For a first-order lag of a staircase command the
-    sampled relation is exactly τ_k = β τ_{k−1} + (1 − β) u_{k−1}, β = exp(−Δt/T), which the
-    regression reads as c = Δt β/(1 − β) ≈ T − Δt/2 (T ≫ Δt). Inverting: T = Δt / ln(1 + Δt/c)."""
-    if c <= 0:
+    From loginputs' stamp_report["command_sampling"] of each log, pooled over the identification
+    logs (pooled_command_sampling)."""
+
+    period: float          # [s] Δ, the command period (median step of the command stamps)
+    phase: np.ndarray      # the samples' phases φ/Δ ∈ (0, 1]: time since the stamp of the command paired with them
+    weight: np.ndarray     # the share of the samples at each phase (sums to 1)
+    staircase_share: dict[str, float]  # f per joint and "all": the share of the command's rate made at its updates
+    sample_period: float   # [s] the logs' sample period: the resolution of a torque reading's timing
+
+    def share(self, joint: str | None) -> float:
+        return self.staircase_share.get(joint or "all", self.staircase_share.get("all", 1.0))
+
+
+def staircase_reading(T: float, period: float, phase: np.ndarray, weight: np.ndarray) -> float:
+    """The coefficient c that Γ = τ − u = −c τ̇ reads for a first-order lag T of a staircase command
+    (each command held for `period` Δ) in samples at the given phases φ/Δ of the period.
+
+    A sample at phase φ is paired with the command in force, u_k (pairing.py); the torque has
+    followed that step for φ only. On a command ramp u_k = s(t_k), ṡ = b, the lag's steady state
+    is u_k − τ(t_k) = bΔ / (1 − e^{−Δ/T}), so τ − u_k = −b Δ e^{−φ/T} / (1 − e^{−Δ/T}) while τ
+    rises at b: c(φ) = Δ e^{−φ/T} / (1 − e^{−Δ/T}). Averaged over uniform phases c = T exactly;
+    on the command instants (φ = Δ, the command before them) c = Δβ/(1 − β) ≈ T − Δ/2
+    (β = e^{−Δ/T}: 7.7 ms for 10 ms at 250 Hz); without lag (T → 0) c = 0 at every phase."""
+    if T <= 0:
         return 0.0
-    return float(tick / np.log1p(tick / c))
+    r = period / T
+    return float(np.sum(weight * period * np.exp(-np.asarray(phase) * r)) / -np.expm1(-r))
 
 
-def lag_time_constant(c: float, tick: float | None) -> tuple[float, float]:
-    """(T, its conversion standard deviation) of a fitted lag coefficient c, corrected for
-    command-update sampling (staircase_lag). The command a joint loop follows is part staircase
-    (the feedforward held over a tick: T = staircase_lag(c)) and part continuous (the PD on the
-    measured state: T = c); a log does not tell the mix, so T is the middle of the two readings
-    and half their difference is its conversion uncertainty (both readings lie within 1 std).
-    Without a tick: (c, 0)."""
-    if tick is None or not tick > 0:
+def lag_reading(T: float, sampling: CommandSampling, joint: str | None = None) -> float:
+    """c of a lag T when a share f of the command's rate is a staircase (staircase_reading) and the
+    rest continuous in time (the joint loop's feedback on the measured state: c = T at any phase)."""
+    f = sampling.share(joint)
+    return (1.0 - f) * T + f * staircase_reading(T, sampling.period, sampling.phase, sampling.weight)
+
+
+def lag_time_constant(c: float, sampling: CommandSampling | None,
+                      joint: str | None = None) -> tuple[float, float]:
+    """(T, its conversion standard deviation) of a fitted lag coefficient c: lag_reading inverted
+    (it grows with T from 0). The conversion std is the timing of the torque readings: a torque
+    sample stands for an instant somewhere in its sample period (a drive averaging over it, a
+    joint loop reporting the torque it applies next), and a timing offset δ reads as a lag
+    shifted by δ; uniform over ±½ sample period, std = sample period / √12. Without sampling
+    information (no command period measured): (c, 0)."""
+    if sampling is None or not sampling.period > 0:
         return float(c), 0.0
-    c = max(float(c), 0.0)
-    hi = staircase_lag(c, tick)
-    return 0.5 * (c + hi), 0.5 * (hi - c)
+    c = float(c)
+    if c <= 0:
+        return 0.0, 0.0
+    from scipy.optimize import brentq
+
+    hi = c + sampling.period
+    while lag_reading(hi, sampling, joint) < c:  # reading ≥ T − Δ: found within a few doublings
+        hi *= 2.0
+    T = float(brentq(lambda x: lag_reading(x, sampling, joint) - c, 0.0, hi, xtol=1e-12, rtol=1e-12))
+    return T, sampling.sample_period / np.sqrt(12.0)
+
+
+def pooled_command_sampling(reports: list[dict], sample_period: float) -> CommandSampling | None:
+    """One CommandSampling from the logs' stamp_report["command_sampling"] entries (loginputs), each
+    weighted by its sample count; None when no log has one (no command)."""
+    reports = [r for r in reports if r and r.get("samples")]
+    if not reports:
+        return None
+    n = np.array([r["samples"] for r in reports], float)
+    phase = np.concatenate([[p for p, _ in r["phases"]] for r in reports])
+    weight = np.concatenate([np.array([w for _, w in r["phases"]]) * k for r, k in zip(reports, n)])
+    keys = set().union(*(r["staircase_share"] for r in reports))
+    share = {k: float(np.average([r["staircase_share"].get(k, r["staircase_share"]["all"]) for r in reports],
+                                 weights=n)) for k in keys}
+    return CommandSampling(period=float(np.average([r["period_s"] for r in reports], weights=n)),
+                           phase=phase, weight=weight / weight.sum(), staircase_share=share,
+                           sample_period=float(sample_period))
 
 
 def physical_parameters(model: Model) -> list[dict]:
@@ -693,7 +745,7 @@ def physical_parameters(model: Model) -> list[dict]:
 
     Actuation parameters of one joint are converted together: with a = 1 − 1/g, b = o/g,
     c = T/g (candidates.py), g = 1/(1 − a), o = b g, T = c g (c first corrected for
-    command-update sampling with the log's tick, lag_time_constant). Torque-sensor effects:
+    for how the logs sample the command, lag_time_constant). Torque-sensor effects:
     g_s = 1/(1 − a_s), o_s = b_s g_s.
     """
     gain = {}
@@ -722,7 +774,7 @@ def physical_parameters(model: Model) -> list[dict]:
             p = {"value": float(th[0]) * gain.get(cand.joint, 1.0)}
         elif cand.type == "actuator_lag":
             # a joint's own lag: c = T/g; the all-joint lag's column already carries 1/g_j (fit_model)
-            p = {"time_constant": lag_time_constant(float(th[0]), model.tick)[0]
+            p = {"time_constant": lag_time_constant(float(th[0]), model.sampling, cand.joint)[0]
                  * (gain.get(cand.joint, 1.0) if cand.joint else 1.0)}
         elif cand.type == "torque_sensor_gain":
             p = {"value": sensor_gain[cand.joint]}
@@ -827,7 +879,7 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
         c = np.zeros(nf)
         G[np.ix_(feats, feats)] = Gs
         c[feats] = cs
-        return _flatten(physical_parameters(fit_model(layout, model.candidates, G, c, tick=model.tick)))
+        return _flatten(physical_parameters(fit_model(layout, model.candidates, G, c, sampling=model.sampling)))
 
     draws = unc.block_bootstrap(Gb, cb, fit, n_boot, seed)
     sampling = unc.bootstrap_std(draws, len(Gb))
@@ -835,7 +887,7 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
     reproduction = np.zeros_like(flat)
     if heldout is not None and np.any(heldout.n > 0):
         Gh, ch, _ = heldout.weighted(selection.weights)
-        m_ho = fit_model(layout, model.candidates, Gh, ch, tick=model.tick)
+        m_ho = fit_model(layout, model.candidates, Gh, ch, sampling=model.sampling)
         reproduction = np.abs(_flatten(physical_parameters(m_ho)) - flat) / np.sqrt(2.0)
     conversion = np.zeros_like(flat)
     misspecification = np.zeros_like(flat)
@@ -844,8 +896,8 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
     k = 0
     for cand, p, rel in zip(model.candidates, base, rel_mis):
         n = len(_flatten([p]))
-        if cand.type == "actuator_lag" and model.tick:
-            T, conv = lag_time_constant(float(model.params_of(cand)[0]), model.tick)
+        if cand.type == "actuator_lag" and model.sampling is not None:
+            T, conv = lag_time_constant(float(model.params_of(cand)[0]), model.sampling, cand.joint)
             conversion[k] = conv * (p["time_constant"] / T if T > 0 else 1.0)  # × the joint's gain
         # deviations from the null value ("no effect") scale with the bound
         null = _flatten([{key: (1.0 if key == "value" and cand.type in ("link_mass_scale", "torque_gain",
@@ -856,7 +908,7 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
         k += n
     std = unc.combine(sampling, reproduction, conversion, misspecification, resolution)
     info = {"method": "block bootstrap over time (blocks from the residual's autocorrelation), held-out "
-                      "reproduction and the lag's sampling conversion, in quadrature",
+                      "reproduction, the lag's conversion (timing of the torque readings), in quadrature",
             "block_seconds": block * unc.SPAN / fs, "block_starts_every_s": block / fs,
             "autocorrelation_time_s": unc.integrated_autocorrelation_time_max(_residual_series(selection, rows)) / fs,
             "draws": int(len(draws))}

@@ -32,7 +32,13 @@ from .candidates import COULOMB_SMOOTHING, UNMODELLED_SENSOR_TYPE, FeatureLayout
 from .effects import DiagnosisError
 from .features import build_rows, grams
 from .files import is_diagnosis_dir, write_diagnosis_dir
-from .identification import parameter_uncertainty, physical_parameters, relevance_function, select
+from .identification import (
+    parameter_uncertainty,
+    physical_parameters,
+    pooled_command_sampling,
+    relevance_function,
+    select,
+)
 from .localization import dimension_names, leg_summary, localize
 from .report import render_report
 from .shrink import residual_series, residuals, shrink
@@ -234,7 +240,9 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     noise_floor = sel.noise_floor
     assert noise_floor is not None  # select() measures it
     _say(progress, "parameter uncertainty (block bootstrap)")
-    sel.model.tick = 1.0 / ds_id.rate_hz  # the lag's command-update sampling correction (lag_time_constant)
+    # what the lag's coefficient reads in these logs (lag_time_constant): their command sampling
+    sel.model.sampling = pooled_command_sampling([i["stamp_report"].get("command_sampling") for i in ds_id.inputs],
+                                                 1.0 / ds_id.rate_hz)
     std_all, uncertainty = parameter_uncertainty(sel, rows_id, g_ho, fs=ds_id.rate_hz)
     params_all = physical_parameters(sel.model)
     nb = sel.n_baseline

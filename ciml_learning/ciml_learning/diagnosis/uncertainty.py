@@ -13,8 +13,9 @@ A parameter's reported standard deviation combines, in quadrature:
 2. reproduction: the same model refitted on the held-out data (other motions): a parameter that
    depends on the motion it is fitted on is not known better than the two estimates agree
    (|θ_id − θ_ho| / √2, the standard deviation of one estimate if both were independent draws);
-3. conversion: the actuator lag's sampling correction (identification.lag_time_constant)
-   lies between two readings of the command (a staircase, or continuous): half their difference;
+3. conversion: the actuator lag's time constant is read from the logs' command sampling
+   (identification.lag_time_constant); a torque reading is timed only to within its sample
+   period, and a timing offset reads as a lag: sample period / √12;
 4. misspecification: what the selected model leaves above the noise floor (a simulator's contact
    softness, an effect outside the catalogue, the linearisations) biases the parameters, the same
    on every subset of the data, so neither 1 nor 2 sees it. A least-squares coefficient moves by at

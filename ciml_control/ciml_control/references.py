@@ -41,13 +41,17 @@ description and the q_stand argument.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
 from scipy.interpolate import CubicSpline
 from scipy.optimize import linprog
 
+from ciml_learning.dynamics import quaternion_xyzw
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import RobotDescription
 
@@ -231,7 +235,7 @@ class LegIK:
         R = pin.rpy.rpyToMatrix(base.rpy)
         q = self.q_seed.copy()
         q[:3] = base.p
-        q[3:7] = pin.Quaternion(R).coeffs()
+        q[3:7] = quaternion_xyzw(R)
         if guess is not None:
             q[7:] = guess
         elif self._last is not None and np.max(np.abs(self._last[0] - feet_p)) < 0.05 \
@@ -346,6 +350,21 @@ class BaseOnlyReference(Reference):
                          self.base_rpy0 + off[3:], doff[3:], ddoff[3:])
 
 
+RECENT_ENTRIES = 256
+"""Entries kept in each of a gait's caches (footholds, sway, walk targets: one per step or
+interval): a live reference runs for hours and time moves forward, so only recent steps are
+asked for again; unbounded, the caches grew the reference's memory by ~1.4 MB per minute."""
+
+
+def _recent(cache: dict, key, compute: Callable[[], Any]) -> Any:
+    """cache[key], computed once; the oldest entry is dropped past RECENT_ENTRIES."""
+    if key not in cache:
+        cache[key] = compute()
+        if len(cache) > RECENT_ENTRIES:
+            del cache[next(iter(cache))]  # dicts keep insertion order
+    return cache[key]
+
+
 class GaitReference(Reference):
     """Static walk or trot with footholds from a nominal CoM progression x̄(t)."""
 
@@ -402,10 +421,7 @@ class GaitReference(Reference):
 
     # footholds: position of foot i after its k-th swing (k = -1: standing position)
     def foothold(self, leg: int, k: int) -> tuple[float, float, float]:
-        key = (leg, k)
-        if key not in self._footholds:
-            self._footholds[key] = self._foothold(leg, k)
-        return self._footholds[key]
+        return _recent(self._footholds, (leg, k), lambda: self._foothold(leg, k))
 
     def _foothold(self, leg: int, k: int) -> tuple[float, float, float]:
         if k < 0:
@@ -523,9 +539,7 @@ class GaitReference(Reference):
 
     def _sway_interval(self, k: int, tau: float) -> tuple[float, float, float]:
         """(y, ẏ, ÿ) at τ from the middle of two-foot interval k."""
-        if k not in self._sway:
-            self._sway[k] = self._sway_coefficients(k)
-        b, A, B, w = self._sway[k]
+        b, A, B, w = _recent(self._sway, k, lambda: self._sway_coefficients(k))
         sh, ch = math.sinh(w * tau), math.cosh(w * tau)
         y = b[0] + tau * (b[1] + tau * (b[2] + tau * b[3])) + A * ch + B * sh
         dy = b[1] + tau * (2 * b[2] + 3 * tau * b[3]) + w * (A * sh + B * ch)
@@ -568,10 +582,7 @@ class GaitReference(Reference):
         w = math.sqrt(9.81 / self.com_height)
         h = 0.5 * TROT_SWING
         d = 0.5 * self.period - TROT_SWING
-        for i in (k, j):
-            if i not in self._sway_b:
-                self._sway_b[i] = self._sway_particular(i)
-        b = {k: self._sway_b[k], j: self._sway_b[j]}
+        b = {i: _recent(self._sway_b, i, partial(self._sway_particular, i)) for i in (k, j)}
 
         def poly(c: np.ndarray, tau: float) -> tuple[float, float]:
             return (c[0] + tau * (c[1] + tau * (c[2] + tau * c[3])), c[1] + tau * (2 * c[2] + 3 * tau * c[3]))
@@ -591,9 +602,7 @@ class GaitReference(Reference):
 
     def walk_target(self, n: int, half: int) -> tuple[float, float]:
         """Base xy held during the two swings of side `half` in walk cycle n (cached)."""
-        if (n, half) not in self._targets:
-            self._targets[(n, half)] = self._walk_target(n, half)
-        return self._targets[(n, half)]
+        return _recent(self._targets, (n, half), lambda: self._walk_target(n, half))
 
     def _walk_target(self, n: int, half: int) -> tuple[float, float]:
         """Base xy held during the two swings of side `half` in walk cycle n: the CoM at the

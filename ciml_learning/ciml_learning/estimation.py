@@ -37,6 +37,7 @@ import numpy as np
 import pinocchio as pin
 from scipy.signal import savgol_filter
 
+from .dynamics import quaternion_xyzw
 from .errors import CimlError
 from .robot import RobotDescription
 
@@ -179,7 +180,7 @@ def estimate_base(
     quat_b = np.empty((n, 4))
     for k in range(n):
         R_wb = pin.Quaternion(quat[k]).matrix() @ R_bi.T
-        quat_b[k] = pin.Quaternion(R_wb).coeffs()
+        quat_b[k] = quaternion_xyzw(R_wb)
     omega = gyro @ R_bi.T
     model, data = robot.model, robot.model.createData()
     q = pin.neutral(model)   # base at the origin, level: positions and velocities come out in the base frame

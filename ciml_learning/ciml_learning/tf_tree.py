@@ -76,8 +76,7 @@ class LinkTree:
             if e.fixed != fixed:
                 continue
             T = oMf[e.parent_frame].actInv(oMf[e.child_frame])
-            out.append(LinkTransform(e.parent, e.child, T.translation.copy(),
-                                     pin.Quaternion(T.rotation).coeffs().copy()))  # coeffs: x, y, z, w
+            out.append(LinkTransform(e.parent, e.child, T.translation.copy(), pin.SE3ToXYZQUAT(T)[3:].copy()))
         return out
 
     def fixed_transforms(self) -> list[LinkTransform]:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from ciml_learning.dynamics import quaternion_xyzw
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import RobotDescription
 
@@ -50,7 +51,7 @@ def _fmt(values) -> str:
 
 
 def _quat_wxyz(R: np.ndarray) -> np.ndarray:
-    c = pin.Quaternion(R).coeffs()  # x y z w
+    c = quaternion_xyzw(R)  # x y z w
     return np.array([c[3], c[0], c[1], c[2]])
 
 

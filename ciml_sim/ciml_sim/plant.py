@@ -59,6 +59,7 @@ import numpy as np
 import pinocchio as pin
 
 from ciml_control.references import standing_configuration
+from ciml_learning.dynamics import quaternion_xyzw
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import RobotDescription
 
@@ -243,7 +244,7 @@ class Plant:
         self._has_side = bool(self._springs or self._ripples)
         self._extra = bool(self._stribeck) or self._has_side  # effects evaluated in Python between steps
         self._no_noise = np.empty((0, nj))
-        tilt = pin.Quaternion(pin.rpy.rpyToMatrix(roll, pitch, 0.0)).coeffs()  # x y z w
+        tilt = quaternion_xyzw(pin.rpy.rpyToMatrix(roll, pitch, 0.0))  # x y z w
         self._imu_tilt = np.empty(0) if roll == pitch == 0.0 else np.array([tilt[3], tilt[0], tilt[1], tilt[2]])
         self.noise = {k: float(scenario.sensor_noise.get(k, 0.0)) for k in
                       ("q", "qd", "tau", "base_orientation", "base_position", "base_velocity")}

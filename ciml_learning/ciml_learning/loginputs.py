@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from .bagio import BagError, SensorLog, _open_reader
+from .filters import derivative_taps, filter_offline
 from .pairing import age_limit_ns, is_strict, partner_indices
 from .profile import CONTACT_STATE, JOINT_STATE, ODOMETRY, TORQUE_COMMAND, RobotProfile, load_profile
 from .robot import RobotDescription
@@ -741,8 +742,6 @@ def _command_sampling(robot: RobotDescription, cmd: _Command, idx: np.ndarray, t
       loop's feedback on the measured state, continuous in time. Clipped to [0, 1]; 1 where the
       log is too short to tell.
     """
-    from .filters import derivative_taps, filter_offline
-
     period = float(np.median(np.diff(cmd.t))) * 1e-9 if len(cmd.t) > 1 else float("nan")
     if not period > 0:
         return {}

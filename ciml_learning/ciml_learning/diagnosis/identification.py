@@ -47,6 +47,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import brentq
 
 from .bounds import physical_violation
 from .candidates import Candidate, FeatureLayout
@@ -714,8 +715,6 @@ def lag_time_constant(c: float, sampling: CommandSampling | None,
     c = float(c)
     if c <= 0:
         return 0.0, 0.0
-    from scipy.optimize import brentq
-
     hi = c + sampling.period
     while lag_reading(hi, sampling, joint) < c:  # reading ≥ T − Δ: found within a few doublings
         hi *= 2.0

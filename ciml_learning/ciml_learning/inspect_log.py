@@ -48,7 +48,7 @@ def _read(path: str) -> tuple[list[dict], dict[str, list]]:
     reader = _open_reader([path])
     msgs: dict[str, list] = {}
     try:
-        topics = {}
+        topics: dict[str, dict[str, Any]] = {}
         for c in reader.connections:
             d = topics.setdefault(c.topic, {"topic": c.topic, "type": c.msgtype, "count": 0})
             d["count"] += int(c.msgcount)
@@ -163,7 +163,8 @@ def inspect_bag(path: str, joint_names: tuple[str, ...] | None = None, feet: tup
         return items[0][2] if items else None
 
     # joint states: the JointState with the most entries that is not a command
-    js = [d for d in by_type.get(JOINT_STATE, []) if not COMMAND_WORDS.search(d["topic"]) or "joint_states" in d["topic"]]
+    js = [d for d in by_type.get(JOINT_STATE, [])
+          if not COMMAND_WORDS.search(d["topic"]) or "joint_states" in d["topic"]]
     js.sort(key=lambda d: ("joint_states" not in d["topic"], -len(getattr(first(msgs.get(d["topic"])), "name", []))))
     extra_names: list[str] = []
     if js:
@@ -303,7 +304,8 @@ def inspect_command(args: argparse.Namespace) -> int:
 
         prof = profile_from_args(args)
         robot = prof.robot()
-    feet = tuple(robot.foot_frames) if robot is not None else (tuple(args.feet) if getattr(args, "feet", None) else None)
+    feet = (tuple(robot.foot_frames) if robot is not None
+            else tuple(args.feet) if getattr(args, "feet", None) else None)
     report = inspect_bag(args.bag, robot.joint_names if robot is not None else None, feet,
                          robot.total_mass if robot is not None else None)
     cmd = report["roles"].get("command", {}).get("spec", {})

@@ -45,6 +45,7 @@ Uncertainty: parameter_uncertainty (uncertainty.py; docs/DIAGNOSIS.md).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.optimize import brentq
@@ -178,7 +179,7 @@ def fit_model(layout: FeatureLayout, cands: list[Candidate], G: np.ndarray, c: n
         A = model.matrix()
         model.theta = bounded_least_squares(A.T @ G @ A, A.T @ c, lo, hi)
         if coupled:
-            model.lag_scale = {k.joint: float(1.0 - model.params_of(k)[0]) for k in gains}
+            model.lag_scale = {str(k.joint): float(1.0 - model.params_of(k)[0]) for k in gains}
         if payload is not None:
             p = model.params_of(payload)
             if p[0] < MIN_PAYLOAD_MASS:
@@ -220,7 +221,8 @@ def _at_far_bound(model: Model, cand: Candidate) -> bool:
             if b != 0.0 and _on(t, b):
                 return True
     if cand.type == "payload":
-        return bool(model.payload_com is not None and np.linalg.norm(model.payload_com) >= MAX_PAYLOAD_LEVER * (1 - 1e-9))
+        return bool(model.payload_com is not None
+                    and np.linalg.norm(model.payload_com) >= MAX_PAYLOAD_LEVER * (1 - 1e-9))
     return False
 
 
@@ -343,6 +345,7 @@ def relevance_function(rows: Rows, train: Grams):
                 return np.inf
             tr = t[:lay.n_rbd]
             size = np.sqrt(np.maximum(np.einsum("f,ifg,g->i", tr, rows.raw_G, tr), 0) / n)
+            assert raw_rms is not None  # raw_signal and raw_G are recorded together
             return float(np.max(size / np.maximum(raw_rms, 1e-9)))
         best = 0.0
         for j in range(lay.robot.n_joints):
@@ -441,7 +444,7 @@ def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total
         improved = True
         while improved:
             improved = False
-            best = (np.inf, None, None)
+            best: tuple[float, int | None, Candidate | None] = (np.inf, None, None)
             for i in range(len(current)):
                 for k2 in usable:
                     if k2 in current or not k2.in_catalogue:
@@ -451,10 +454,11 @@ def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total
                     margin = SWAP_MARGIN * min(thr(k2), thr(current[i]))
                     if t is not None and t[0] < current_ss - margin and t[0] < best[0]:
                         best = (t[0], i, k2)
-            if best[1] is not None:
-                steps.append(Step(f"{best[2].label} (replaces {current[best[1]].label})",
+            _, at, replacement = best
+            if at is not None and replacement is not None:
+                steps.append(Step(f"{replacement.label} (replaces {current[at].label})",
                                   (current_ss - best[0]) / total_nominal, None, 0.0))
-                current[best[1]] = best[2]
+                current[at] = replacement
                 current_ss = best[0]
                 improved = True
     # effects pushed onto a physical bound (or to a negligible size) once the others are modelled
@@ -521,7 +525,8 @@ def consistency(model: Model, subsets: list[Grams], weights: np.ndarray, extra=N
     out = []
     for i, sl in enumerate(model.slices()):
         Ak, tk = A[:, sl], model.theta[sl]
-        ests, infos = [], []
+        est_list: list[float] = []
+        info_list: list[float] = []
         cand = model.candidates[i]
         if not cand.in_catalogue:
             out.append(0.0)
@@ -533,12 +538,12 @@ def consistency(model: Model, subsets: list[Grams], weights: np.ndarray, extra=N
             if info <= 0:
                 continue
             d = np.linalg.lstsq(H, Ak.T @ (c - G @ theta), rcond=None)[0]
-            ests.append(float((tk + d)[0]))
-            infos.append(info)
-        if not infos:
+            est_list.append(float((tk + d)[0]))
+            info_list.append(info)
+        if not info_list:
             out.append(0.0)
             continue
-        ests, infos = np.array(ests), np.array(infos)
+        ests, infos = np.array(est_list), np.array(info_list)
         ok = infos >= MIN_SUBSET_INFORMATION * infos.sum()
         dev = np.sqrt(np.sum(infos[ok] * (ests[ok] - tk[0]) ** 2) / infos[ok].sum())
         out.append(float(dev / max(abs(tk[0]), 1e-12)))
@@ -647,7 +652,7 @@ def _not_identified_entry(cand: Candidate, model: Model, gain_share: float) -> d
     th = model.params_of(cand)
     lo, hi = np.asarray(cand.lower), np.asarray(cand.upper)
     names = [n for n, t, a, b in zip(cand.param_names, th, lo, hi) if _on(t, a) or _on(t, b)]
-    e = {"type": cand.type}
+    e: dict[str, Any] = {"type": cand.type}
     e.update(cand.location())
     e.update({"params": _physical_of(model, cand), "status": "at bound — not identified", "confidence": None,
               "parameters_at_bound": names, "heldout_gain_share": float(gain_share),
@@ -757,6 +762,7 @@ def physical_parameters(model: Model) -> list[dict]:
     out = []
     for cand in model.candidates:
         th = model.params_of(cand)
+        p: dict[str, Any]
         if cand.type in ("joint_coulomb_friction", "joint_viscous_friction", "encoder_offset"):
             p = {"value": float(th[0])}
         elif cand.type == "base_imu_tilt":

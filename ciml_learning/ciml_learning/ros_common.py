@@ -47,9 +47,10 @@ LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, histor
 
 
 GIL_SWITCH_INTERVAL = 0.0005
-"""[s] sys.setswitchinterval of node processes. A worker thread (model loading, online
-learning) holds the GIL for Python's default 5 ms before the executor thread gets it back:
-a 250 Hz cycle's whole period. Measured on the composed graph: see docs/LIVE_GRAPH.md."""
+"""[s] sys.setswitchinterval of node processes. A worker thread (model loading, snapshot
+writing) may hold the GIL for Python's default 5 ms before the executor thread gets it back:
+longer than a 250 Hz cycle's whole period. (A choice from that reasoning; its effect alone
+was not measured.)"""
 
 SHUTDOWN_GRACE = 5.0
 """[s] after SIGINT/SIGTERM before run_node ends a stuck shutdown itself (ros2 launch escalates

@@ -16,7 +16,7 @@ import time
 
 import pytest
 
-from ciml_learning import topics
+from ciml_learning import realtime, topics
 from ciml_learning.launch_file import find_package_share, load
 from ciml_learning.launcher import Launcher
 from ciml_learning.live_bench import NOMINAL_RATES_HZ, GraphProbe
@@ -61,6 +61,27 @@ def walks(probe: GraphProbe, sim_seconds: float, wall_timeout: float) -> tuple[f
     return x1 - x0, min(zs), t1 - t0
 
 
+def children(pid: int) -> list[int]:
+    """Processes whose parent is `pid` (/proc/<child>/stat)."""
+    out = []
+    for entry in os.listdir("/proc"):
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                if int(f.read().rsplit(")", 1)[1].split()[1]) == pid:
+                    out.append(int(entry))
+        except (OSError, ValueError):
+            continue
+    return out
+
+
+def cmdline(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
 def logs_of(tmp_path, launcher: Launcher) -> dict[str, str]:
     out = {}
     for n in launcher.nodes:
@@ -92,8 +113,9 @@ def graph(tmp_path):
 
 def test_ciml_launch_brings_up_the_graph_and_sigint_stops_it(tmp_path):
     """`ciml launch ciml_sim closed_loop.launch.yaml`: all eight nodes in the graph (in the
-    file's two containers and the learner's own process), sensors, commands, filtered states
-    and predictions flowing; one SIGINT → every process exits 0."""
+    file's two containers, the model server's and the learner's own processes), sensors,
+    commands, filtered states and predictions flowing; the control container real-time
+    scheduled where permitted (else it says so); one SIGINT → every process exits 0."""
     probe = rate_probe()
     probe.recording = True
     proc = subprocess.Popen([os.path.join(sys.prefix, "bin", "ciml"), "launch", "ciml_sim", "closed_loop.launch.yaml",
@@ -107,6 +129,12 @@ def test_ciml_launch_brings_up_the_graph_and_sigint_stops_it(tmp_path):
             {t: len(probe.receipts[t]) for t in flowing}
         assert probe.wait_for(lambda: all(diagnosing(probe, n) for n in NODES), 60.0)
         assert probe.first_torque_stamp is not None  # the controller commands torques (not only damping)
+        control = [pid for pid in children(proc.pid) if "mujoco_bridge" in cmdline(pid)]
+        assert len(control) == 1, [cmdline(pid) for pid in children(proc.pid)]
+        policy = realtime.scheduling_policy(control[0])
+        permitted = subprocess.run([sys.executable, "-c", "import os; os.sched_setscheduler(0, os.SCHED_FIFO, "
+                                    "os.sched_param(1))"], capture_output=True).returncode == 0  # may this user?
+        assert policy == (os.SCHED_FIFO if permitted else os.SCHED_OTHER), policy
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=60)
     finally:
@@ -115,7 +143,9 @@ def test_ciml_launch_brings_up_the_graph_and_sigint_stops_it(tmp_path):
             proc.communicate()
         probe.close()
     assert proc.returncode == 0, out[-3000:]
-    assert "all 3 processes exited cleanly" in out  # the file's containers (control, learning) + online_learner
+    assert "all 4 processes exited cleanly" in out  # the file's containers (control, learning), model_server, learner
+    if not permitted:
+        assert "normal scheduling (thread_priority)" in out
     assert "Traceback" not in out, out[out.index("Traceback") - 500:][:3000]
 
 
@@ -127,7 +157,7 @@ ORDERS = {
     "learner_late": [(NODES[:6], 15.0), (NODES[6:], 0.0)],
     "model_server_restarted": [(NODES, 0.0)],
     # the launch file's containers (ciml launch's default layout): learning first, control late
-    "containers_learning_first": [(("learning", "online_learner"), 15.0), (("control",), 0.0)],
+    "containers_learning_first": [(("learning", "online_learner"), 15.0), (("control", "model_server"), 0.0)],
 }
 
 

@@ -75,7 +75,8 @@ if ! stamp_ok core "$h" || [ ! -f "$CORE" ]; then
 fi
 
 h=$(hash_of "$ROOT"/ciml_*/setup.py "$ROOT"/ciml_*/setup.cfg "$ROOT"/ciml_*/package.xml "$STAMPS/wheels" \
-  $(find "$ROOT"/ciml_learning/config "$ROOT"/ciml_control/config "$ROOT"/ciml_sim/config -type f 2>/dev/null | sort))
+  $(find "$ROOT"/ciml_learning/config "$ROOT"/ciml_control/config "$ROOT"/ciml_sim/config "$ROOT"/ciml_sim/launch \
+    -type f 2>/dev/null | sort))
 if ! stamp_ok pkgs "$h"; then
   log "installing ciml_learning, ciml_control, ciml_sim (editable)"
   mkdir -p "$ROOT/build"

@@ -2,6 +2,7 @@
 of the node's declare() calls, its config/<node>.yaml and its README table."""
 from __future__ import annotations
 
+from ciml_learning.node_params import THREAD_PRIORITY
 from ciml_learning.params import NodeSchema, Param
 
 from .references import MOTIONS
@@ -19,6 +20,7 @@ REFERENCE_GENERATOR = NodeSchema("ciml_control", "reference_generator",
           0.0, 60.0),
     Param("foot_height", 0.002, "Height of the foot frames above the ground when standing (sphere foot radius "
           "of the simulation)", "m", 0.0, 0.2),
+    THREAD_PRIORITY,
     URDF,
 ))
 
@@ -49,6 +51,7 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
           read_only=False),
     Param("max_variance_ratio", DEFAULT_MAX_VARIANCE_RATIO, "Use a predicted model-error entry only if its variance "
           "is at most this × the nominal prior variance", "", 1e-3, 1e3, read_only=False),
+    THREAD_PRIORITY,
     URDF,
 ))
 

@@ -2,10 +2,15 @@
 source of the node's declare() calls, its config/<node>.yaml and its README table."""
 from __future__ import annotations
 
+from . import realtime
 from .learning_gate import GateConfig
 from .params import NodeSchema, Param
 
 URDF = Param("urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
+THREAD_PRIORITY = Param(realtime.THREAD_PRIORITY, 50, "SCHED_FIFO priority of the node's process (0 = normal "
+                        "scheduling; without the right to, a warning and normal scheduling, as ros2_control)",
+                        "", 0, 98)
+"""The control path's (bridge, reference generator, controller): ciml_learning.realtime."""
 
 STATE_PUBLISHER = NodeSchema("ciml_learning", "state_publisher",
                              "/tf, /tf_static and /robot_description from /base_state and /joint_states", (

@@ -25,7 +25,7 @@ from rclpy.executors import ExternalShutdownException, ShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-from . import topics
+from . import realtime, topics
 from .errors import CimlError
 from .executor import DirectExecutor
 
@@ -150,6 +150,7 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
         gc.collect()
         gc.freeze()
         sys.setswitchinterval(GIL_SWITCH_INTERVAL)
+        _schedule(nodes, name)
         if not signalled:
             executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException, ShutdownException):
@@ -173,6 +174,20 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
             pass
     if status:
         raise SystemExit(status)
+
+
+def _schedule(nodes: Sequence[Node], name: str) -> None:
+    """SCHED_FIFO for the process at the highest `thread_priority` of its nodes (ciml_learning.realtime)."""
+    priority = max((int(n.get_parameter(realtime.THREAD_PRIORITY).value) for n in nodes
+                    if n.has_parameter(realtime.THREAD_PRIORITY)), default=0)
+    if priority <= 0:
+        return
+    logger = rclpy.logging.get_logger(name if len(nodes) > 1 else nodes[0].get_name())
+    failed = realtime.set_fifo_priority(priority)
+    if failed:
+        logger.warning(f"{failed}: normal scheduling (thread_priority); grant rtprio (docs/LIVE_GRAPH.md) or set 0")
+    else:
+        logger.info(f"real-time scheduling: SCHED_FIFO priority {priority} (thread_priority)")
 
 
 def declare(node: Node, name: str, default, description: str, lo: float | None = None, hi: float | None = None,

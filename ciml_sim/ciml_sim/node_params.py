@@ -2,6 +2,7 @@
 declare() calls, config/mujoco_bridge.yaml and the README table."""
 from __future__ import annotations
 
+from ciml_learning.node_params import THREAD_PRIORITY
 from ciml_learning.params import NodeSchema, Param
 
 MUJOCO_BRIDGE = NodeSchema("ciml_sim", "mujoco_bridge",
@@ -23,6 +24,7 @@ MUJOCO_BRIDGE = NodeSchema("ciml_sim", "mujoco_bridge",
           "and reset until the first torque command; false: damp the joints instead"),
     Param("publish_ground_truth", False, "Also publish the simulation-only /sim/ topics (true v̇, contact and "
           "effect forces)", read_only=False),
+    THREAD_PRIORITY,
     Param("urdf", "", "Robot URDF ('' = HyQ from example-robot-data)"),
 ))
 

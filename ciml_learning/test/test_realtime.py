@@ -1,0 +1,51 @@
+"""ciml_learning.realtime: SCHED_FIFO for every thread of a process, or the reason why not.
+Run in child processes, so the test runner itself is never real-time scheduled."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from ciml_learning import realtime
+
+CHILD = """
+import os, sys, threading, time
+from ciml_learning import realtime
+early = threading.Thread(target=time.sleep, args=(2,), daemon=True)
+early.start()                                 # exists before: switched
+print(realtime.set_fifo_priority(int(sys.argv[1])))
+later = threading.Thread(target=time.sleep, args=(2,), daemon=True)
+later.start()                                 # started after: inherits
+policies = {realtime.scheduling_policy(os.getpid(), int(t)) for t in os.listdir(f"/proc/{os.getpid()}/task")}
+print(sorted(policies))
+"""
+
+
+def run_child(priority: int) -> list[str]:
+    out = subprocess.run([sys.executable, "-c", CHILD, str(priority)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    return out.stdout.splitlines()
+
+
+def permitted() -> bool:
+    probe = "import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))"
+    return subprocess.run([sys.executable, "-c", probe], capture_output=True).returncode == 0
+
+
+@pytest.mark.skipif(not permitted(), reason="this user may not use SCHED_FIFO (no rtprio limit)")
+def test_every_thread_real_time_scheduled_including_later_ones():
+    failed, policies = run_child(20)
+    assert failed == "None"
+    assert policies == str([os.SCHED_FIFO])
+
+
+def test_a_refused_priority_is_a_reason_and_nothing_changes():
+    failed, policies = run_child(200)  # beyond SCHED_FIFO's 1..99: refused for everyone
+    assert "SCHED_FIFO priority 200 refused" in failed
+    assert policies == str([os.SCHED_OTHER])
+
+
+def test_scheduling_policy_of_this_process_is_normal():
+    assert realtime.scheduling_policy(os.getpid()) == os.SCHED_OTHER

@@ -41,6 +41,10 @@ SENSOR_QOS = qos_profile_sensor_data
 best-effort reader matches both a reliable publisher and a robot driver that publishes best effort."""
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 """Commands, references, model errors: reliable (the ROS default profile)."""
+LATEST_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+"""Subscriptions that use only the newest message (the controller's reference and prediction): a
+process that falls behind skips to it instead of converting a queue of outdated ones. (The model
+server keeps COMMAND_QOS: every reference is answered, none lost in a swap.)"""
 LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 """Published once, kept for late joiners (/robot_description, /tf_static, /gap_diagnosis)."""

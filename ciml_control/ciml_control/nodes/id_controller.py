@@ -44,7 +44,7 @@ from ciml_learning import topics
 from ciml_learning.errors import CimlError
 from ciml_learning.projection import contact_invariant_basis
 from ciml_learning.robot import load_robot
-from ciml_learning.ros_common import COMMAND_QOS, OK, WARN, Health, PublishPeriods, declare_schema, run_node
+from ciml_learning.ros_common import COMMAND_QOS, LATEST_QOS, OK, WARN, Health, PublishPeriods, declare_schema, run_node
 
 from ..controller import IdController
 from ..conversions import model_error_arrays, reference_point
@@ -89,8 +89,8 @@ class IdControllerNode(Node):
         self.create_subscription(Odometry, topics.BASE_STATE, self.on_base, STATE_QOS)
         self.create_subscription(ContactState, topics.CONTACT_STATE, self.on_contacts, STATE_QOS)
         self.create_subscription(JointState, topics.JOINT_STATES, self.on_joints, STATE_QOS)
-        self.create_subscription(RobotReference, topics.REFERENCE, self.on_reference, COMMAND_QOS)
-        self.create_subscription(ModelError, topics.MODEL_ERROR_PREDICTED, self.on_model_error, COMMAND_QOS)
+        self.create_subscription(RobotReference, topics.REFERENCE, self.on_reference, LATEST_QOS)
+        self.create_subscription(ModelError, topics.MODEL_ERROR_PREDICTED, self.on_model_error, LATEST_QOS)
         self.create_timer(1.0 / rate, self.watchdog)
         self.create_timer(1.0, self.report)
 

@@ -119,7 +119,7 @@ def test_runner_forwards_sigint_and_reports_rc(tmp_path, monkeypatch):
         """)
     out = tmp_path / "out.txt"
     with open(out, "w") as f:
-        launcher = Launcher(lf.load(path), out=f, log_dir=str(tmp_path / "logs"), stop_timeout=3.0)
+        launcher = Launcher(lf.load(path), out=f, log_dir=str(tmp_path / "logs"), stop_timeout=10.0)
         assert launcher.env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
         launcher.start()
         deadline = time.monotonic() + 10
@@ -205,7 +205,7 @@ def test_containers_argument_composes_nodes_in_one_process_each(tmp_path, monkey
         ("hot", ["a", "b"], True), ("c", ["c"], False), ("d", ["d"], False)]
     out = tmp_path / "out.txt"
     with open(out, "w") as f:
-        launcher = Launcher(desc, out=f, stop_timeout=3.0)
+        launcher = Launcher(desc, out=f, stop_timeout=10.0)
         assert launcher.cmds[0] == [str(container), "--node", "fake", "good", "--ros-args", "-r", "__node:=a",
                                     "-p", "k:=1.5", "--node", "fake", "good", "--ros-args", "-r", "__node:=b"]
         launcher.start()

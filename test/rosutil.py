@@ -72,3 +72,9 @@ class Listener:
         self.thread.join(timeout=5)
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
+
+
+def fifo_permitted() -> bool:
+    """May this user run a process SCHED_FIFO (root or an rtprio limit)? Asked of a child process."""
+    probe = "import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))"
+    return subprocess.run([sys.executable, "-c", probe], capture_output=True).returncode == 0

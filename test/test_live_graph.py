@@ -15,6 +15,7 @@ import sys
 import time
 
 import pytest
+from rosutil import fifo_permitted
 
 from ciml_learning import realtime, topics
 from ciml_learning.launch_file import find_package_share, load
@@ -62,14 +63,13 @@ def walks(probe: GraphProbe, sim_seconds: float, wall_timeout: float) -> tuple[f
 
 
 def children(pid: int) -> list[int]:
-    """Processes whose parent is `pid` (/proc/<child>/stat)."""
+    """Processes whose parent is `pid`."""
     out = []
     for entry in os.listdir("/proc"):
         try:
-            with open(f"/proc/{entry}/stat") as f:
-                if int(f.read().rsplit(")", 1)[1].split()[1]) == pid:
-                    out.append(int(entry))
-        except (OSError, ValueError):
+            if entry.isdigit() and int(realtime.stat_fields(int(entry))[1]) == pid:
+                out.append(int(entry))
+        except OSError:
             continue
     return out
 
@@ -132,8 +132,7 @@ def test_ciml_launch_brings_up_the_graph_and_sigint_stops_it(tmp_path):
         control = [pid for pid in children(proc.pid) if "mujoco_bridge" in cmdline(pid)]
         assert len(control) == 1, [cmdline(pid) for pid in children(proc.pid)]
         policy = realtime.scheduling_policy(control[0])
-        permitted = subprocess.run([sys.executable, "-c", "import os; os.sched_setscheduler(0, os.SCHED_FIFO, "
-                                    "os.sched_param(1))"], capture_output=True).returncode == 0  # may this user?
+        permitted = fifo_permitted()
         assert policy == (os.SCHED_FIFO if permitted else os.SCHED_OTHER), policy
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=60)

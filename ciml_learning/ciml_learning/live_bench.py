@@ -33,6 +33,7 @@ from . import conversions as cv
 from . import topics
 from .errors import CimlError
 from .executor import DirectExecutor
+from .realtime import stat_fields
 
 LAUNCH_PACKAGE = "ciml_sim"
 LAUNCH_FILE = "closed_loop.launch.yaml"
@@ -81,8 +82,7 @@ def rss_mb(pid: int) -> float | None:
 def cpu_seconds(pid: int) -> float | None:
     """User + system CPU time of a process, all threads [s] (/proc/<pid>/stat), None once it has exited."""
     try:
-        with open(f"/proc/{pid}/stat") as f:
-            fields = f.read().rsplit(")", 1)[1].split()
+        fields = stat_fields(pid)
     except OSError:
         return None
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")

@@ -15,10 +15,10 @@ THREAD_PRIORITY = "thread_priority"
 """Name of the node parameter (0 = normal scheduling)."""
 
 
-def set_fifo_priority(priority: int, pid: int = 0) -> str | None:
-    """SCHED_FIFO at `priority` for every thread of process `pid` (0: this one); threads started
-    later inherit it. None on success, else why not (one line); threads already switched keep it."""
-    task_dir = f"/proc/{pid or os.getpid()}/task"
+def set_fifo_priority(priority: int) -> str | None:
+    """SCHED_FIFO at `priority` for every thread of this process; threads started later inherit
+    it. None on success, else why not (one line); threads already switched keep it."""
+    task_dir = f"/proc/{os.getpid()}/task"
     try:
         tids = [int(t) for t in os.listdir(task_dir)]
     except OSError as err:
@@ -33,7 +33,15 @@ def set_fifo_priority(priority: int, pid: int = 0) -> str | None:
     return None
 
 
+def stat_fields(pid: int, tid: int | None = None) -> list[str]:
+    """/proc/<pid>/task/<tid>/stat (the process's own without tid) after the command name, which
+    may hold spaces: [0] is proc(5)'s field 3 (state), [1] the parent pid, [11]/[12] utime/stime,
+    [38] the policy. OSError once the process has exited."""
+    path = f"/proc/{pid}/stat" if tid is None else f"/proc/{pid}/task/{tid}/stat"
+    with open(path) as f:
+        return f.read().rsplit(")", 1)[1].split()
+
+
 def scheduling_policy(pid: int, tid: int | None = None) -> int:
-    """The scheduling policy of a thread (os.SCHED_OTHER, os.SCHED_FIFO, ...; /proc/<pid>/task/<tid>/stat)."""
-    with open(f"/proc/{pid}/task/{tid or pid}/stat") as f:
-        return int(f.read().rsplit(")", 1)[1].split()[38])
+    """The scheduling policy of a thread (os.SCHED_OTHER, os.SCHED_FIFO, ...)."""
+    return int(stat_fields(pid, tid)[38])

@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import pytest
+from rosutil import fifo_permitted
 
 from ciml_learning import realtime
 
@@ -29,12 +30,7 @@ def run_child(priority: int) -> list[str]:
     return out.stdout.splitlines()
 
 
-def permitted() -> bool:
-    probe = "import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))"
-    return subprocess.run([sys.executable, "-c", probe], capture_output=True).returncode == 0
-
-
-@pytest.mark.skipif(not permitted(), reason="this user may not use SCHED_FIFO (no rtprio limit)")
+@pytest.mark.skipif(not fifo_permitted(), reason="this user may not use SCHED_FIFO (no rtprio limit)")
 def test_every_thread_real_time_scheduled_including_later_ones():
     failed, policies = run_child(20)
     assert failed == "None"

@@ -58,6 +58,7 @@ setup(
             "train_lwpr_paper_size = ciml_learning.benchmarks:train_lwpr_paper_size",
             "train_sgpr_paper_size = ciml_learning.benchmarks:train_sgpr_paper_size",
             "online_nodes_per_sample = ciml_learning.benchmarks:online_nodes_per_sample",
+            "extraction_batching = ciml_learning.benchmarks:extraction_batching",
         ],
     },
 )

@@ -51,12 +51,15 @@ def online_nodes_per_sample() -> dict:
     return online_nodes_benchmark(n_warmup=20_000, n_samples=2_000)
 
 
+def extraction_batching() -> dict:
+    return batching_benchmark(n_states=1_000, batch_sizes=(1, 5, 10))
+
+
 # --- extraction --------------------------------------------------------------------------------------
 
 
-def throughput_benchmark(n_samples: int = 50_000, seed: int = 0) -> dict:
-    """Filter + extraction throughput on a synthetic log of n_samples at 250 Hz (one core)."""
-    robot = load_robot()
+def _trot_like_log(robot, n_samples: int, seed: int) -> tuple:
+    """(t, q, v, τ, u, contacts) of a synthetic 250 Hz log: legs swinging at 1.3 Hz, diagonal contacts."""
     rng = np.random.default_rng(seed)
     t = np.arange(n_samples) / 250.0
     q0 = pin.neutral(robot.model)
@@ -69,6 +72,13 @@ def throughput_benchmark(n_samples: int = 50_000, seed: int = 0) -> dict:
     u = tau + rng.standard_normal((n_samples, robot.n_joints))
     phase = (t * 2.0) % 1.0
     contacts = np.stack([phase < 0.5, phase >= 0.5, phase >= 0.5, phase < 0.5], axis=1)
+    return t, q, v, tau, u, contacts
+
+
+def throughput_benchmark(n_samples: int = 50_000, seed: int = 0) -> dict:
+    """Filter + extraction throughput on a synthetic log of n_samples at 250 Hz (one core)."""
+    robot = load_robot()
+    t, q, v, tau, u, contacts = _trot_like_log(robot, n_samples, seed)
     t0 = time.perf_counter()
     flog = filter_state_log(t, q, v, tau, u, contacts)
     t1 = time.perf_counter()
@@ -82,6 +92,26 @@ def throughput_benchmark(n_samples: int = 50_000, seed: int = 0) -> dict:
         "samples_per_s": round(n_samples / (t2 - t0), 1),
         "target_samples_per_s": 20_000,
     }
+
+
+def batching_benchmark(n_states: int = 1_000, batch_sizes: tuple[int, ...] = (1, 5, 10), seed: int = 0) -> dict:
+    """The error_extractor node's cost per filtered state when states are extracted one at a
+    time (batch_period 0) and in batches (batch_period 0.02 s gives ~5 at 250 Hz): the same
+    states, the same function, timed in one run."""
+    robot = load_robot()
+    f = filter_state_log(*_trot_like_log(robot, n_states + 40, seed))
+    n = min(n_states, len(f.t))
+    result: dict = {"states": n}
+    for size in batch_sizes:
+        t0 = time.perf_counter()
+        for k in range(0, n, size):
+            s = slice(k, min(k + size, n))
+            extraction.extract(robot, f.q[s], f.v[s], f.a[s], f.tau[s], f.u[s], f.contacts[s], tau_dot=f.tau_dot[s])
+        result[f"us_per_state_batch_{size}"] = round(1e6 * (time.perf_counter() - t0) / n, 1)
+    one, most = result[f"us_per_state_batch_{batch_sizes[0]}"], result[f"us_per_state_batch_{batch_sizes[-1]}"]
+    result["cores_at_250_hz"] = {size: round(result[f"us_per_state_batch_{size}"] * 250e-6, 3) for size in batch_sizes}
+    result["speedup_largest_batch"] = round(one / most, 2)
+    return result
 
 
 # --- training and the learners ----------------------------------------------------------------------

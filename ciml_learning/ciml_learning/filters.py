@@ -137,11 +137,15 @@ def quaternion_continuity(quat_xyzw: np.ndarray) -> np.ndarray:
     return q
 
 
-MAX_FILLED_SAMPLES = 2
-"""Longest run of missing samples bridged by interpolation instead of a restart.
+MAX_FILLED_SAMPLES = 8
+"""Longest run of missing samples bridged by interpolation instead of a restart (32 ms at
+250 Hz, a quarter of the 31-sample window).
 
-A best-effort sensor topic loses single messages under load; restarting the filter
-would interrupt /filtered_state for a whole window (31 samples) each time. Short gaps
+A sensor topic loses messages under load, often a few in a row when the reading process
+waited for the CPU; restarting the filter would interrupt /filtered_state for a whole
+window (31 samples) each time: on the 2-core machine's live graph, restarts after 3–8
+lost samples cost more output than all the lost samples together (docs/LIVE_GRAPH.md,
+rates). Short gaps
 on the regular grid are filled by linear interpolation (quaternions: normalised lerp,
 contacts held) before filtering; the filled instants themselves are never output, and
 outputs whose window holds a filled instant are marked invalid for training (their
@@ -357,6 +361,8 @@ class OnlineStateFilter:
         self._lp = lowpass_taps(fs)
         self._dp = derivative_taps(fs)
         self.delay = delay_samples(len(self._lp))
+        self.filled = 0  # raw samples interpolated into short gaps (never output)
+        self.restarts = 0  # warm-ups restarted by a long gap or a non-increasing stamp
         self.reset()
 
     def reset(self) -> None:
@@ -377,8 +383,10 @@ class OnlineStateFilter:
         if self._last is not None:
             missing = missing_samples(t - self._last[0], self.fs, self.max_gap_factor)
             if t <= self._last[0] or missing < 0:
+                self.restarts += 1
                 self.reset()
             elif missing > 0:
+                self.filled += missing
                 t0, q0, v0, tau0, u0, c0 = self._last
                 new = (q, np.asarray(v, float), np.asarray(tau, float), np.asarray(u, float))
                 for j in range(1, missing + 1):

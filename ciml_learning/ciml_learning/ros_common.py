@@ -41,6 +41,16 @@ SENSOR_QOS = qos_profile_sensor_data
 best-effort reader matches both a reliable publisher and a robot driver that publishes best effort."""
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 """Commands, references, model errors: reliable (the ROS default profile)."""
+STREAM_DEPTH = 250
+"""Queue of the learning chain's subscriptions and publishers: 1 s at 250 Hz. Every sample
+matters to the learner and none is urgent, so a learning process preempted by the real-time
+control path (or stalled by a snapshot) catches up instead of losing samples."""
+STREAM_QOS = QoSProfile(depth=STREAM_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+"""The learning chain's own streams (/filtered_state, /model_error/measured, and the state
+filter's /torque_command): reliable, deep."""
+SENSOR_STREAM_QOS = QoSProfile(depth=STREAM_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
+"""The state filter's sensor subscriptions: best effort like SENSOR_QOS (matches any driver),
+but deep, so samples are not dropped while the filter waits for the CPU."""
 LATEST_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 """Subscriptions that use only the newest message (the controller's reference and prediction): a
 process that falls behind skips to it instead of converting a queue of outdated ones. (The model

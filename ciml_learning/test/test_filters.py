@@ -4,6 +4,7 @@ import pytest
 import scipy.signal
 
 from ciml_learning.filters import (
+    MAX_FILLED_SAMPLES,
     OnlineFilter,
     contact_change_mask,
     delay_samples,
@@ -127,12 +128,12 @@ def test_online_state_filter_matches_offline_log():
 
 
 def test_dropped_samples_are_bridged_alike_online_and_offline():
-    """A lost best-effort message (1–2 samples) costs no window of output; a longer gap does."""
+    """Lost messages (up to MAX_FILLED_SAMPLES in a row) cost no window of output; a longer gap does."""
     n = 300
     t, q, v, tau, u, c = _state_log(n)
     keep = np.ones(n, dtype=bool)
     keep[[100, 200, 201]] = False          # bridged: one and two missing samples
-    keep[250:254] = False                  # four missing: the filter restarts
+    keep[250:250 + MAX_FILLED_SAMPLES + 1] = False  # one too many: the filter restarts
     t, q, v, tau, u, c = (x[keep] for x in (t, q, v, tau, u, c))
     off = filter_state_log(t, q, v, tau, u, c)
     assert off.invalid_counts["filled_samples"] == 3

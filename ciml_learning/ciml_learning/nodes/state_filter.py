@@ -29,7 +29,7 @@ from ..filters import OnlineStateFilter
 from ..node_params import STATE_FILTER
 from ..pairing import is_strict, partner
 from ..robot import load_robot
-from ..ros_common import COMMAND_QOS, SENSOR_QOS, Health, PublishPeriods, declare_schema, run_node
+from ..ros_common import SENSOR_STREAM_QOS, STREAM_QOS, Health, PublishPeriods, declare_schema, run_node
 from ..stamps import measure_rate
 
 RATE_SAMPLES = 32
@@ -53,11 +53,11 @@ class StateFilterNode(Node):
         self.commands: deque = deque(maxlen=16)
         self.pending: deque = deque(maxlen=64)
         self.last_stamp = -1
-        self.pub = self.create_publisher(RobotState, topics.FILTERED_STATE, COMMAND_QOS)
-        self.create_subscription(JointState, topics.JOINT_STATES, self.on_joints, SENSOR_QOS)
-        self.create_subscription(Odometry, topics.BASE_STATE, self.on_base, SENSOR_QOS)
-        self.create_subscription(ContactState, topics.CONTACT_STATE, self.on_contacts, SENSOR_QOS)
-        self.create_subscription(TorqueCommand, topics.TORQUE_COMMAND, self.on_command, COMMAND_QOS)
+        self.pub = self.create_publisher(RobotState, topics.FILTERED_STATE, STREAM_QOS)
+        self.create_subscription(JointState, topics.JOINT_STATES, self.on_joints, SENSOR_STREAM_QOS)
+        self.create_subscription(Odometry, topics.BASE_STATE, self.on_base, SENSOR_STREAM_QOS)
+        self.create_subscription(ContactState, topics.CONTACT_STATE, self.on_contacts, SENSOR_STREAM_QOS)
+        self.create_subscription(TorqueCommand, topics.TORQUE_COMMAND, self.on_command, STREAM_QOS)
 
     def _apply_parameters(self, changes: dict) -> str | None:
         self.max_age = changes.get("max_age", self.max_age)  # used by the next pairing
@@ -156,6 +156,9 @@ class StateFilterNode(Node):
             return
         if self.periods is None:
             self.periods = PublishPeriods(self.health, "filtered_state", self.filter.fs)
+        # joint samples lost upstream: bridged by interpolation, or a restarted warm-up
+        self.health.counts["joint_samples_filled"] = self.filter.filled
+        self.health.counts["filter_restarts"] = self.filter.restarts
         for out in ready:
             ns = int(round(out.t * 1e9))
             self.pub.publish(cv.robot_state_msg(self.robot, ns, out.q, out.v, out.a, out.tau, out.tau_dot, out.u,

@@ -42,9 +42,10 @@ best-effort reader matches both a reliable publisher and a robot driver that pub
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 """Commands, references, model errors: reliable (the ROS default profile)."""
 STREAM_DEPTH = 250
-"""Queue of the learning chain's subscriptions and publishers: 1 s at 250 Hz. Every sample
-matters to the learner and none is urgent, so a learning process preempted by the real-time
-control path (or stalled by a snapshot) catches up instead of losing samples."""
+"""Queue of the state filter's and error extractor's subscriptions and publishers: 1 s at
+250 Hz. Every sample matters to the learner and none is urgent, so a learning process that
+waited for the CPU (the real-time control path comes first) catches up instead of losing
+samples. The online learner has its own `queue_depth` parameter, 1 s as well."""
 STREAM_QOS = QoSProfile(depth=STREAM_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
 """The learning chain's own streams (/filtered_state, /model_error/measured, and the state
 filter's /torque_command): reliable, deep."""

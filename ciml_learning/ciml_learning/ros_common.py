@@ -24,6 +24,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, ShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.signals import SignalHandlerOptions
 
 from . import realtime, topics
 from .errors import CimlError
@@ -70,6 +71,8 @@ was not measured.)"""
 SHUTDOWN_GRACE = 5.0
 """[s] after SIGINT/SIGTERM before run_node ends a stuck shutdown itself (ros2 launch escalates
 to SIGTERM after 5 s)."""
+SIGNAL_POLL_PERIOD = 0.1
+"""[s] longest wait of a node process's executor: the most a SIGINT/SIGTERM waits to be seen."""
 PUBLISH_PERIOD = 1.0
 """[s] between /diagnostics messages of a node (diagnostic_updater's default rate)."""
 OK, WARN, ERROR = 0, 1, 2
@@ -97,19 +100,19 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
     process or several composed in one (`ciml_container`), spun by one DirectExecutor
     (ciml_learning.executor: the CPU of a cycle goes to the nodes, not to rebuilding wait sets).
 
-    - SIGINT/SIGTERM: rclpy's signal handler wakes the executor and shuts the context down;
-      whatever the spin (or a callback, or a node's construction) raises after the signal is
-      the shutdown racing the node, not an error: the process exits 0 without a traceback.
-      The Python handler rclpy chains to records the signal instead of raising
-      KeyboardInterrupt as Python's default one does (raised inside rclpy's message
-      conversion it surfaced as a pybind11 RuntimeError while the context was still valid,
-      or as "Exception ignored" in a destructor), and starts a thread that wakes the
-      executor every 0.1 s through a guard condition: a spin that woke on rclpy's signal
-      guard condition before rclpy's deferred shutdown of the context otherwise waits forever
-      when nothing else wakes it (measured: 1 node of 160 hung, its simulation-time timers
-      stopped with the bridge). The same thread ends a shutdown still stuck after
-      SHUTDOWN_GRACE with a warning and every thread's stack on stderr (seen once in 480
-      SIGINTs after the waker, cause not found yet), so a stop request always stops the process.
+    - SIGINT/SIGTERM: the process handles them itself and rclpy installs no signal handler
+      (SignalHandlerOptions.NO). The handler only records the signal; the executor never waits
+      longer than SIGNAL_POLL_PERIOD, so the main thread sees the signal within that time, ends
+      the spin between two callbacks, destroys its nodes and shuts the context down itself:
+      exit status 0, no traceback. Why not rclpy's handlers: they shut the context down from
+      rclpy's own signal thread while the executor may still be waiting or in a callback; that
+      race raised errors mid-callback (a pybind11 RuntimeError, "Exception ignored" in a
+      destructor) and, rarely, left a process that never exited (CI, 2026-11-26: one of ~240
+      SIGINTs, the node silent, its Python handler never run).
+    - A shutdown still unfinished SHUTDOWN_GRACE after the signal is ended by the process with a
+      warning and every thread's stack on stderr (a watchdog thread; faulthandler's, which needs
+      no interpreter lock, a second later if even that thread cannot run): a stop request always
+      stops the process.
     - A bad parameter (wrong type, out of range, refused by the schema) or a CimlError while
       building a node (bad URDF, scenario, model folder): one logged line, exit status 1.
 
@@ -118,18 +121,9 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
     """
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     signalled: list[int] = []
-    wake: list = []  # a guard condition of the first node, once there is one
 
-    def keep_waking() -> None:
-        deadline = time.monotonic() + SHUTDOWN_GRACE
-        while time.monotonic() < deadline:
-            time.sleep(0.1)
-            try:
-                for gc in wake:
-                    gc.trigger()
-            except Exception:  # destroyed: the node is going
-                wake.clear()
-        # still here: the shutdown is stuck somewhere; say where, then end the process as asked
+    def watchdog() -> None:
+        time.sleep(SHUTDOWN_GRACE)
         rclpy.logging.get_logger(name).warning(
             f"shutdown not finished {SHUTDOWN_GRACE:g} s after the signal; exiting (stacks on stderr)")
         faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
@@ -139,13 +133,14 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
 
     def on_signal(signum: int, _frame) -> None:
         if not signalled:
-            threading.Thread(target=keep_waking, name="shutdown_waker", daemon=True).start()
+            faulthandler.dump_traceback_later(SHUTDOWN_GRACE + 1.0, exit=True)
+            threading.Thread(target=watchdog, name="shutdown_watchdog", daemon=True).start()
         signalled.append(signum)
 
-    for sig in (signal.SIGINT, signal.SIGTERM):  # installed before rclpy.init, which chains to them
+    for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
     try:
-        rclpy.init(args=args)
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as err:  # malformed --ros-args (rcl parses them here)
         rclpy.logging.get_logger(name).error(f"bad arguments: {_one_line(err)}")
         raise SystemExit(1) from None
@@ -156,28 +151,25 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
     try:
         executor = DirectExecutor(context=context)
         for factory in factories:
+            if signalled:
+                break
             nodes.append(factory())
             executor.add_node(nodes[-1])
-            if not wake:
-                wake.append(nodes[-1].create_guard_condition(lambda: None))
         # what the nodes built (robot models, compiled kernels, imports) is never garbage: keep
         # it out of the collector's generations, so a cyclic collection during the loop is short
         gc.collect()
         gc.freeze()
         sys.setswitchinterval(GIL_SWITCH_INTERVAL)
-        _schedule(nodes, name)
-        if not signalled:
-            executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException, ShutdownException):
+        if nodes and not signalled:
+            _schedule(nodes, name)
+        while not signalled and context.ok():
+            executor.spin_once(timeout_sec=SIGNAL_POLL_PERIOD)
+    except (ExternalShutdownException, ShutdownException):
         pass
     except (ParameterException, CimlError) as err:
-        if context.ok() and not signalled:
+        if not signalled:
             rclpy.logging.get_logger(name).error(f"{_one_line(err)}")
             status = 1
-    except Exception:
-        if context.ok() and not signalled:
-            raise
-        # a signal shut the context down while spin or a callback was using it
     finally:
         try:
             for node in nodes:
@@ -185,7 +177,7 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
             if executor is not None:
                 executor.shutdown(timeout_sec=0)
             rclpy.try_shutdown()
-        except (KeyboardInterrupt, Exception):  # a second signal, or destroy racing the shutdown
+        except Exception:  # destroy racing a second signal's watchdog exit
             pass
     if status:
         raise SystemExit(status)

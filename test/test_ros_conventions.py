@@ -263,6 +263,29 @@ def test_every_node_exits_cleanly_on_signals(tmp_path, sig, after):
     _assert_clean(results, f"{signal.Signals(sig).name} {after} s after all nodes were up")
 
 
+@pytest.mark.ros
+@pytest.mark.slow
+def test_idle_node_sees_the_signal_itself_and_exits_0():
+    """A node with nothing to wake its executor (no traffic; its timers on simulation time and
+    no /clock) still sees SIGINT and SIGTERM (ros_common.run_nodes: its own handler, waits of
+    at most SIGNAL_POLL_PERIOD) and shuts down itself: status 0, no traceback, and not through
+    the watchdog that ends a shutdown stuck for SHUTDOWN_GRACE. Five rounds per signal."""
+    listener = Listener({})
+    try:
+        for k in range(10):
+            sig = (signal.SIGINT, signal.SIGTERM)[k % 2]
+            name = f"idle_extractor_{k}"
+            proc = start_node("error_extractor", "-r", f"__node:={name}", "-p", "use_sim_time:=true")
+            up = listener.wait_for(lambda: name in listener.node.get_node_names(), timeout=90)
+            time.sleep(0.5)
+            results = _signal_all({name: proc}, sig)
+            assert up, f"{name} not on the graph after 90 s: {results[name][1][-800:]}"
+            _assert_clean(results, f"{signal.Signals(sig).name} of an idle node")
+            assert "shutdown not finished" not in results[name][1], results[name][1][-1500:]
+    finally:
+        listener.close()
+
+
 # --- bad parameters: one logged line, non-zero exit ------------------------------------------------
 
 BAD = {  # executable -> a numeric parameter

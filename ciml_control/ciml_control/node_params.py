@@ -29,7 +29,10 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
     Param("rate", 250.0, "Watchdog rate (control runs on each /joint_states sample)", "Hz", 10.0, 1000.0),
     Param("state_timeout", 0.05, "Damping when a state topic is older than this (node clock; use_sim_time:=true "
           "with a simulator)", "s", 0.002, 2.0, read_only=False),
-    Param("reference_timeout", 0.1, "Damping when /reference is older than this", "s", 0.004, 5.0, read_only=False),
+    Param("reference_timeout", 0.1, "A /reference older than this is stale: its last pose is held (zero velocity "
+          "and acceleration)", "s", 0.004, 5.0, read_only=False),
+    Param("reference_hold", 0.5, "Damping when /reference is older than this (≤ reference_timeout: at once)", "s",
+          0.0, 10.0, read_only=False),
     Param("model_error_timeout", 0.1, "Nominal model (ε = 0) when the newest prediction is older than this", "s",
           0.004, 5.0, read_only=False),
     Param("use_model_error", True, "Add the predicted model error ε (eq. 17) to the QP", read_only=False),

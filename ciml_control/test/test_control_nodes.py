@@ -195,3 +195,56 @@ def test_id_controller_waits_then_commands_limited_trusted_torque_and_damps_with
     assert int(keys.get("model_error_used", 0)) >= 60, keys
     assert int(keys.get("epsilon_gated", 0)) >= 20, keys
     assert int(keys.get("epsilon_clipped", 0)) >= 20, keys
+
+
+@pytest.mark.ros
+def test_id_controller_holds_a_late_reference_then_damps_a_dead_one():
+    """/reference stops while the states go on: up to `reference_hold` (0.5 s) after it the
+    controller still commands torque, holding the last reference pose (velocity targets 0,
+    counted reference_held); after that, damping (counted stale_reference)."""
+    from ciml_msgs.msg import ContactState, RobotReference, TorqueCommand
+    from diagnostic_msgs.msg import DiagnosticArray
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import JointState
+
+    listener = Listener({"/torque_command": TorqueCommand, "/diagnostics": DiagnosticArray})
+    pubs = {"/reference": listener.node.create_publisher(RobotReference, "/reference", 10),
+            "/joint_states": listener.node.create_publisher(JointState, "/joint_states", 10),
+            "/base_state": listener.node.create_publisher(Odometry, "/base_state", 10),
+            "/contact_state": listener.node.create_publisher(ContactState, "/contact_state", 10)}
+    node = start_node("id_controller")
+    cmds = listener.messages["/torque_command"]
+    q_stand = standing_configuration(ROBOT, 0.002)
+    motion = make_reference(ROBOT, "base_only", q_stand)
+    zeros = np.zeros(ROBOT.n_joints)
+    sent: dict[int, float] = {}   # joint-state stamp → wall time since the last reference [s]
+    try:
+        assert listener.wait_for(lambda: all(p.get_subscription_count() >= 1 for p in pubs.values()), 30), stop(node)
+        last_ref, t_last = None, 0.0
+        for k in range(500):
+            ns = time.time_ns()
+            if k < 250:  # a moving reference for 1 s, then none
+                last_ref, t_last = motion.sample(1.0 + 0.004 * k), time.monotonic()
+                pubs["/reference"].publish(reference_msg(ROBOT, ns, last_ref))
+            sent[ns] = time.monotonic() - t_last if k >= 250 else -1.0
+            pubs["/base_state"].publish(cv.odometry_msg(ns, q_stand[:3], q_stand[3:7], np.zeros(3), np.zeros(3)))
+            pubs["/contact_state"].publish(cv.contact_state_msg(ROBOT, ns, np.ones(4, bool)))
+            pubs["/joint_states"].publish(cv.joint_state_msg(ROBOT, ns, q_stand[7:], zeros, zeros))
+            time.sleep(0.004)
+        time.sleep(1.2)  # one diagnostics period
+        keys = {kv.key: kv.value for d in listener.messages["/diagnostics"] for s in d.status
+                if "id_controller" in s.name for kv in s.values}
+    finally:
+        log = stop(node)
+        listener.close()
+    assert np.linalg.norm(last_ref.v[6:]) > 1e-3  # the held reference was moving
+    by_age = [(sent[cv.stamp_to_ns(m.header.stamp)], m) for m in cmds if cv.stamp_to_ns(m.header.stamp) in sent]
+    held = [m for age, m in by_age if 0.15 <= age <= 0.4]
+    dead = [m for age, m in by_age if age >= 0.65]
+    assert len(held) >= 20 and len(dead) >= 20, (len(held), len(dead), log[-800:])
+    for m in held:
+        arr = cv.torque_command_arrays(ROBOT, m)
+        assert m.mode == TorqueCommand.MODE_TORQUE
+        assert np.allclose(arr.position_target, last_ref.q[7:]) and np.allclose(arr.velocity_target, 0.0)
+    assert all(m.mode == TorqueCommand.MODE_DAMPING for m in dead)
+    assert int(keys.get("reference_held", 0)) >= 20 and int(keys.get("stale_reference", 0)) >= 20, keys

@@ -13,8 +13,12 @@ bridge holds the robot standing until the first MODE_TORQUE command).
 Safety once it has commanded torque (counted on /diagnostics):
 - joint, base or contact state missing or older than `state_timeout` (time since
   receipt, on the node clock: run with use_sim_time:=true next to a simulator, so that
-  a stalled simulation does not look like a dead robot), or no fresh /reference →
-  TorqueCommand MODE_DAMPING (no torque, no stiffness, joint damping only);
+  a stalled simulation does not look like a dead robot), or /reference older than
+  `reference_hold` → TorqueCommand MODE_DAMPING (no torque, no stiffness, joint damping only);
+- /reference older than `reference_timeout` but not `reference_hold`: the last reference
+  pose is held (its velocity and acceleration zero; counted: reference_held, with a warning),
+  as a trajectory controller holds its last setpoint: a reference node that stalls for a
+  few hundred milliseconds (measured in the live graph) must not drop the robot;
 - non-finite or mismatched inputs are dropped by the conversions (never used);
 - a controller error (ControllerInputError) → damping for that step;
 - QP failures → the controller's documented fallback; counted.
@@ -31,6 +35,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from dataclasses import replace
 
 import numpy as np
 from ciml_msgs.msg import ContactState, ModelError, RobotReference, TorqueCommand
@@ -66,6 +71,7 @@ class IdControllerNode(Node):
         self.params = dict(p)
         rate, urdf, ratio = p["rate"], p["urdf"], p["max_variance_ratio"]
         self.state_timeout, self.reference_timeout = p["state_timeout"], p["reference_timeout"]
+        self.reference_hold = p["reference_hold"]
         self.model_error_timeout, self.use_model_error = p["model_error_timeout"], p["use_model_error"]
         self.damping_gain = p["damping_gain"]
         self.robot = load_robot(urdf or None)
@@ -118,6 +124,7 @@ class IdControllerNode(Node):
             self.trust = TrustLaw(self.robot, changes["max_variance_ratio"])
         self.params = params
         self.state_timeout, self.reference_timeout = params["state_timeout"], params["reference_timeout"]
+        self.reference_hold = params["reference_hold"]
         self.model_error_timeout, self.use_model_error = params["model_error_timeout"], params["use_model_error"]
         self.damping_gain = params["damping_gain"]
         return None
@@ -213,15 +220,20 @@ class IdControllerNode(Node):
         if not states_fresh:
             self.publish_damping("stale_state", "base or contact state missing or stale: damping", stamp)
             return
+        ref = self.reference[2]
         if not self._fresh(self.reference, self.reference_timeout, now):
-            self.publish_damping("stale_reference", "no fresh /reference: damping", stamp)
-            return
+            if not self._fresh(self.reference, self.reference_hold, now):
+                self.publish_damping("stale_reference", "no fresh /reference: damping", stamp)
+                return
+            # a late reference (its node stalled, or restarts) is not a dead one: hold its last pose,
+            # as a trajectory controller holds its last setpoint, instead of dropping the robot
+            ref = replace(ref, v=np.zeros_like(ref.v), a=np.zeros_like(ref.a))
+            self.health.count("reference_held", "no fresh /reference: holding its last pose")
         t0 = time.perf_counter()
         qj, qdj, _ = self.joints[2]
         pos, quat, twist = self.base[2]
         q = np.concatenate([pos, quat, qj])
         v = np.concatenate([twist, qdj])
-        ref = self.reference[2]
         try:
             out = self.controller.compute(q, v, self.contacts[2], ref, self.epsilon(ref, now))
         except CimlError as err:

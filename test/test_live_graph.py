@@ -115,7 +115,8 @@ def test_ciml_launch_brings_up_the_graph_and_sigint_stops_it(tmp_path):
     """`ciml launch ciml_sim closed_loop.launch.yaml`: all eight nodes in the graph (in the
     file's two containers, the model server's and the learner's own processes), sensors,
     commands, filtered states and predictions flowing; the control container real-time
-    scheduled where permitted (else it says so); one SIGINT → every process exits 0."""
+    scheduled where permitted (SCHED_FIFO 50, else it says so), the learning container below it
+    (the state filter's 10); one SIGINT → every process exits 0."""
     probe = rate_probe()
     probe.recording = True
     proc = subprocess.Popen([os.path.join(sys.prefix, "bin", "ciml"), "launch", "ciml_sim", "closed_loop.launch.yaml",
@@ -129,11 +130,14 @@ def test_ciml_launch_brings_up_the_graph_and_sigint_stops_it(tmp_path):
             {t: len(probe.receipts[t]) for t in flowing}
         assert probe.wait_for(lambda: all(diagnosing(probe, n) for n in NODES), 60.0)
         assert probe.first_torque_stamp is not None  # the controller commands torques (not only damping)
-        control = [pid for pid in children(proc.pid) if "mujoco_bridge" in cmdline(pid)]
-        assert len(control) == 1, [cmdline(pid) for pid in children(proc.pid)]
-        policy = realtime.scheduling_policy(control[0])
         permitted = fifo_permitted()
-        assert policy == (os.SCHED_FIFO if permitted else os.SCHED_OTHER), policy
+        # the control container (thread_priority 50) and the learning container (the state filter's 10)
+        for member, priority in (("mujoco_bridge", 50), ("state_filter", 10)):
+            group = [pid for pid in children(proc.pid) if member in cmdline(pid)]
+            assert len(group) == 1, [cmdline(pid) for pid in children(proc.pid)]
+            policy = realtime.scheduling_policy(group[0])
+            assert policy == (os.SCHED_FIFO if permitted else os.SCHED_OTHER), (member, policy)
+            assert os.sched_getparam(group[0]).sched_priority == (priority if permitted else 0), member
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=60)
     finally:

@@ -2,6 +2,8 @@
 source of the node's declare() calls, its config/<node>.yaml and its README table."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 from . import realtime
 from .learning_gate import GateConfig
 from .params import NodeSchema, Param
@@ -10,7 +12,8 @@ URDF = Param("urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
 THREAD_PRIORITY = Param(realtime.THREAD_PRIORITY, 50, "SCHED_FIFO priority of the node's process (0 = normal "
                         "scheduling; without the right to, a warning and normal scheduling, as ros2_control)",
                         "", 0, 98)
-"""The control path's (bridge, reference generator, controller): ciml_learning.realtime."""
+"""The control path's (bridge, reference generator, controller) at 50; the state filter's at 10,
+below it (the filtered stream at its sensors' rate, the control path first): ciml_learning.realtime."""
 
 STATE_PUBLISHER = NodeSchema("ciml_learning", "state_publisher",
                              "/tf, /tf_static and /robot_description from /base_state and /joint_states", (
@@ -26,6 +29,7 @@ STATE_FILTER = NodeSchema("ciml_learning", "state_filter",
           "first samples)", "Hz", 0.0, 2000.0),
     Param("max_age", 0.02, "Oldest base/contact/command sample paired with a joint sample", "s", 0.001, 1.0,
           read_only=False),
+    replace(THREAD_PRIORITY, default=10),
     URDF,
 ))
 

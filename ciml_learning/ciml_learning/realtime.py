@@ -15,12 +15,17 @@ THREAD_PRIORITY = "thread_priority"
 """Name of the node parameter (0 = normal scheduling)."""
 
 
-def set_fifo_priority(priority: int) -> str | None:
-    """SCHED_FIFO at `priority` for every thread of this process; threads started later inherit
-    it. None on success, else why not (one line); threads already switched keep it."""
-    task_dir = f"/proc/{os.getpid()}/task"
+def thread_ids() -> set[int]:
+    """The ids of this process's threads now (OSError if /proc cannot be read)."""
+    return {int(t) for t in os.listdir(f"/proc/{os.getpid()}/task")}
+
+
+def set_fifo_priority(priority: int, tids: set[int] | None = None) -> str | None:
+    """SCHED_FIFO at `priority` for every thread of this process (or only those of `tids`);
+    threads they start later inherit it. None on success, else why not (one line); threads
+    already switched keep it."""
     try:
-        tids = [int(t) for t in os.listdir(task_dir)]
+        tids = thread_ids() if tids is None else tids
     except OSError as err:
         return f"cannot list the threads ({err.strerror})"
     for tid in tids:

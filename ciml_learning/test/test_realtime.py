@@ -45,3 +45,27 @@ def test_a_refused_priority_is_a_reason_and_nothing_changes():
 
 def test_scheduling_policy_of_this_process_is_normal():
     assert realtime.scheduling_policy(os.getpid()) == os.SCHED_OTHER
+
+
+CHILD_SOME = """
+import os, threading, time
+from ciml_learning import realtime
+before = realtime.thread_ids()
+mine = threading.Thread(target=time.sleep, args=(2,), daemon=True)
+mine.start()                                  # the only thread to switch
+print(realtime.set_fifo_priority(20, realtime.thread_ids() - before))
+child = os.fork()                             # forked by the untouched main thread: not real-time
+if child == 0:
+    os._exit(realtime.scheduling_policy(os.getpid()))
+print(realtime.scheduling_policy(os.getpid(), mine.native_id), realtime.scheduling_policy(os.getpid()),
+      os.waitpid(child, 0)[1] >> 8)
+"""
+
+
+@pytest.mark.skipif(not fifo_permitted(), reason="this user may not use SCHED_FIFO (no rtprio limit)")
+def test_only_the_given_threads_real_time_scheduled_and_children_of_the_others_normal():
+    out = subprocess.run([sys.executable, "-c", CHILD_SOME], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    failed, policies = out.stdout.splitlines()
+    assert failed == "None"
+    assert policies.split() == [str(os.SCHED_FIFO), str(os.SCHED_OTHER), str(os.SCHED_OTHER)]

@@ -7,7 +7,7 @@ node-local arguments (name, parameters, remaps), but in this process: rclpy exec
 several nodes are the ROS 2 way to compose Python nodes (rclcpp's component containers
 have no rclpy counterpart). Composed, the messages between the nodes stay in the process
 (Fast DDS delivers them without a transport) and one DirectExecutor serves every node:
-measured on the live graph (docs/LIVE_GRAPH.md, rates, first machine), the CPU of a 250 Hz
+measured on the live graph (results/LIVE_GRAPH.md, first session), the CPU of a 250 Hz
 cycle was ~18 ms for eight processes, and 2.8 ms for the control container (then with the
 model server), 2.0 ms for the learning container and ~1.1 ms for the learner.
 

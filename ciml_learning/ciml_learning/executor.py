@@ -6,7 +6,7 @@ every node, each entered as a context manager — and wraps every callback in a 
 coroutine. On the live graph that is a large part of a cycle: with the seven control-path and
 filter nodes in one process, building wait sets took a third of the profiled time, and the
 process's CPU per 250 Hz cycle went from 5.2 ms with rclpy's executor to 3.7 ms with this one
-(docs/LIVE_GRAPH.md, rates). This executor keeps the same contract
+(results/LIVE_GRAPH.md, first session). This executor keeps the same contract
 for plain callbacks (rclpy.spin semantics, shutdown on the context, SIGINT wakes it,
 entities served per node in creation order: timers, subscriptions, guard conditions,
 clients, services, waitables) and does less per wake:

@@ -144,8 +144,8 @@ MAX_FILLED_SAMPLES = 8
 A sensor topic loses messages under load, often a few in a row when the reading process
 waited for the CPU; restarting the filter would interrupt /filtered_state for a whole
 window (31 samples) each time: on the 2-core machine's live graph, restarts after 3–8
-lost samples cost more output than all the lost samples together (docs/LIVE_GRAPH.md,
-rates). Short gaps
+lost samples cost more output than all the lost samples together (results/LIVE_GRAPH.md,
+third session). Short gaps
 on the regular grid are filled by linear interpolation (quaternions: normalised lerp,
 contacts held) before filtering; the filled instants themselves are never output, and
 outputs whose window holds a filled instant are marked invalid for training (their

@@ -3,7 +3,7 @@
 The control path (bridge, reference generator, controller) asks for SCHED_FIFO, as
 ros2_control's controller manager does with its own `thread_priority` parameter: on a machine
 whose cores are shared with the learning chain, a normally scheduled control loop gets a fair
-share of the CPU, not the share it needs, and loses commands (measured in docs/LIVE_GRAPH.md).
+share of the CPU, not the share it needs, and loses commands (measured in results/LIVE_GRAPH.md).
 Without the right to (root or an rtprio limit, e.g. `@realtime - rtprio 98` in
 /etc/security/limits.conf) the process runs normally scheduled and says so once.
 """

@@ -17,7 +17,7 @@ controller running inside the simulator's loop does (Gazebo with ros2_control). 
 it, a controller slower than real time on a loaded machine has each command applied for
 several samples (the catch-up above) and the robot falls, which is what a real robot
 would do; with it, sim time runs at most `real_time_factor` and as fast as the graph
-answers (docs/LIVE_GRAPH.md, rates). A controller silent for `lockstep_timeout` wall
+answers (docs/LIVE_GRAPH.md, timing). A controller silent for `lockstep_timeout` wall
 seconds releases the lockstep until its next command (counted `lockstep_timeouts`), so
 a dead controller still meets `command_timeout` and damping. A sample's base and contact
 state are published before its joint state, the controller's trigger.

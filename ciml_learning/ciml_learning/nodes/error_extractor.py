@@ -3,7 +3,7 @@
 Thin adapter around ciml_learning.extraction.extract; rejected inputs are counted on
 /diagnostics and never produce an output. States are extracted in batches, every
 `batch_period` of wall-clock time: extract is vectorised, and one state alone costs ~4×
-its share of a batch of 5 (docs/LIVE_GRAPH.md, rates), which on a 2-core machine is the
+its share of a batch of 5 (results/LIVE_GRAPH.md, third session), which on a 2-core machine is the
 difference between keeping up at 250 Hz and not. The outputs are the same, in order,
 at most `batch_period` later.
 """

@@ -5,6 +5,8 @@ No `launch` wheel exists for this platform, so `ciml launch` reads the same file
 
 - `arg` (name, default, description): a launch argument, set as `name:=value`;
 - `let` (name, value): a launch configuration computed in the file;
+- `set_env` (name, value): an environment variable of every process started after it
+  (here: before the first node, so that it holds for all of them);
 - `node` (pkg, exec, name, namespace, param [name/value or from], remap [from/to],
   ros_args, args, launch-prefix, `if`/`unless`; `output` is accepted, output always goes
   to the screen and, with --log-dir, to a file): one process;
@@ -135,6 +137,8 @@ class LaunchDescription:
     configuration: dict[str, str] = field(default_factory=dict)
     declared_nodes: set[str] = field(default_factory=set)
     """Every node entry's name, started or switched off by its condition."""
+    environment: dict[str, str] = field(default_factory=dict)
+    """`set_env` variables, set for every process the file starts."""
 
 
 _SUBST = re.compile(r"\$\(([^()]*)\)")
@@ -292,7 +296,7 @@ def load(path: str, arguments: Mapping[str, str] | None = None,
     for i, entry in enumerate(entries):
         where = f"{os.path.basename(path)}: entry {i + 1}"
         if not isinstance(entry, dict) or len(entry) != 1:
-            raise LaunchFileError(f"{where}: expected one action (arg, let or node)")
+            raise LaunchFileError(f"{where}: expected one action (arg, let, set_env or node)")
         (kind, body), = entry.items()
         if not isinstance(body, dict):
             raise LaunchFileError(f"{where}: {kind} must be a mapping")
@@ -302,13 +306,18 @@ def load(path: str, arguments: Mapping[str, str] | None = None,
         elif kind == "let":
             _require(body, ("name", "value"), where)
             desc.configuration[str(body["name"])] = resolve(body["value"], where)
+        elif kind == "set_env":
+            _require(body, ("name", "value"), where)
+            if desc.declared_nodes:  # launch sets it for the actions after it only
+                raise LaunchFileError(f"{where}: set_env after a node is not supported; put it before the nodes")
+            desc.environment[str(body["name"])] = resolve(body["value"], where)
         elif kind == "node":
             node = _node(body, resolve, where)
             desc.declared_nodes.add(resolve(body.get("name", body["exec"]), where))
             if node is not None:
                 desc.nodes.append(node)
         else:
-            raise LaunchFileError(f"{where}: unsupported action {kind!r}; supported: arg, let, node")
+            raise LaunchFileError(f"{where}: unsupported action {kind!r}; supported: arg, let, set_env, node")
     return desc
 
 

@@ -18,6 +18,7 @@ Every node inherits ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless the caller se
 from __future__ import annotations
 
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -101,7 +102,7 @@ class Launcher:
         self.log_dir = log_dir
         self.stop_timeout = stop_timeout
         self.keep_lines = keep_lines
-        self.env = node_environment(env)
+        self.env = {**node_environment(env), **desc.environment}  # the file's set_env, as launch applies it
         self.nodes: list[NodeProcess] = []
         self._lock = threading.Lock()
         self._stop_requested = threading.Event()
@@ -260,7 +261,8 @@ def launch_command(args) -> int:
         print(describe(desc))
         return 0
     if args.print:
+        env = [f"{k}={shlex.quote(v)}" for k, v in desc.environment.items()]
         for cmd in commands(desc):
-            print(" ".join(cmd))
+            print(" ".join(env + [shlex.quote(w) for w in cmd]))
         return 0
     return launch(desc, log_dir=args.log_dir, stop_timeout=args.stop_timeout)

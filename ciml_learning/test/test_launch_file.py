@@ -73,6 +73,8 @@ def test_substitutions_conditions_and_let(tmp_path, monkeypatch):
     ("nodes: []\n", {}, "not a YAML launch file"),
     ("launch: [\n", {}, "not valid YAML"),
     ("launch:\n- node: {pkg: p, exec: e, param: [{name: x, value: '$(env CIML_UNSET)'}]}\n", {}, "is not set"),
+    ("launch:\n- node: {pkg: p, exec: e}\n- set_env: {name: A, value: b}\n", {}, "set_env after a node"),
+    ("launch:\n- set_env: {name: A}\n", {}, "missing value"),
 ])
 def test_bad_files_and_arguments_are_refused_in_one_line(tmp_path, monkeypatch, text, args, message):
     monkeypatch.delenv("CIML_UNSET", raising=False)
@@ -90,6 +92,30 @@ def test_argument_syntax():
 
 
 # --- the runner, with stand-in executables (shell scripts; no ROS) ---------------------------------
+
+
+def test_set_env_reaches_every_process_and_an_argument_overrides_it(tmp_path, monkeypatch):
+    _fake_package(tmp_path, {"env": 'echo "transports=$FASTDDS_BUILTIN_TRANSPORTS"\n'})
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(tmp_path / "prefix"))
+    monkeypatch.setenv("FASTDDS_BUILTIN_TRANSPORTS", "SHM")  # the caller's own setting, overridden by the file
+    path = _write(tmp_path, """
+        launch:
+        - arg: {name: t, default: UDPv4}
+        - set_env: {name: FASTDDS_BUILTIN_TRANSPORTS, value: $(var t)}
+        - node: {pkg: fake, exec: env, name: a}
+        - node: {pkg: fake, exec: env, name: b}
+        """)
+    for args, expected in (({}, "UDPv4"), ({"t": "DEFAULT"}, "DEFAULT")):
+        out = tmp_path / "out.txt"
+        with open(out, "w") as f:
+            launcher = Launcher(lf.load(path, args), out=f, stop_timeout=10.0)
+            launcher.start()
+            deadline = time.monotonic() + 10
+            while launcher.poll() and time.monotonic() < deadline:
+                time.sleep(0.05)
+            launcher.stop()
+        text = out.read_text()
+        assert text.count(f"transports={expected}") == 2, text
 
 
 def _fake_package(tmp_path, scripts: dict[str, str]) -> None:

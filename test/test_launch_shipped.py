@@ -41,9 +41,9 @@ def test_shipped_file_defaults_and_arguments():
 def test_shipped_file_is_the_ros2_yaml_launch_format():
     """Only keys that ros2 launch's YAML frontend knows (launch_yaml + launch_ros)."""
     doc = yaml.safe_load(open(SHIPPED))
-    allowed = {"arg": {"name", "default", "description"}, "set_env": {"name", "value"}, "node": {"pkg", "exec", "name", "param", "if", "unless",
-                                                                  "namespace", "remap", "ros_args", "args",
-                                                                  "launch-prefix"}}
+    allowed = {"arg": {"name", "default", "description"}, "set_env": {"name", "value"},
+               "node": {"pkg", "exec", "name", "param", "if", "unless", "namespace", "remap", "ros_args",
+                        "args", "launch-prefix"}}
     for entry in doc["launch"]:
         (kind, body), = entry.items()
         assert set(body) <= allowed[kind], (kind, body)

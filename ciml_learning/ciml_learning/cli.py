@@ -77,9 +77,11 @@ def _global_options(parser: argparse.ArgumentParser, suppress: bool) -> None:
     default to SUPPRESS so they do not overwrite what was given before it)."""
     d = {"default": argparse.SUPPRESS} if suppress else {"default": None}
     g = parser.add_argument_group("robot (before or after the verb)")
-    g.add_argument("--robot", metavar="PROFILE.yaml", help="robot profile: URDF, feet, joint map, input map "
-                   "(default: HyQ with CIML's own topics; docs/ROBOT_PROFILE.md)", **d)
-    g.add_argument("--urdf", help="robot URDF (shortcut: overrides the profile's urdf)", **d)
+    g.add_argument("--robot", metavar="PROFILE.yaml", help="robot profile: URDF, feet, joint map, input map, "
+                   "or a shipped robot's name (hyq, go1, solo12, a1) (default: HyQ with CIML's own topics; "
+                   "docs/ROBOT_PROFILE.md)", **d)
+    g.add_argument("--urdf", help="robot URDF, a path or erd:<path in example-robot-data's robots/> "
+                   "(shortcut: overrides the profile's urdf)", **d)
     g.add_argument("--feet", type=_feet, metavar="A,B,C,D",
                    help="foot frame names of the URDF, comma-separated or space-separated "
                    "(overrides the profile's feet)", **d)
@@ -119,8 +121,24 @@ def build_parser() -> argparse.ArgumentParser:
         s = sub.add_parser(name, parents=[parent], epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter,
                            help=v.help)
         v.arguments(s)
-        s.set_defaults(func=_run(v.run))
+        s.set_defaults(func=_run(v.run), _no_robot=v.no_robot)
     return p
+
+
+ROBOT_OPTIONS = ("robot", "urdf", "feet")
+"""The global robot options (_global_options)."""
+
+
+def check_robot_options(args: argparse.Namespace) -> None:
+    """Every verb honours the robot options or refuses them (never ignores them): a verb that
+    takes no robot (Verb.no_robot) refuses them; for the others a profile that cannot be read is
+    refused here, before any work."""
+    given = [f"--{o}" for o in ROBOT_OPTIONS if getattr(args, o, None) is not None]
+    if not given:
+        return
+    if getattr(args, "_no_robot", ""):
+        raise CimlError(f"{', '.join(given)} not taken by {args.verb}: {args._no_robot}")
+    profile_from_args(args)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -130,6 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     verbs = set(next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices)
     args = parser.parse_args(_join_feet(list(sys.argv[1:] if argv is None else argv), verbs))
     try:
+        check_robot_options(args)
         return int(args.func(args) or 0)
     except CimlError as err:
         print(ca.one_line(f"ciml {args.verb}: error: {str(err).strip() or type(err).__name__}"), file=sys.stderr)

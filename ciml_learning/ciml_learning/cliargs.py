@@ -117,6 +117,9 @@ class Verb:
     """help text after the options: paragraphs (wrapped) and `example:` lines (kept whole)"""
     order: int = 1000
     """place in `ciml --help` (lower first; ties by name)"""
+    no_robot: str = ""
+    """why the verb takes no robot: `ciml` then refuses --robot, --urdf and --feet with this reason
+    in one line (exit 1) rather than ignore them; empty: the verb reads them (cli.profile_from_args)"""
 
 
 class OneLineParser(argparse.ArgumentParser):

@@ -247,6 +247,29 @@ def resolve_launch_path(target: str, second: str | None) -> str:
     return os.path.join(find_package_share(target), "launch", second)
 
 
+def robot_arguments(args, declared: set[str], given: dict[str, str], path: str) -> dict[str, str]:
+    """--robot / --urdf / --feet as the launch arguments robot:= / urdf:= / feet:= (a shipped
+    robot's name stays a name, a file becomes absolute); LaunchFileError when the file declares no
+    such argument (its nodes could not take the robot) or it is given both ways."""
+    from .cli import profile_from_args
+    from .profile import is_robot_name
+
+    out: dict[str, str] = {}
+    if getattr(args, "robot", None) is not None:
+        out["robot"] = args.robot if is_robot_name(args.robot) else os.path.abspath(args.robot)
+    if getattr(args, "urdf", None) is not None:
+        out["urdf"] = profile_from_args(args).urdf  # resolved (erd:) and absolute
+    if getattr(args, "feet", None) is not None:
+        out["feet"] = ",".join(args.feet)
+    for name in out:
+        if name not in declared:
+            raise LaunchFileError(f"--{name}: {path} declares no launch argument {name!r}, so its nodes cannot "
+                                  f"take it (declared: {', '.join(sorted(declared)) or 'none'})")
+        if name in given:
+            raise LaunchFileError(f"--{name} and {name}:= both given; give the {name} once")
+    return out
+
+
 def launch_command(args) -> int:
     """The `ciml launch` verb."""
     from .launch_file import describe, load, parse_arguments
@@ -256,7 +279,11 @@ def launch_command(args) -> int:
     path = resolve_launch_path(args.file, second)
     if not os.path.isfile(path):
         raise LaunchFileError(f"launch file {path} not found")
-    desc = load(path, parse_arguments(rest))
+    arguments = parse_arguments(rest)
+    desc = load(path, arguments)
+    robot = robot_arguments(args, {a.name for a in desc.arguments}, arguments, path)
+    if robot:
+        desc = load(path, {**arguments, **robot})
     if args.show_args:
         print(describe(desc))
         return 0

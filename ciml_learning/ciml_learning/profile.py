@@ -1,11 +1,12 @@
 """The robot profile: which robot a log comes from and where each role lives in it.
 
 A profile is a small YAML file (docs/ROBOT_PROFILE.md) given as `--robot profile.yaml`
-to every verb: the URDF and its foot frames, a joint-name map from the log's names to
-the URDF's, torque limits, what the measured effort is (`torque_source`), and the input
-map — for each role (joint_state, base, imu, contacts, command) a topic, its message
-type and, for types CIML does not know, field paths into the message. The HyQ profile
-(config/robots/hyq.yaml: CIML's own topics and types) is the default.
+(or a shipped robot's name: `--robot go1`) to every verb and as the nodes' `robot`: the
+URDF and its foot frames, a joint-name map from the log's names to the URDF's, torque
+limits, what the measured effort is (`torque_source`), and the input map — for each role
+(joint_state, base, imu, contacts, command) a topic, its message type and, for types CIML
+does not know, field paths into the message. The HyQ profile (config/robots/hyq.yaml:
+CIML's own topics and types) is the default.
 
 Loading validates everything up front; every error is one line that names the key:
 ``profile go1.yaml: inputs.base.twist_frame: must be one of child, world, got 'body'``.
@@ -29,6 +30,10 @@ FORMAT = 1
 TORQUE_SOURCES = ("sensor", "current_estimate", "none")
 TWIST_FRAMES = ("child", "world")
 STAMP_SOURCES = ("header", "log")
+IMU_ORIENTATIONS = ("auto", "estimate")
+"""inputs.imu.orientation: auto — the IMU's quaternion, estimated from gyro and accelerometer when a
+message has none (zero, or orientation_covariance[0] = −1 as sensor_msgs/Imu says); estimate — always
+estimated (estimation.estimate_orientation)."""
 ROLES = ("joint_state", "base", "imu", "contacts", "command")
 PD_FIELDS = ("q_des", "dq_des", "kp", "kd", "tau_ff")
 
@@ -57,13 +62,33 @@ def robots_dir() -> str:
     raise ProfileError("the shipped robot profiles (config/robots/*.yaml) are not installed; run make install")
 
 
+def shipped_names() -> list[str]:
+    """Robot names of the shipped profiles (hyq, go1, ...)."""
+    return sorted(Path(p).stem for p in glob.glob(os.path.join(robots_dir(), "*.yaml")))
+
+
 def shipped_profile(name: str) -> str:
-    """Path of a shipped profile by robot name (hyq, go1, solo12)."""
+    """Path of a shipped profile by robot name (hyq, go1, solo12, a1)."""
     path = os.path.join(robots_dir(), f"{name}.yaml")
     if not os.path.isfile(path):
-        names = sorted(Path(p).stem for p in glob.glob(os.path.join(robots_dir(), "*.yaml")))
-        raise ProfileError(f"no shipped profile {name!r}; shipped: {', '.join(names)}")
+        raise ProfileError(f"no shipped profile {name!r}; shipped: {', '.join(shipped_names())}")
     return path
+
+
+def is_robot_name(spec: str) -> bool:
+    """A bare name (`go1`), not a path: it names a shipped profile (a file of that name wins)."""
+    return bool(spec) and os.sep not in spec and not spec.endswith((".yaml", ".yml")) and not os.path.isfile(spec)
+
+
+def profile_path(spec: str | os.PathLike) -> str:
+    """The profile file of --robot / a node's `robot`: a YAML path, or a shipped robot's name."""
+    spec = str(spec)
+    if is_robot_name(spec):
+        return shipped_profile(spec)
+    if not os.path.isfile(spec):
+        raise ProfileError(f"profile {spec}: file not found (give a profile YAML or a shipped robot: "
+                           f"{', '.join(shipped_names())})")
+    return spec
 
 
 @dataclass(frozen=True)
@@ -195,10 +220,12 @@ def _validate_inputs(where: str, inputs: Any) -> dict[str, dict]:
 
     if inputs.get("imu") is not None:
         k = "inputs.imu"
-        s = _keys(where, k, inputs["imu"], ("topic", "type", "stamp", "frame"))
+        s = _keys(where, k, inputs["imu"], ("topic", "type", "stamp", "frame", "orientation"))
         out["imu"] = _topic_spec(where, k, s, IMU, (IMU,))
         if "frame" in s:
             out["imu"]["frame"] = _str(where, f"{k}.frame", s["frame"])
+        out["imu"]["orientation"] = _choice(where, f"{k}.orientation", s.get("orientation", "auto"),
+                                            IMU_ORIENTATIONS)
 
     k = "inputs.base"
     base = inputs.get("base")
@@ -297,7 +324,9 @@ def _validate_inputs(where: str, inputs: Any) -> dict[str, dict]:
     return out
 
 
-def _resolve(path: str, base_dir: str) -> str:
+def resolve_urdf(path: str, base_dir: str = ".") -> str:
+    """A URDF reference as a path: `erd:<path>` inside example-robot-data's robots/, else the
+    path (relative to base_dir: the profile's folder, or the working directory for --urdf)."""
     if path.startswith("erd:"):
         return os.path.join(example_robot_data_dir(), path[4:])
     path = os.path.expanduser(path)
@@ -315,7 +344,7 @@ def profile_from_dict(data: Any, where: str = "profile", base_dir: str = ".") ->
     if fmt != FORMAT:
         raise _err(where, "format", f"must be {FORMAT} (this CIML reads profile format {FORMAT}), got {fmt!r}")
     name = _str(where, "name", d.get("name"))
-    urdf = _resolve(_str(where, "urdf", d.get("urdf")), base_dir)
+    urdf = resolve_urdf(_str(where, "urdf", d.get("urdf")), base_dir)
     if not os.path.isfile(urdf):
         raise _err(where, "urdf", f"file not found: {urdf}")
     feet = _str_list(where, "feet", d.get("feet"))
@@ -339,13 +368,11 @@ def profile_from_dict(data: Any, where: str = "profile", base_dir: str = ".") ->
 
 
 def load_profile(path: str | os.PathLike | None = None) -> RobotProfile:
-    """Read and validate a profile YAML (the shipped HyQ profile when path is None)."""
+    """Read and validate a profile YAML, or a shipped one by robot name (HyQ when path is None)."""
     import yaml
 
-    path = str(path) if path is not None else shipped_profile("hyq")
+    path = profile_path(path) if path is not None else shipped_profile("hyq")
     where = f"profile {path}"
-    if not os.path.isfile(path):
-        raise ProfileError(f"{where}: file not found")
     from .fileio import InputFileError, load_yaml_bounded
 
     try:  # size and alias-expansion limits
@@ -362,12 +389,14 @@ def load_profile(path: str | os.PathLike | None = None) -> RobotProfile:
 
 def with_overrides(profile: RobotProfile, urdf: str | None = None,
                    feet: list[str] | tuple[str, ...] | None = None) -> RobotProfile:
-    """The profile with --urdf / --feet shortcuts applied (a URDF without feet keeps the profile's feet)."""
+    """The profile with --urdf (a path or `erd:<path>`) / --feet shortcuts applied (a URDF without
+    feet keeps the profile's feet)."""
     changes: dict[str, Any] = {}
     if urdf is not None:
-        if not os.path.isfile(urdf):
-            raise ProfileError(f"--urdf: file not found: {urdf}")
-        changes["urdf"] = os.path.abspath(urdf)
+        path = resolve_urdf(urdf)
+        if not os.path.isfile(path):
+            raise ProfileError(f"--urdf: file not found: {path}" + (f" ({urdf})" if path != urdf else ""))
+        changes["urdf"] = os.path.abspath(path)
     if feet is not None:
         changes["feet"] = tuple(feet)
     return RobotProfile(**{**profile.__dict__, **changes}) if changes else profile

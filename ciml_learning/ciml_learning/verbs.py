@@ -103,19 +103,27 @@ DIAGNOSE = Verb(
 PLAY = Verb(
     help="publish a bag onto the live ROS graph with its recorded timing", arguments=_play,
     run="ciml_learning.commands:play", order=80,
-    epilog="Publishes every topic of the bag (any layout) with its recorded timing.\n"
-           "example: ciml play --bag bags/default_gap_base --rate 1.0")
+    epilog="Publishes every topic of the bag (any layout) with its recorded timing; the nodes that read "
+           "them take the robot (ciml launch ... robot:=go1), so play takes no --robot.\n"
+           "example: ciml play --bag bags/default_gap_base --rate 1.0",
+    no_robot="it publishes the bag's topics as recorded; give the robot to the nodes that read them "
+             "(ciml --robot NAME launch FILE, or robot:=NAME)")
 
 BENCH = Verb(
     help="speed and memory benchmarks (JSON)", arguments=_bench,
     run="ciml_learning.commands:bench", order=90,
-    epilog="example: ciml bench --out bench.json --only extraction_throughput")
+    epilog="Each benchmark simulates or reads its own robot and logs, so bench takes no --robot.\n"
+           "example: ciml bench --out bench.json --only extraction_throughput",
+    no_robot="each benchmark simulates or reads its own robot and logs")
 
 LAUNCH = Verb(
     help="start the nodes of a YAML launch file (the file ros2 launch reads); a `containers` launch "
          "argument composes nodes in one process per group", arguments=_launch,
     run="ciml_learning.launcher:launch_command", order=100,
-    epilog="example: ciml launch ciml_sim closed_loop.launch.yaml motion:=trot_35 lockstep:=false "
+    epilog="--robot (a profile or a shipped robot's name) becomes the launch argument robot:=..., which "
+           "the file must declare; --urdf and --feet likewise become urdf:= and feet:= (refused when "
+           "the file declares no such argument).\n"
+           "example: ciml launch ciml_sim closed_loop.launch.yaml motion:=trot_35 lockstep:=false "
            "(containers:='' starts one process per node)")
 
 INSPECT = Verb(

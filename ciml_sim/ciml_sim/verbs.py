@@ -54,5 +54,7 @@ CLOSED_LOOP = Verb(
 GAP_BENCH = Verb(
     help="score the diagnosis on scenarios with withheld effects", arguments=_gap_bench,
     run="ciml_sim.gapbench:gap_bench_command", order=70,
-    epilog="Simulates scenarios with withheld effects and scores the diagnosis on them.\n"
-           "example: ciml gap-bench --out out/gap_bench --cases 1 2 --jobs 2")
+    epilog="Simulates scenarios with withheld effects and scores the diagnosis on them; its cases are "
+           "HyQ's, so gap-bench takes no --robot.\n"
+           "example: ciml gap-bench --out out/gap_bench --cases 1 2 --jobs 2",
+    no_robot="its cases are drawn on HyQ's joints and links (the suite's robot)")

@@ -7,6 +7,7 @@ from dataclasses import replace
 from . import realtime
 from .learning_gate import GateConfig
 from .params import NodeSchema, Param
+from .snapshot_gate import ValidationConfig
 
 URDF = Param("urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
 THREAD_PRIORITY = Param(realtime.THREAD_PRIORITY, 50, "SCHED_FIFO priority of the node's process (0 = normal "
@@ -49,6 +50,7 @@ MODEL_SERVER = NodeSchema("ciml_learning", "model_server",
 ))
 
 _GATE = GateConfig()
+_VALIDATION = ValidationConfig()
 ONLINE_LEARNER = NodeSchema("ciml_learning", "online_learner",
                             "learns the model error from /filtered_state + /model_error/measured; "
                             "snapshots announced on /model_update", (
@@ -81,6 +83,18 @@ ONLINE_LEARNER = NodeSchema("ciml_learning", "online_learner",
           "m·g, base torque m·g·leg span, joint torques their limits)", "", 0.1, 100.0),
     Param("require_reference", _GATE.require_reference, "Learn only with a /reference at the state's stamp (false: "
           "a log replayed without /reference is learned without the tracking check)"),
+    Param("input_timeout", 2.0, "No state or error this long after the first: WARN on /diagnostics", "s", 0.1,
+          3600.0),
+    Param("hold_back_block", _VALIDATION.block, "Length of a block of stamps; one block in hold_back_every is held "
+          "back (not learned) to validate snapshots on", "s", 0.01, 60.0),
+    Param("hold_back_every", _VALIDATION.every, "One block of stamps in this many is held back", "", 2, 100),
+    Param("validation_window", _VALIDATION.window, "Newest held-back samples a snapshot is validated on", "", 10,
+          100000),
+    Param("min_learned", _VALIDATION.min_learned, "Samples learned before a snapshot may be served", "", 0, 10**7),
+    Param("min_heldout", _VALIDATION.min_heldout, "Held-back samples, per output, for a decision on that output",
+          "", 1, 100000),
+    Param("validation_margin", _VALIDATION.margin, "A snapshot's output is served only if its mean squared error on "
+          "held-back samples is at most (1 − margin) × the nominal model's", "", 0.0, 0.99),
     URDF,
 ))
 

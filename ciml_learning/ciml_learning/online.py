@@ -34,6 +34,7 @@ from .models import N_BASE, ModelSet, ModelSetError
 from .projection import contact_invariant_basis, generalized_rbd_error, leg_coupling
 from .robot import RobotDescription
 from .serving import probe_inputs
+from .snapshot_gate import HELD_BACK, HeldBackWindow, ValidationConfig
 from .snapshots import Snapshot
 
 STATE, ERROR = 0, 1
@@ -163,7 +164,9 @@ class OnlineLearner:
       after a rejected input) or nothing in the error is observed;
     - "non_finite_inputs": x is not finite (cannot happen after the conversions' checks);
     - with a `gate` (learning_gate.LearningGate): its pause reasons (fall, tracking error,
-      target beyond physical bounds, no reference, recovering).
+      target beyond physical bounds, no reference, recovering);
+    - with `validation` (snapshot_gate.ValidationConfig): "held_back_samples", a sample of a
+      held-back block, kept in `heldout` (not learned) to validate snapshots on.
     A uniform sample of the learned inputs (N_PROBES, reservoir sampling) goes with every
     snapshot, for the model server's bounds check.
     Γ entries whose actuation_observed flag is false are not learned (passed as NaN,
@@ -171,7 +174,7 @@ class OnlineLearner:
     """
 
     def __init__(self, robot: RobotDescription, model_set: ModelSet, calibration_samples: int = 0,
-                 record_stamps: bool = False, gate=None) -> None:
+                 record_stamps: bool = False, gate=None, validation: ValidationConfig | None = None) -> None:
         if calibration_samples < 0:
             raise ValueError("calibration_samples must be >= 0")
         if not learner_class(model_set.learner).supports_partial_fit:
@@ -188,6 +191,9 @@ class OnlineLearner:
         self._buffer: list[tuple[int, tuple[np.ndarray, ...]]] = []
         self._stamps = np.empty(1024 if record_stamps else 0, dtype=np.int64)
         self.gate = gate
+        self.validation = validation
+        self.heldout = (HeldBackWindow(validation.window, len(model_set.input_names), model_set.n_rbd,
+                                       model_set.n_actuation) if validation is not None else None)
         self._probes: list[np.ndarray] = []
         self._probe_rng = np.random.default_rng(0)
         self._probe_seen = 0
@@ -219,8 +225,11 @@ class OnlineLearner:
         if not np.all(np.isfinite(x)):
             return self._reject("non_finite_inputs")
         self.last_stamp = stamp
-        self._keep_probe(x)
         sample = (x, *self._targets(state.q, error))
+        if self.heldout is not None and self.validation is not None and self.validation.held_back(stamp):
+            self.heldout.add(*sample)
+            return self._reject(HELD_BACK)
+        self._keep_probe(x)
         if self.calibrating:
             self._buffer.append((stamp, sample))
             if len(self._buffer) >= self.calibration_samples:
@@ -275,7 +284,8 @@ class OnlineLearner:
         t0 = time.perf_counter()
         ms = copy.deepcopy(self.model_set)
         stamps = self.learned_stamps.copy() if self.record_stamps else None
-        return Snapshot(ms, self.n_learned, stamps, time.perf_counter() - t0, self.probe_inputs)
+        heldout = self.heldout.arrays() if self.heldout is not None else None
+        return Snapshot(ms, self.n_learned, stamps, time.perf_counter() - t0, self.probe_inputs, heldout)
 
 
 def warm_up(robot: RobotDescription, learner: str = "lwpr") -> float:

@@ -20,12 +20,14 @@ import numpy as np
 
 from .errors import CimlError
 from .models import ModelSet
+from .snapshot_gate import Validation, ValidationConfig, keep_accepted, validate
 
 SNAPSHOT_PREFIX = "snapshot-"
 LATEST = "latest"
 STAMPS_FILE = "learned_stamps.npy"
 """Optional file of a snapshot: int64 header stamps [ns] of the learned samples, in order."""
 PROBE_FILE = "probe_inputs.npy"
+VALIDATION_FILE = "validation.json"
 """File of a snapshot: float64 (k × n_inputs) learning inputs x drawn uniformly from the learned
 samples (reservoir sampling), on which the model server checks the model's predictions."""
 
@@ -39,6 +41,7 @@ class Snapshot:
     stamps: np.ndarray | None      # learned stamps [ns], in order (record_stamps only)
     copy_seconds: float            # time the learning thread spent copying
     probe_inputs: np.ndarray | None = None  # a uniform sample of the learned inputs x (k × n_inputs)
+    heldout: tuple[np.ndarray, ...] | None = None  # held-back samples to validate on (snapshot_gate)
 
 
 
@@ -49,17 +52,22 @@ class SavedSnapshot:
     samples: int
     checksum: str
     write_seconds: float
+    validation: Validation | None = None  # the gate's decision; refused: nothing written, model_dir ''
 
 
 class SnapshotWriter:
     """Numbered snapshot directories under `root` (module docstring); write() is what
-    the worker thread runs. Numbering continues after existing snapshots."""
+    the worker thread runs. Numbering continues after existing snapshots. With `validation`,
+    a snapshot that carries held-back samples is first put to the gate of snapshot_gate: refused,
+    nothing is written; accepted, it is written with its accepted outputs only and the decision
+    (VALIDATION_FILE, in the manifest and so in the checksum)."""
 
-    def __init__(self, root: str, keep: int = 3) -> None:
+    def __init__(self, root: str, keep: int = 3, validation: ValidationConfig | None = None) -> None:
         if keep < 1:
             raise ValueError("keep must be >= 1")
         self.root = os.path.abspath(os.path.expanduser(root))
         self.keep = int(keep)
+        self.validation = validation
         try:
             os.makedirs(self.root, exist_ok=True)
             existing = self.snapshots()
@@ -80,14 +88,22 @@ class SnapshotWriter:
         """Write the next snapshot directory (published whole: fileio.atomic_dir, the stamps in
         its manifest), then point `latest` at it (a symlink swapped with one rename), then
         remove snapshots beyond `keep`. Killed at any step: every snapshot-NNNNNN is complete."""
-        from .fileio import clean_stale, fault_point, fsync_dir
+        from .fileio import clean_stale, fault_point, fsync_dir, json_dumps
 
         t0 = time.perf_counter()
+        extra = {}
+        decision = None
+        if self.validation is not None and snap.heldout is not None:
+            decision = validate(snap.model_set, snap.heldout, snap.samples, self.validation)
+            if not decision.served:
+                return SavedSnapshot("", snap.model_set.learner, int(snap.samples), "",
+                                     time.perf_counter() - t0, decision)
+            keep_accepted(snap.model_set, decision)
+            extra[VALIDATION_FILE] = json_dumps(decision.to_json(snap.model_set.output_names)).encode()
         self.seq += 1
         name = f"{SNAPSHOT_PREFIX}{self.seq:06d}"
         path = os.path.join(self.root, name)
         clean_stale(self.root, rf"{SNAPSHOT_PREFIX}\d+|{LATEST}")
-        extra = {}
         if snap.stamps is not None:
             buf = io.BytesIO()
             np.save(buf, snap.stamps.astype(np.int64), allow_pickle=False)
@@ -110,6 +126,6 @@ class SnapshotWriter:
             fault_point("cleanup")
             shutil.rmtree(old, ignore_errors=True)
         return SavedSnapshot(path, snap.model_set.learner, int(snap.samples), meta["checksum"],
-                             time.perf_counter() - t0)
+                             time.perf_counter() - t0, decision)
 
 

@@ -1,6 +1,8 @@
 """Pure helpers of the online_learner and model_server nodes (no rclpy.init, no DDS)."""
 from __future__ import annotations
 
+import copy
+import json
 import os
 import threading
 import time
@@ -13,7 +15,7 @@ from ciml_learning import conversions as cv
 from ciml_learning.conversions import ConversionError
 from ciml_learning.dynamics import ReferenceState, ReferenceTorque
 from ciml_learning.extraction import dynamics_batch, learning_inputs
-from ciml_learning.models import ModelFileError, ModelSet, ModelSetError
+from ciml_learning.models import ModelFileError, ModelSet, ModelSetError, read_metadata, read_model_file
 from ciml_learning.online import (
     ERROR,
     STATE,
@@ -26,7 +28,15 @@ from ciml_learning.online import (
 from ciml_learning.projection import contact_invariant_bases, generalized_rbd_error, leg_coupling
 from ciml_learning.robot import load_robot
 from ciml_learning.serving import NOMINAL, load_served_model, nominal_prediction, predict_at_reference
-from ciml_learning.snapshots import LATEST, STAMPS_FILE, SnapshotWriter
+from ciml_learning.snapshot_gate import (
+    ACCEPTED,
+    HELD_BACK,
+    REFUSED_NOT_BETTER,
+    REFUSED_TOO_FEW,
+    ValidationConfig,
+    validate,
+)
+from ciml_learning.snapshots import LATEST, STAMPS_FILE, VALIDATION_FILE, SnapshotWriter
 from ciml_learning.workers import LatestOnlyWorker
 
 ROBOT = load_robot()
@@ -470,3 +480,69 @@ def test_model_server_refuses_unannounced_checksums_and_models_beyond_physical_b
     poisoned.save(str(tmp_path / "poisoned2"))
     with pytest.raises(ModelFileError, match="beyond physical bounds"):
         load_served_model(ROBOT, str(tmp_path / "poisoned2"))
+
+
+# ---------------------------------------------------------------------- the snapshot gate
+GATE = ValidationConfig(block=0.2, every=5, window=800, min_learned=1000, min_heldout=100, margin=0.25)
+
+
+def _learned_with_hold_back(n: int, config: ValidationConfig = GATE):
+    s = stream(n, seed=3)
+    learner = OnlineLearner(ROBOT, ModelSet.for_robot(ROBOT, "lwpr"), validation=config)
+    reasons = [learner.learn(int(s["stamps"][k]), state_sample(s, k), error_sample(s, k)) for k in range(n)]
+    return learner, s, reasons
+
+
+def test_held_back_samples_are_whole_blocks_of_stamps_and_never_learned():
+    learner, s, reasons = _learned_with_hold_back(1500)
+    held = np.array([r == HELD_BACK for r in reasons])
+    expected = np.array([GATE.held_back(t) for t in s["stamps"]]) & s["valid"]
+    np.testing.assert_array_equal(held, expected)
+    assert 0.15 < held.sum() / s["valid"].sum() < 0.25                   # one block in 5
+    assert learner.n_learned == int(s["valid"].sum() - held.sum())
+    assert learner.heldout.size == min(int(held.sum()), GATE.window)
+    # whole blocks: the held-back stamps change state at most twice per 0.2 s × 5 of stream
+    flips = np.count_nonzero(np.diff(expected[s["valid"]].astype(int)))
+    assert flips <= 2 * (1500 / 250) / (GATE.block * GATE.every) + 2
+
+
+def test_snapshot_gate_serves_a_model_better_than_nominal_and_refuses_a_worse_one():
+    learner, s, _ = _learned_with_hold_back(6000)
+    snap = learner.snapshot()
+    good = validate(snap.model_set, snap.heldout, snap.samples, GATE)
+    assert good.decision == ACCEPTED
+    act = slice(ROBOT.nv, None)
+    # Γ = −3 q̇ − 0.01 τ̇ + noise is learnable: every actuation output is served and explains most of the error
+    assert good.accepted[act].all()
+    assert np.all(good.mse_model[act] < 0.3 * good.mse_nominal[act])
+    # a well-formed, finite, bounded model that predicts the error with the wrong sign is worse than nominal
+    bad = copy.deepcopy(snap.model_set)
+    bad.output_scale_ = -bad.output_scale_
+    worse = validate(bad, snap.heldout, snap.samples, GATE)
+    assert worse.decision == REFUSED_NOT_BETTER and not worse.accepted.any()
+    assert np.all(worse.mse_model[act] > worse.mse_nominal[act])
+    # too early: fewer samples learned than min_learned
+    early = validate(snap.model_set, snap.heldout, 999, GATE)
+    assert early.decision == REFUSED_TOO_FEW and not early.accepted.any()
+
+
+def test_snapshot_writer_writes_only_accepted_snapshots_with_their_accepted_outputs(tmp_path):
+    learner, s, _ = _learned_with_hold_back(6000)
+    writer = SnapshotWriter(str(tmp_path / "online"), validation=GATE)
+    snap = learner.snapshot()
+    bad = copy.deepcopy(snap)
+    bad.model_set.output_scale_ = -bad.model_set.output_scale_
+    refused = writer.write(bad)
+    assert refused.model_dir == "" and refused.validation.decision == REFUSED_NOT_BETTER
+    assert writer.snapshots() == []                                    # nothing written
+    saved = writer.write(snap)
+    assert saved.validation.served and saved.model_dir
+    served = load_served_model(ROBOT, saved.model_dir, saved.checksum)  # the decision is in the checksum
+    kept = np.array([m is not None for m in served.model_set.models_])
+    np.testing.assert_array_equal(kept, saved.validation.accepted)
+    assert not saved.validation.accepted.all()                          # e.g. outputs never observed enough
+    meta = read_metadata(saved.model_dir)
+    assert VALIDATION_FILE in meta["manifest"]
+    record = json.loads(read_model_file(saved.model_dir, meta, VALIDATION_FILE))
+    assert record["decision"] == ACCEPTED
+    assert [o["accepted"] for o in record["outputs"].values()] == saved.validation.accepted.tolist()

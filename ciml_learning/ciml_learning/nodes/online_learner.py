@@ -25,6 +25,15 @@ error is within the robot's physical bounds (m·g, m·g·leg span, torque limits
 learning pauses: /diagnostics WARN "learning paused: <reason>" and the paused_* counters;
 back to OK ("learning …") once the checks have passed for `resume_after` seconds. Without any
 /reference (a replayed log) tracking is not checked unless `require_reference`.
+
+A snapshot is announced only if it predicts better than the nominal model on held-back live
+samples it was not trained on (ciml_learning.snapshot_gate: one block of stamps in
+`hold_back_every` is held back; at least `min_learned` samples learned; per output, its mean
+squared error ≤ (1 − `validation_margin`) × the nominal model's on ≥ `min_heldout` held-back
+samples); it is announced with its accepted outputs only. Decisions are counted on /diagnostics
+(snapshots_accepted, snapshots_refused_too_few_samples, snapshots_refused_not_better_than_nominal;
+outputs_served: the newest accepted snapshot's). No state or error for `input_timeout` seconds
+(node clock) after the first: WARN "no samples …" until they come back.
 """
 from __future__ import annotations
 
@@ -46,6 +55,7 @@ from ..online import ERROR, STATE, OnlineLearner, StampPairer, StateSample, mode
 from ..robot import load_robot
 from ..ros_common import COMMAND_QOS, OK, WARN, Health, declare_schema, run_node
 from ..ros_common import ERROR as DIAG_ERROR
+from ..snapshot_gate import HELD_BACK, ValidationConfig
 from ..snapshots import SnapshotWriter
 from ..workers import LatestOnlyWorker
 
@@ -60,6 +70,9 @@ class OnlineLearnerNode(Node):
         learner, initial, calib = p["learner"], p["initial_model"], p["calibration_samples"]
         max_age, depth, record, urdf = p["max_pair_age"], p["queue_depth"], p["record_stamps"], p["urdf"]
         gate = GateConfig(**{f.name: p[f.name] for f in dataclasses.fields(GateConfig)})
+        validation = ValidationConfig(block=p["hold_back_block"], every=p["hold_back_every"],
+                                      window=p["validation_window"], min_learned=p["min_learned"],
+                                      min_heldout=p["min_heldout"], margin=p["validation_margin"])
         self.robot = load_robot(urdf or None)
         self.gate = LearningGate(self.robot, gate)
         if initial:
@@ -67,10 +80,11 @@ class OnlineLearnerNode(Node):
             self.get_logger().info(f"continuing from {initial} ({int(ms.n_samples_.max())} samples)")
         else:
             ms = ModelSet.for_robot(self.robot, learner)
-        self.learner = OnlineLearner(self.robot, ms, calibration_samples=calib, record_stamps=record, gate=self.gate)
+        self.learner = OnlineLearner(self.robot, ms, calibration_samples=calib, record_stamps=record, gate=self.gate,
+                                     validation=validation)
         self.get_logger().info(f"learner code ready in {warm_up(self.robot, ms.learner):.2f} s")
         self.pairer = StampPairer(int(max_age * 1e9))
-        self.writer = SnapshotWriter(model_dir or DEFAULT_MODEL_DIR, keep)
+        self.writer = SnapshotWriter(model_dir or DEFAULT_MODEL_DIR, keep, validation)
         self.worker = LatestOnlyWorker(self.writer.write, name="snapshot-writer")
         self.snapshot_samples = 0   # samples in the newest snapshot submitted
         self.saved_samples = 0      # samples in the newest snapshot written
@@ -86,6 +100,9 @@ class OnlineLearnerNode(Node):
         self.create_subscription(RobotReference, topics.REFERENCE, self.on_reference, qos)
         self.create_timer(self.snapshot_period, self.snapshot)
         self.create_timer(0.05, self.announce)
+        self.input_timeout = p["input_timeout"]
+        self._last_input: float | None = None  # node clock [s] of the newest state or error
+        self.create_timer(1.0, self.watch_inputs)
 
     # --- inputs ------------------------------------------------------------------------
     def on_state(self, msg) -> None:
@@ -112,7 +129,16 @@ class OnlineLearnerNode(Node):
             return
         self._pair(ERROR, cv.stamp_to_ns(msg.header.stamp), sample)
 
+    def watch_inputs(self) -> None:
+        """A learner whose inputs stopped says so (the chain upstream died or stalls)."""
+        if self._last_input is None:
+            return
+        silent = self.get_clock().now().nanoseconds * 1e-9 - self._last_input
+        self.health.condition("no_samples", silent > self.input_timeout, WARN,
+                              f"no samples: no /filtered_state or /model_error/measured for {silent:.1f} s")
+
     def _pair(self, side: int, stamp: int, item) -> None:
+        self._last_input = self.get_clock().now().nanoseconds * 1e-9
         pair = self.pairer.add(side, stamp, item)
         self._sync_counts(self.pairer.counts)
         if pair is None:
@@ -124,7 +150,7 @@ class OnlineLearnerNode(Node):
         if reason is not None:
             if reason.startswith("paused_"):
                 self.health.counts[reason] = self.learner.counts[reason]
-            elif reason != "invalid_samples":  # expected near every contact change: counted, not a warning
+            elif reason not in ("invalid_samples", HELD_BACK):  # expected (contact changes, validation): counted
                 self.health.count(reason, f"pair at stamp {pair[0]} not learned: {reason}")
             else:
                 self.health.count(reason)
@@ -184,6 +210,14 @@ class OnlineLearnerNode(Node):
                 continue
             saved = result.value
             self.health.condition("snapshot_failed", False)
+            if saved.validation is not None:
+                self.health.counts[saved.validation.decision] += 1
+                if not saved.validation.served:
+                    self.snapshot_samples = self.saved_samples  # not written: the next period tries again
+                    self.get_logger().info(f"snapshot not served ({saved.validation.decision}: "
+                                           f"{saved.validation.summary()})")
+                    continue
+                self.health.counts["outputs_served"] = int(saved.validation.accepted.sum())
             self.saved_samples = max(self.saved_samples, saved.samples)
             msg = ModelUpdate(header=cv.header_msg(self.get_clock().now().nanoseconds), model_dir=saved.model_dir,
                               learner=saved.learner, samples=saved.samples, checksum=saved.checksum)
@@ -197,7 +231,8 @@ class OnlineLearnerNode(Node):
         """Write the samples learned since the last snapshot before exiting (not announced)."""
         try:
             if self.learner.n_learned > self.snapshot_samples:
-                snap = self.learner.snapshot()
+                # written whole, without the gate: it is not announced, only kept to continue from
+                snap = dataclasses.replace(self.learner.snapshot(), heldout=None)
                 self.snapshot_samples = snap.samples
                 self.worker.submit(snap)  # replaces a snapshot that has not started yet
             self.worker.close()           # finishes the running and the pending one

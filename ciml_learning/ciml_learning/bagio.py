@@ -163,7 +163,23 @@ class BagWriter:
             shutil.rmtree(self._tmp, ignore_errors=True)
 
 
+ROS1_MAGIC = b"#ROSBAG V2.0\n"
+"""First bytes of a ROS 1 bag file (format 2.0, the only one ROS 1 writes)."""
+
+
+def is_ros1_bag(path: Path) -> bool:
+    """A file that starts as a ROS 1 bag, whatever its name."""
+    try:
+        with open(path, "rb") as f:
+            return path.is_file() and f.read(len(ROS1_MAGIC)) == ROS1_MAGIC
+    except OSError:
+        return False
+
+
 def _open_reader(paths: Sequence[str | os.PathLike]):
+    import shutil
+    import tempfile
+
     from rosbags.highlevel import AnyReader, AnyReaderError
 
     bags = [Path(p) for p in paths]
@@ -177,20 +193,30 @@ def _open_reader(paths: Sequence[str | os.PathLike]):
             check_bag(p)
     except BagCorruptError as err:
         raise BagError(str(err)) from None
+    # rosbags tells a ROS 1 bag by its .bag suffix: a renamed one is read through a link that has it
+    # (the reader holds the file open, so the link goes once it is open)
+    ros1 = [i for i, p in enumerate(bags) if p.suffix != ".bag" and is_ros1_bag(p)]
+    links = tempfile.mkdtemp(prefix="ciml-ros1-") if ros1 else None
+    opened = list(bags)
+    for i in ros1:
+        opened[i] = Path(str(links)) / f"{i}_{bags[i].name}.bag"
+        opened[i].symlink_to(bags[i].resolve())
     try:
-        reader = AnyReader(bags, default_typestore=typestore())
+        reader = AnyReader(opened, default_typestore=typestore())
         reader.open()
     except AnyReaderError as err:
-        raise BagError(
-            f"cannot read bag {', '.join(map(str, bags))}: {err} — if it was cut short, try "
-            "'ros2 bag reindex' (db3) or 'mcap recover' (MCAP)"
-        ) from err
+        fix = ("'rosbag reindex' (ROS 1)" if all(p.suffix == ".bag" for p in opened)
+               else "'ros2 bag reindex' (db3) or 'mcap recover' (MCAP)")
+        raise BagError(f"cannot read bag {', '.join(map(str, bags))}: {err} — if it was cut short, try {fix}") from err
     except FileNotFoundError as err:
         missing = os.path.basename(err.filename) if err.filename else "metadata.yaml"
         raise BagError(
             f"bag {', '.join(map(str, bags))}: {missing} is missing; "
             "recreate metadata.yaml with 'ros2 bag reindex'"
         ) from None
+    finally:
+        if links is not None:
+            shutil.rmtree(links, ignore_errors=True)
     return reader
 
 

@@ -60,10 +60,14 @@ def test_unitree_like_mcap_is_read_exactly(go1_mcap):
     assert "FL_foot" in log.sources["joint_state"] and not log.warnings  # ignored, listed, no surprise
 
 
-@pytest.mark.parametrize("fmt", ["sqlite3", "ros1"])
+@pytest.mark.parametrize("fmt", ["sqlite3", "ros1", "ros1 renamed"])
 def test_db3_and_ros1_give_the_same_log(tmp_path, go1_mcap, fmt):
-    ros1 = fmt == "ros1"
-    path = write_bag(tmp_path / "go1", go1_messages(ROBOT, store(ros1), 500.0, 1.0), fmt=fmt, ros1=ros1)
+    """A ROS 1 bag is one whatever its name: renamed without its .bag suffix it is still read
+    (rosbags tells the formats by the suffix; bagio by the file's first bytes)."""
+    ros1 = fmt.startswith("ros1")
+    path = write_bag(tmp_path / "go1", go1_messages(ROBOT, store(ros1), 500.0, 1.0), fmt=fmt.split()[0], ros1=ros1)
+    if fmt == "ros1 renamed":
+        path = path.rename(tmp_path / "robot_run_2024")
     a, b = load_log(ROBOT, go1_mcap, PROFILE), load_log(ROBOT, path, PROFILE)
     for f in ("t", "q", "v", "tau", "u", "contacts"):
         np.testing.assert_allclose(getattr(a, f), getattr(b, f), atol=1e-9, err_msg=f)

@@ -54,12 +54,38 @@ def load_epsilon_function(robot: RobotDescription, spec: str) -> Callable | None
                             f"({type(err).__name__}: {' '.join(str(err).split())})") from err
 
 
+def scenario_for(args: argparse.Namespace, robot: RobotDescription):
+    """The --scenario for the robot of --robot; when it does not fit that robot (its joints or
+    links are another robot's), the error names the shipped robots it fits: "add --robot go1"."""
+    from ciml_learning.cli import profile_from_args
+    from ciml_learning.profile import load_profile, shipped_names
+
+    from .scenario import ScenarioError, resolve_scenario
+
+    try:
+        return resolve_scenario(args.scenario, robot)
+    except ScenarioError as err:
+        fits = []
+        for name in shipped_names():
+            if name == profile_from_args(args).name:
+                continue
+            try:
+                resolve_scenario(args.scenario, load_profile(name).robot())
+                fits.append(name)
+            except CimlError:
+                pass
+        if fits:  # a robot the scenario is named after first (go1_gap: go1, then a1 with the same joints)
+            fits.sort(key=lambda name: name not in os.path.basename(args.scenario))
+            raise ScenarioError(f"{err} — scenario {args.scenario} is for robot {' or '.join(fits)}: add "
+                                f"--robot {fits[0]}") from err
+        raise
+
+
 def record(args: argparse.Namespace) -> int:
     from ciml_learning.bagio import BagWriter
     from ciml_learning.cli import robot_from_args
 
     from .recorder import check_motion, run_headless
-    from .scenario import resolve_scenario
 
     _duration(args.duration)
     if os.path.lexists(args.out):  # refused before the simulation, not after
@@ -68,7 +94,7 @@ def record(args: argparse.Namespace) -> int:
 
     check_out_parent(args.out, "--out")
     robot = robot_from_args(args)
-    scenario = resolve_scenario(args.scenario, robot)
+    scenario = scenario_for(args, robot)
     check_motion(args.motion)
     # zstd MCAP chunks (~4× smaller: the joint and DoF names repeat in every message)
     writer = BagWriter(args.out, compression="zstd")
@@ -94,14 +120,13 @@ def closed_loop(args: argparse.Namespace) -> int:
     from ciml_learning.fileio import atomic_write_json, check_out_dir, check_out_file
 
     from .recorder import check_motion, run_headless
-    from .scenario import resolve_scenario
 
     _duration(args.duration)
     check_out_file(args.out)
     if args.report:
         check_out_dir(args.report, is_diagnosis_dir, "diagnosis", "--report")
     robot = robot_from_args(args)
-    scenario = resolve_scenario(args.scenario, robot)
+    scenario = scenario_for(args, robot)
     check_motion(args.motion)
     epsilon_fn = load_epsilon_function(robot, args.model)
     duration = args.duration if args.duration is not None else default_duration(args.motion)

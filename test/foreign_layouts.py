@@ -5,10 +5,11 @@ truth) is read with the ordinary reader and rewritten the way other robots log:
 
 - `write_unitree`: Unitree-like — /joint_states (sensor_msgs/JointState in Unitree's leg
   order FR, FL, RR, RL, plus four foot-sensor entries FL_foot … whose effort is the foot's
-  normal force), /imu (sensor_msgs/Imu: the base orientation and angular velocity with IMU
-  noise, frame imu_link), /foot_force (std_msgs/Float64MultiArray, normal forces in `feet`
-  order, no header), /effort_command (std_msgs/Float64MultiArray, the total torque the joint
-  loop asked for, in Unitree's order); no odometry, no contact flags.
+  normal force), /imu (sensor_msgs/Imu: the base orientation — or none, a zero quaternion —,
+  angular velocity and specific force with IMU noise, frame imu_link), /foot_force
+  (std_msgs/Float64MultiArray, normal forces in `feet` order, no header), /effort_command
+  (std_msgs/Float64MultiArray, the total torque the joint loop asked for, in Unitree's order);
+  no odometry, no contact flags.
 - `write_ros2_control`: /joint_states, /imu, /odom (nav_msgs/Odometry whose twist is in the
   WORLD frame, as many estimators publish it), optionally /effort_controller/commands
   (Float64MultiArray); no contact topic.
@@ -187,15 +188,16 @@ class _Bag:
     def vector3(self, x):
         return self.T["geometry_msgs/msg/Vector3"](x=float(x[0]), y=float(x[1]), z=float(x[2]))
 
-    def imu(self, ns: int, quat_xyzw, gyro, frame: str = "imu_link"):
+    def imu(self, ns: int, quat_xyzw, gyro, accel, frame: str = "imu_link"):
+        """sensor_msgs/Imu; quat_xyzw None: no orientation (a zero quaternion, as drivers that never
+        fill it publish)."""
         T = self.T
-        q = T["geometry_msgs/msg/Quaternion"](x=float(quat_xyzw[0]), y=float(quat_xyzw[1]), z=float(quat_xyzw[2]),
-                                              w=float(quat_xyzw[3]))
+        quat = np.zeros(4) if quat_xyzw is None else quat_xyzw
+        q = T["geometry_msgs/msg/Quaternion"](x=float(quat[0]), y=float(quat[1]), z=float(quat[2]), w=float(quat[3]))
         cov = np.zeros(9)
         return T["sensor_msgs/msg/Imu"](header=self.header(ns, frame), orientation=q, orientation_covariance=cov,
                                         angular_velocity=self.vector3(gyro), angular_velocity_covariance=cov,
-                                        linear_acceleration=self.vector3([0.0, 0.0, 9.81]),
-                                        linear_acceleration_covariance=cov)
+                                        linear_acceleration=self.vector3(accel), linear_acceleration_covariance=cov)
 
     def odometry(self, ns: int, pos, quat_xyzw, lin, ang, frame: str = "odom", child: str = "base_link"):
         T = self.T
@@ -217,15 +219,25 @@ def _rotations(quat_xyzw: np.ndarray) -> np.ndarray:
     return np.array([pin.Quaternion(q).matrix() for q in quat_xyzw])
 
 
-def _noisy_imu(log: NativeLog, rng: np.random.Generator, orientation_std: float, gyro_std: float):
-    """IMU readings: the base orientation tilted by a small random rotation, gyro + white noise."""
+GRAVITY = 9.81  # [m/s²]
+
+
+def _noisy_imu(log: NativeLog, rng: np.random.Generator, orientation_std: float, gyro_std: float,
+               accel_std: float = 0.05, gyro_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)):
+    """IMU readings at the base origin: the base orientation tilted by a small random rotation,
+    gyro + bias + white noise, and the accelerometer's specific force (REP 145: gravity included)
+    f = Rᵀ (a + (0, 0, g)), a the base's world-frame acceleration (the derivative of R v), + white noise."""
     import pinocchio as pin
 
     quat = np.empty((len(log), 4))
     for k in range(len(log)):
         R = pin.Quaternion(log.q[k, 3:7]).matrix() @ pin.exp3(rng.normal(0.0, orientation_std, 3))
         quat[k] = pin.Quaternion(R).coeffs()
-    return quat, log.v[:, 3:6] + rng.normal(0.0, gyro_std, (len(log), 3))
+    gyro = log.v[:, 3:6] + np.asarray(gyro_bias) + rng.normal(0.0, gyro_std, (len(log), 3))
+    R = _rotations(log.q[:, 3:7])
+    a_world = np.gradient(np.einsum("kij,kj->ki", R, log.v[:, :3]), log.t, axis=0)
+    accel = np.einsum("kji,kj->ki", R, a_world + [0.0, 0.0, GRAVITY]) + rng.normal(0.0, accel_std, (len(log), 3))
+    return quat, gyro, accel
 
 
 def unitree_joint_order(robot: RobotDescription) -> list[str]:
@@ -240,14 +252,16 @@ def _ns(t: float) -> int:
 
 def write_unitree(robot: RobotDescription, log: NativeLog, path: str | os.PathLike, storage: str = "mcap",
                   command: bool = True, seed: int = 0, force_noise: float = 1.0,
-                  imu_noise: tuple[float, float] = (0.002, 0.005)) -> dict:
+                  imu_noise: tuple[float, float] = (0.002, 0.005), imu_orientation: bool = True,
+                  gyro_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> dict:
     """Unitree-like layout (module docstring); returns its profile. force_noise [N],
-    imu_noise (orientation [rad], gyro [rad/s]) standard deviations."""
+    imu_noise (orientation [rad], gyro [rad/s]) standard deviations; imu_orientation False: the
+    IMU's quaternion is never filled (zero), as some drivers publish it; gyro_bias [rad/s]."""
     rng = np.random.default_rng(seed)
     order = unitree_joint_order(robot)
     perm = [robot.joint_names.index(j) for j in order]
     feet = list(robot.foot_frames)
-    imu_q, imu_w = _noisy_imu(log, rng, *imu_noise)
+    imu_q, imu_w, imu_a = _noisy_imu(log, rng, *imu_noise, gyro_bias=gyro_bias)
     force = np.maximum(log.foot_force + rng.normal(0.0, force_noise, log.foot_force.shape), 0.0)
     cmd_t = command_stamps(log)
     with _Bag(path, storage) as bag:
@@ -256,7 +270,8 @@ def write_unitree(robot: RobotDescription, log: NativeLog, path: str | os.PathLi
             js = bag.joint_state(ns, order + feet, np.r_[log.q[k, 7:][perm], np.zeros(len(feet))],
                                  np.r_[log.v[k, 6:][perm], np.zeros(len(feet))], np.r_[log.tau[k][perm], force[k]])
             bag.write("/joint_states", "sensor_msgs/msg/JointState", ns, js)
-            bag.write("/imu", "sensor_msgs/msg/Imu", ns, bag.imu(ns, imu_q[k], imu_w[k]))
+            bag.write("/imu", "sensor_msgs/msg/Imu", ns,
+                      bag.imu(ns, imu_q[k] if imu_orientation else None, imu_w[k], imu_a[k]))
             bag.write("/foot_force", "std_msgs/msg/Float64MultiArray", ns, bag.float_array(force[k]))
             if command and k + 1 < len(log):
                 bag.write("/effort_command", "std_msgs/msg/Float64MultiArray", _ns(cmd_t[k]),
@@ -281,7 +296,7 @@ def write_ros2_control(robot: RobotDescription, log: NativeLog, path: str | os.P
     rng = np.random.default_rng(seed)
     names = sorted(robot.joint_names)  # a driver's own order (alphabetical), not the URDF's
     perm = [robot.joint_names.index(j) for j in names]
-    imu_q, imu_w = _noisy_imu(log, rng, *imu_noise)
+    imu_q, imu_w, imu_a = _noisy_imu(log, rng, *imu_noise)
     R = _rotations(log.q[:, 3:7])
     lin_world = np.einsum("kij,kj->ki", R, log.v[:, :3])
     ang_world = np.einsum("kij,kj->ki", R, log.v[:, 3:6])
@@ -291,7 +306,7 @@ def write_ros2_control(robot: RobotDescription, log: NativeLog, path: str | os.P
             ns = _ns(log.t[k])
             bag.write("/joint_states", "sensor_msgs/msg/JointState", ns,
                       bag.joint_state(ns, names, log.q[k, 7:][perm], log.v[k, 6:][perm], log.tau[k][perm]))
-            bag.write("/imu", "sensor_msgs/msg/Imu", ns, bag.imu(ns, imu_q[k], imu_w[k]))
+            bag.write("/imu", "sensor_msgs/msg/Imu", ns, bag.imu(ns, imu_q[k], imu_w[k], imu_a[k]))
             bag.write("/odom", "nav_msgs/msg/Odometry", ns,
                       bag.odometry(ns, log.q[k, :3], log.q[k, 3:7], lin_world[k], ang_world[k]))
             if command and k + 1 < len(log):

@@ -421,16 +421,51 @@ def _read_base(spec, tops, rej, warnings: list[str]):
     return t, pos, quat, twist, desc
 
 
-def _read_imu(spec, tops, rej):
+def imu_has_orientation(m) -> bool:
+    """Whether a sensor_msgs/Imu carries an orientation: not when its quaternion is zero (drivers
+    that never fill it) nor when orientation_covariance[0] is −1 (the message's own "no estimate")."""
+    o = m.orientation
+    cov = np.asarray(m.orientation_covariance, dtype=float)
+    return not (cov.size and cov[0] == -1.0) and bool(np.linalg.norm([o.x, o.y, o.z, o.w]) >= 1e-6)
+
+
+def _read_imu(spec, tops, rej) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """(stamps [ns], orientation (M × 4, x y z w), gyro (M × 3) [rad/s], source description): the
+    quaternion as logged, or estimated from gyro and accelerometer (estimation.estimate_orientation)
+    when the profile says `orientation: estimate` or, with `auto`, when a message has none."""
     top = tops[spec["topic"]]
 
+    def vec(v, what: str) -> np.ndarray:
+        x = np.array([v.x, v.y, v.z], dtype=float)
+        _finite(what, x)
+        return x
+
     def conv(m):
-        q = _quat(m.orientation, "orientation")
-        w = np.array([m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z], dtype=float)
-        _finite("angular_velocity", w)
-        return q, w
+        q = _quat(m.orientation, "orientation") if imu_has_orientation(m) else None
+        return q, vec(m.angular_velocity, "angular_velocity"), m.linear_acceleration
     t, rows = _convert(top, rej, conv)
-    return t, np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
+    gyro = np.array([r[1] for r in rows])
+    missing = sum(r[0] is None for r in rows)
+    desc = f"topic {spec['topic']} (sensor_msgs/msg/Imu)"
+    if spec.get("orientation", "auto") != "estimate" and not missing:
+        return t, np.array([r[0] for r in rows]), gyro, desc
+    from .estimation import estimate_orientation
+
+    accel: list[np.ndarray | None] = []
+    for r in rows:
+        try:
+            accel.append(vec(r[2], "linear_acceleration"))
+        except ValueError as err:
+            rej.add(top.role, top.topic, str(err))
+            accel.append(None)
+    keep = np.array([a is not None for a in accel])
+    if not keep.any():
+        raise BagError(f"imu ({top.topic}): no message with a finite linear_acceleration to estimate orientation")
+    t, gyro = t[keep], gyro[keep]
+    quat = estimate_orientation(t * 1e-9, gyro, np.array([a for a in accel if a is not None]))
+    why = "the profile says orientation: estimate" if not missing else f"{missing} of {len(rows)} messages carry none"
+    return t, quat, gyro, (f"{desc}; orientation estimated from gyro and accelerometer ({why}; Mahony "
+                           "complementary filter, estimation.estimate_orientation)")
 
 
 class _Command:
@@ -619,14 +654,13 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     # imu
     imu: tuple[np.ndarray, np.ndarray] | None = None  # orientation (x, y, z, w), angular velocity
     if imu_spec is not None:
-        ti, iq, iw = _read_imu(imu_spec, tops, rej)
+        ti, iq, iw, sources["imu"] = _read_imu(imu_spec, tops, rej)
         ii = hold("imu", imu_spec["topic"], ti)
         ok &= ii >= 0
         imu_quat = np.tile([0.0, 0.0, 0.0, 1.0], (n, 1))
         imu_gyro = np.zeros((n, 3))
         imu_quat[ii >= 0], imu_gyro[ii >= 0] = iq[ii[ii >= 0]], iw[ii[ii >= 0]]
         imu = (imu_quat, imu_gyro)
-        sources["imu"] = f"topic {imu_spec['topic']} (sensor_msgs/msg/Imu)"
     # base (measured)
     base: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # position, orientation, twist
     if "estimate" not in base_spec:

@@ -296,3 +296,66 @@ def test_online_learner_pauses_on_a_fall_and_says_so(tmp_path):
     assert fallen.level == b"\x01" and "base height 0.200 m" in fallen.message, fallen.message
     assert recovered.message.startswith("learning"), recovered.message
     assert "learning resumed" in log
+
+
+# --- d. a served model that makes things worse is rolled back --------------------------------------
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_a_served_model_that_raises_the_effort_is_rolled_back_before_the_robot_falls(tmp_path):
+    """A well-formed, checksummed model within the physical bounds (the learned snapshot ×10: −400 N
+    on the base, 30 Nm of friction per joint) that the trotting robot does not have: the controller's
+    EffortWatch names it within rollback_window, the model server puts the nominal model back, the
+    robot keeps trotting. The controller trusts every predicted entry here (max_variance_ratio 1000):
+    the variance gate would otherwise drop this model's uncertain entries before the watch sees them."""
+    from ciml_msgs.msg import ModelError, ModelUpdate
+    from diagnostic_msgs.msg import DiagnosticArray
+    from nav_msgs.msg import Odometry
+    from rclpy.qos import qos_profile_sensor_data
+
+    from ciml_learning.ros_common import COMMAND_QOS
+    from ciml_learning.snapshots import PROBE_FILE
+
+    good = _good_model(tmp_path / "online")
+    bad = good["learner"].snapshot().model_set
+    bad.output_scale_ = bad.output_scale_ * 10.0
+    with open(f"{good['saved'].model_dir}/{PROBE_FILE}", "rb") as f:
+        meta = bad.save(str(tmp_path / "bad"), extra_files={PROBE_FILE: f.read()})
+    listener = Listener({"/base_state": Odometry, "/model_error/predicted": ModelError,
+                         "/diagnostics": DiagnosticArray}, qos={"/base_state": qos_profile_sensor_data})
+    upd_pub = listener.node.create_publisher(ModelUpdate, "/model_update", COMMAND_QOS)
+    base, preds = listener.messages["/base_state"], listener.messages["/model_error/predicted"]
+    nodes = [start_node("mujoco_bridge", "-p", "scenario:=nominal", "-p", "real_time_factor:=0.3"),
+             start_node("id_controller", "-p", "use_sim_time:=true", "-p", "max_variance_ratio:=1000.0"),
+             start_node("model_server", "-p", "use_sim_time:=true"),
+             start_node("reference_generator", "-p", "motion:=trot_35", "-p", "use_sim_time:=true")]
+    try:
+        assert listener.wait_for(lambda: int(_values(listener, "id_controller").get("commands", 0)) > 0
+                                 and upd_pub.get_subscription_count() >= 1, timeout=60), \
+            [stop(p)[-1500:] for p in nodes]
+        t0 = _sim_time(base[-1])
+        # trotting under the nominal model for longer than the watch's 5 s baseline
+        assert listener.wait_for(lambda: _sim_time(base[-1]) > t0 + 7.0, timeout=60)
+        upd_pub.publish(ModelUpdate(model_dir=str(tmp_path / "bad"), learner="lwpr", samples=300,
+                                    checksum=meta["checksum"]))
+        name = "lwpr:bad"
+        assert listener.wait_for(lambda: any(m.source == name for m in preds), timeout=20)
+        t_served = next(_sim_time(m) for m in preds if m.source == name)
+        assert listener.wait_for(lambda: int(_values(listener, "model_server").get("rollbacks", 0)) >= 1,
+                                 timeout=30), (_values(listener, "id_controller"), _values(listener, "model_server"))
+        t_back = _sim_time(base[-1])
+        assert listener.wait_for(lambda: _sim_time(base[-1]) > t_back + 3.0, timeout=30)   # and on it trots
+        time.sleep(1.2)  # one diagnostics period
+        ctrl, server = _values(listener, "id_controller"), _values(listener, "model_server")
+        after = [m.source for m in preds if _sim_time(m) > t_back + 0.5]
+    finally:
+        for p in reversed(nodes):
+            stop(p)
+        listener.close()
+    assert int(ctrl["rollbacks"]) == 1 and int(server["rollbacks"]) == 1, (ctrl, server)
+    assert int(ctrl["rollback_detect_ms"]) <= 300, ctrl           # rollback_window 0.25 s and a few steps
+    assert after and set(after) == {"nominal"}, set(after)          # the model before it: nominal
+    z = [m.pose.pose.position.z for m in base if _sim_time(m) > t0]
+    assert min(z) > 0.45, min(z)                                    # never fell (standing 0.61 m)
+    assert t_back - t_served < 2.0, t_back - t_served

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 from ciml_learning.node_params import THREAD_PRIORITY
 from ciml_learning.params import NodeSchema, Param
+from ciml_learning.rollback import RollbackConfig
 
 from .references import MOTIONS
 from .trust import DEFAULT_MAX_VARIANCE_RATIO
 
+_ROLLBACK = RollbackConfig()
 URDF = Param("urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
 
 REFERENCE_GENERATOR = NodeSchema("ciml_control", "reference_generator",
@@ -54,6 +56,13 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
           read_only=False),
     Param("max_variance_ratio", DEFAULT_MAX_VARIANCE_RATIO, "Use a predicted model-error entry only if its variance "
           "is at most this × the nominal prior variance", "", 1e-3, 1e3, read_only=False),
+    Param("rollback", True, "Roll back a newly served model whose feedback effort or base position error rises "
+          "beyond rollback_rise × its predecessor's (ciml_learning.rollback)", read_only=False),
+    Param("rollback_window", _ROLLBACK.window, "RMS window of a newly served model's effort and error", "s", 0.02,
+          5.0),
+    Param("rollback_probation", _ROLLBACK.probation, "A newly served model is watched this long", "s", 0.1, 600.0),
+    Param("rollback_rise", _ROLLBACK.rise, "Rollback above this × the RMS of the seconds before the model (plus "
+          "15 Nm, 3 cm)", "", 1.0, 10.0),
     THREAD_PRIORITY,
     URDF,
 ))

@@ -30,7 +30,7 @@ from collections.abc import Callable
 import numpy as np
 
 from . import conversions as cv
-from . import topics
+from . import rollback, topics
 from .errors import CimlError
 from .executor import DirectExecutor
 from .realtime import set_fifo_priority, stat_fields, thread_ids
@@ -65,12 +65,10 @@ FALL_HEIGHT = 0.3
 
 
 def feedback_effort(cmd: cv.TorqueCommandArrays, q: np.ndarray, qd: np.ndarray) -> float:
-    """‖u_fb,pd + u_fb,lin‖ [Nm] of one command on the joint sample (q, q̇) it was computed for:
-    u_fb,pd = K_p (qᵈ − q) + K_d (q̇ᵈ − q̇) as the joint loop computes it (TorqueCommand.msg),
-    the same law as ciml_sim.recorder's closed-loop effort."""
-    pd = cmd.stiffness * (cmd.position_target - q) + cmd.damping * (cmd.velocity_target - qd)
-    pd += cmd.feedback_linearization
-    return float(np.sqrt(pd @ pd))
+    """‖u_fb,pd + u_fb,lin‖ [Nm] of one command on the joint sample (q, q̇) it was computed for
+    (rollback.feedback_effort: the law the controller's rollback watch uses too)."""
+    return rollback.feedback_effort(cmd.stiffness, cmd.damping, cmd.position_target, cmd.velocity_target,
+                                    cmd.feedback_linearization, q, qd)
 
 
 def rss_mb(pid: int) -> float | None:

@@ -14,6 +14,8 @@ FILTERED_STATE = "/filtered_state"
 MODEL_ERROR_MEASURED = "/model_error/measured"
 MODEL_ERROR_PREDICTED = "/model_error/predicted"
 MODEL_UPDATE = "/model_update"
+MODEL_ROLLBACK = "/model_rollback"
+"""The controller's request to stop serving a model (std_msgs/String: the model's `source` name)."""
 REFERENCE = "/reference"
 DIAGNOSTICS = "/diagnostics"
 TF = "/tf"
@@ -39,6 +41,7 @@ TYPES: dict[str, str] = {
     MODEL_ERROR_MEASURED: "ciml_msgs/msg/ModelError",
     MODEL_ERROR_PREDICTED: "ciml_msgs/msg/ModelError",
     MODEL_UPDATE: "ciml_msgs/msg/ModelUpdate",
+    MODEL_ROLLBACK: "std_msgs/msg/String",
     REFERENCE: "ciml_msgs/msg/RobotReference",
     DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
     TF: "tf2_msgs/msg/TFMessage",

@@ -30,6 +30,12 @@ absent never stops the controller). All 18 + 12 predicted entries pass the trust
 variance exceeds `max_variance_ratio` × its prior variance is not used (counted:
 epsilon_gated, steps with a gated entry), and ε is clipped to the robot's physical bounds
 (m·g, m·g·leg span, torque limits; counted: epsilon_clipped, with a warning).
+Rollback (`rollback`): every step's feedback effort and base position error go to an
+EffortWatch (ciml_learning.rollback) with the `source` of the prediction used; when a newly
+served model makes either rise beyond `rollback_rise` × the RMS of the seconds before it (RMS
+over `rollback_window`, during `rollback_probation`), its predictions are no longer used (ε = 0)
+and /model_rollback asks the model server to serve the model before it (counted: rollbacks,
+rollback_detect_ms, with a warning).
 """
 from __future__ import annotations
 
@@ -43,12 +49,14 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 
 from ciml_learning import conversions as cv
 from ciml_learning import topics
 from ciml_learning.errors import CimlError
 from ciml_learning.projection import contact_invariant_basis
 from ciml_learning.robot import load_robot
+from ciml_learning.rollback import NOMINAL_SOURCE, EffortWatch, RollbackConfig, feedback_effort
 from ciml_learning.ros_common import COMMAND_QOS, LATEST_QOS, OK, WARN, Health, PublishPeriods, declare_schema, run_node
 
 from ..controller import IdController
@@ -74,6 +82,8 @@ class IdControllerNode(Node):
         self.reference_hold = p["reference_hold"]
         self.model_error_timeout, self.use_model_error = p["model_error_timeout"], p["use_model_error"]
         self.damping_gain = p["damping_gain"]
+        self.watch = EffortWatch(RollbackConfig(window=p["rollback_window"], probation=p["rollback_probation"],
+                                                rise=p["rollback_rise"]))
         self.robot = load_robot(urdf or None)
         self.trust = TrustLaw(self.robot, ratio)
         self.commanding = False  # a MODE_TORQUE command has been published (then stale inputs → damping)
@@ -89,6 +99,7 @@ class IdControllerNode(Node):
         self.model_error = None
         self.compute_times: deque = deque(maxlen=1000)
         self.pub = self.create_publisher(TorqueCommand, topics.TORQUE_COMMAND, COMMAND_QOS)
+        self.rollback_pub = self.create_publisher(String, topics.MODEL_ROLLBACK, COMMAND_QOS)
         # base and contacts first: rclpy's executor takes ready subscriptions in creation order, and
         # the robot driver publishes a sample's base and contact state before its joint state (the
         # trigger), so the control step sees the whole sample, not the previous base state
@@ -162,7 +173,8 @@ class IdControllerNode(Node):
         self.reference = self._convert("reference", lambda m: reference_point(self.robot, m), msg) or self.reference
 
     def on_model_error(self, msg) -> None:
-        self.model_error = self._convert("model_error", lambda m: model_error_with_variance(self.robot, m),
+        self.model_error = self._convert("model_error", lambda m: (str(m.source),
+                                                                    *model_error_with_variance(self.robot, m)),
                                          msg) or self.model_error
 
     def on_joints(self, msg) -> None:
@@ -196,10 +208,14 @@ class IdControllerNode(Node):
             if not self._fresh(item, timeout, now)]
         self.health.set(WARN, f"waiting for {', '.join(missing) or 'inputs'} before the first command")
 
-    def epsilon(self, ref, now: float) -> np.ndarray:
+    def epsilon(self, ref, now: float) -> tuple[np.ndarray, str]:
+        """(ε, the source of the prediction it comes from: NOMINAL_SOURCE for ε = 0)."""
         if not self.use_model_error or not self._fresh(self.model_error, self.model_error_timeout, now):
-            return np.zeros(self.robot.nv)
-        phi, gamma, phi_var, gamma_var = self.model_error[2]
+            return np.zeros(self.robot.nv), NOMINAL_SOURCE
+        source, phi, gamma, phi_var, gamma_var = self.model_error[2]
+        if source in self.watch.rolled_back:  # until the model server has put the model before it back
+            self.health.counts["rolled_back_predictions_ignored"] += 1
+            return np.zeros(self.robot.nv), NOMINAL_SOURCE
         # the foot Jacobians at qᵈ come from the controller's own Pinocchio pass at the reference
         basis = contact_invariant_basis(self.controller.desired_terms(ref)[2], self.robot.leg_joints)
         self.health.counts["model_error_used"] += 1
@@ -208,7 +224,7 @@ class IdControllerNode(Node):
             self.health.counts["epsilon_gated"] += 1
         if trusted.clipped.any():
             self.health.count("epsilon_clipped", "model error beyond the robot's physical bounds: clipped")
-        return trusted.epsilon
+        return trusted.epsilon, source
 
     def control(self) -> None:
         now = self._now()
@@ -234,8 +250,9 @@ class IdControllerNode(Node):
         pos, quat, twist = self.base[2]
         q = np.concatenate([pos, quat, qj])
         v = np.concatenate([twist, qdj])
+        epsilon, source = self.epsilon(ref, now)
         try:
-            out = self.controller.compute(q, v, self.contacts[2], ref, self.epsilon(ref, now))
+            out = self.controller.compute(q, v, self.contacts[2], ref, epsilon)
         except CimlError as err:
             self.publish_damping("controller_errors", f"controller error: {err}", stamp)
             return
@@ -250,10 +267,23 @@ class IdControllerNode(Node):
         self.pub.publish(cv.torque_command_msg(self.robot, stamp, cmd))
         self.periods.mark()
         self.health.counts["commands"] += 1
+        if self.params["rollback"]:
+            self._watch(now, source, cmd, qj, qdj, q, ref.q)
         if not self.commanding or self._damped:
             self.commanding, self._damped = True, False
             self.health.set(OK, "torque control")
         self.compute_times.append(time.perf_counter() - t0)
+
+    def _watch(self, now: float, source: str, cmd, qj, qdj, q, q_ref) -> None:
+        effort = feedback_effort(cmd.stiffness, cmd.damping, cmd.position_target, cmd.velocity_target,
+                                 cmd.feedback_linearization, qj, qdj)
+        back = self.watch.update(now, source, (effort, EffortWatch.base_position_error(q, q_ref)))
+        if back is None:
+            return
+        self.rollback_pub.publish(String(data=back.source))
+        self.health.counts["rollback_detect_ms"] = int(round(1e3 * back.detected_after))
+        self.health.count("rollbacks", f"model {back.source} rolled back: {back.signal} RMS {back.rms:.3g} above "
+                                       f"{back.limit:.3g} {1e3 * back.detected_after:.0f} ms after it served")
 
     def publish_damping(self, event: str, reason: str, stamp: int | None = None) -> None:
         n = self.robot.n_joints

@@ -21,11 +21,17 @@ ready. A refused model (announced without or with another checksum, tampered, tr
 wrong version or robot, predicting beyond physical bounds, e.g. scaled ×1e6) is logged,
 counted (refused_models) and the old model keeps serving. Rejected references
 (non-finite, wrong names) are counted and produce no output: NaN never reaches /model_error/predicted.
+
+Rollback: a /model_rollback naming the model being served (the controller's EffortWatch saw
+the feedback effort or the base tracking error jump while it served: ciml_learning.rollback)
+puts back the model served before it (the last one not rolled back; the nominal model if none),
+counted (rollbacks, WARN); a model rolled back is never served again.
 """
 from __future__ import annotations
 
 from ciml_msgs.msg import ModelError, ModelUpdate, RobotReference
 from rclpy.node import Node
+from std_msgs.msg import String
 
 from .. import conversions as cv
 from .. import topics
@@ -37,6 +43,9 @@ from ..ros_common import COMMAND_QOS, Health, declare_schema, run_node
 from ..serving import ServedModel, load_served_model, predict_at_reference
 from ..workers import LatestOnlyWorker
 
+MAX_PREVIOUS = 3
+"""Models kept in memory to roll back to (each ~ the size of a snapshot)."""
+
 
 class ModelServerNode(Node):
     def __init__(self, **kwargs) -> None:
@@ -45,6 +54,8 @@ class ModelServerNode(Node):
         model_dir, swap_period, urdf = p["model_dir"], p["swap_check_period"], p["urdf"]
         self.robot = load_robot(urdf or None)
         self.served: ServedModel | None = None
+        self.previous: list[ServedModel] = []   # served before the current one, newest last (rollback)
+        self.rolled_back: set[str] = set()
         self.reference_torque = ReferenceTorque(self.robot)  # τ̇_ref of the stream, across model swaps
         self.health = Health(self)
         self.health.set(0, "serving the nominal model")
@@ -52,6 +63,7 @@ class ModelServerNode(Node):
         self.pub = self.create_publisher(ModelError, topics.MODEL_ERROR_PREDICTED, COMMAND_QOS)
         self.create_subscription(RobotReference, topics.REFERENCE, self.on_reference, COMMAND_QOS)
         self.create_subscription(ModelUpdate, topics.MODEL_UPDATE, self.on_update, COMMAND_QOS)
+        self.create_subscription(String, topics.MODEL_ROLLBACK, self.on_rollback, COMMAND_QOS)
         self.create_timer(swap_period, self.swap)
         if model_dir:
             self.loader.submit((model_dir, None))  # not announced: its own checksum is verified
@@ -70,11 +82,29 @@ class ModelServerNode(Node):
                 self.health.count("refused_models", f"model {model_dir} refused ({result.error}); still serving {kept}")
                 self.get_logger().error(f"model refused: {result.error}")
                 continue
+            if result.value.name in self.rolled_back:
+                self.health.count("refused_models", f"model {model_dir} was rolled back: not served again")
+                continue
+            if self.served is not None:
+                self.previous = [*self.previous, self.served][-MAX_PREVIOUS:]
             self.served = result.value
             self.health.counts["model_swaps"] += 1
             self.health.counts["load_ms"] = int(round(1e3 * result.seconds))
             self.health.set(0, f"serving {self.served.name}")
             self.get_logger().info(f"serving {self.served.model_dir} (loaded in {1e3 * result.seconds:.0f} ms)")
+
+    def on_rollback(self, msg) -> None:
+        """Stop serving the named model; the one served before it takes over (module docstring)."""
+        name = str(msg.data)
+        self.rolled_back.add(name)
+        self.previous = [m for m in self.previous if m.name not in self.rolled_back]
+        if self.served is None or self.served.name != name:
+            self.health.counts["rollbacks_not_serving"] += 1  # already replaced: nothing to undo
+            return
+        self.served = self.previous.pop() if self.previous else None
+        back = self.served.name if self.served is not None else "the nominal model"
+        self.health.count("rollbacks", f"model {name} rolled back by the controller; serving {back}")
+        self.health.set(0, f"serving {back}")
 
     def on_reference(self, msg) -> None:
         try:

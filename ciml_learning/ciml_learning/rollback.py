@@ -1,0 +1,144 @@
+"""Rolling back a served model that makes the robot worse (docs/LIVE_GRAPH.md, "Safety").
+
+The snapshot gate (snapshot_gate) checks a model on held-back data before it is served; this
+module watches it while it is served. The controller feeds every step's feedback effort
+‖u_fb‖ (feedback_effort, the paper's Tables I–II) and base position error ‖p − pᵈ‖ to an
+EffortWatch together with the `source` of the model error it used. When a new model starts to
+serve, the RMS of each signal over the `baseline` seconds before it is frozen; for the next
+`probation` seconds the RMS over the last `window` seconds of the new model is compared with it,
+and a rise beyond rise × baseline + margin on either signal names the model to roll back. A model
+that has served its probation becomes the last safe one.
+
+Why these defaults: a model that is wrong where the robot is raises the effort from its first
+command on, and detection takes one `window` after it serves (measured live: 252 ms,
+test_live_safety); the one learned fall seen live took ~1 s from the served model to the ground
+(docs/LIVE_GRAPH.md). The margins (15 Nm, 3 cm) and the factor 1.5 leave room for a healthy
+trot's spread of the 0.25 s RMS between windows (results/LIVE_GRAPH.md).
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+NOMINAL_SOURCE = "nominal"
+SIGNALS = ("feedback_effort", "base_position_error")
+"""What EffortWatch watches: [Nm] and [m]."""
+
+
+def feedback_effort(stiffness: np.ndarray, damping: np.ndarray, position_target: np.ndarray,
+                    velocity_target: np.ndarray, feedback_linearization: np.ndarray, q: np.ndarray,
+                    qd: np.ndarray) -> float:
+    """‖u_fb,pd + u_fb,lin‖ [Nm] of one command on the joint sample (q, q̇) it was computed for:
+    u_fb,pd = K_p (qᵈ − q) + K_d (q̇ᵈ − q̇) as the joint loop computes it (TorqueCommand.msg)."""
+    pd = stiffness * (position_target - q) + damping * (velocity_target - qd) + feedback_linearization
+    return float(np.sqrt(pd @ pd))
+
+
+@dataclass(frozen=True)
+class RollbackConfig:
+    window: float = 0.25                      # [s] RMS window of the served model
+    baseline: float = 5.0                     # [s] before the model served, its reference
+    probation: float = 10.0                   # [s] a new model is watched this long
+    rise: float = 1.5                         # × the baseline RMS …
+    margins: tuple[float, float] = (15.0, 0.03)  # … + these, per signal of SIGNALS [Nm, m]
+
+    def __post_init__(self) -> None:
+        if not (self.window > 0 and self.baseline >= self.window and self.probation >= self.window
+                and self.rise >= 1.0 and len(self.margins) == len(SIGNALS) and min(self.margins) >= 0):
+            raise ValueError(f"invalid rollback settings {self}")
+
+
+@dataclass
+class Rollback:
+    source: str
+    signal: str
+    rms: float
+    limit: float
+    detected_after: float   # [s] since the model first served
+
+
+class _Window:
+    """Running mean of squares of the steps in the last `length` seconds (O(1) per step)."""
+
+    def __init__(self, length: float) -> None:
+        self.length = length
+        self.items: deque[tuple[float, np.ndarray]] = deque()
+        self.total = np.zeros(len(SIGNALS))
+
+    def add(self, t: float, squares: np.ndarray) -> None:
+        self.items.append((t, squares))
+        self.total = self.total + squares
+        while self.items[0][0] <= t - self.length:
+            self.total = self.total - self.items.popleft()[1]
+
+    def clear(self) -> None:
+        self.items.clear()
+        self.total = np.zeros(len(SIGNALS))
+
+    def covered(self) -> float:
+        return self.items[-1][0] - self.items[0][0] if self.items else 0.0
+
+    def rms(self) -> np.ndarray:
+        return np.sqrt(np.maximum(self.total, 0.0) / max(len(self.items), 1))
+
+
+class EffortWatch:
+    """update(t, source, signals) per control step → a Rollback when the model serving now must
+    go (once per model), else None. `safe` is the last model that served its probation."""
+
+    def __init__(self, config: RollbackConfig | None = None) -> None:
+        self.config = config or RollbackConfig()
+        self._before = _Window(self.config.baseline)   # every step: the reference of the next model
+        self._served = _Window(self.config.window)     # the current model's steps
+        self.current: str | None = None      # the newest non-nominal source seen
+        self.safe: str = NOMINAL_SOURCE
+        self.rolled_back: set[str] = set()
+        self._since = 0.0
+        self._limit: np.ndarray | None = None  # per signal; None: no baseline, not watched
+
+    def update(self, t: float, source: str, signals) -> Rollback | None:
+        c = self.config
+        values = np.asarray(signals, dtype=float)
+        if not np.all(np.isfinite(values)):
+            return None
+        if source != NOMINAL_SOURCE and source not in self.rolled_back and source != self.current:
+            # a new model serves from now: the reference is the RMS of the steps before it
+            self._promote(t)
+            self.current, self._since = source, t
+            enough = self._before.covered() >= 0.5 * c.baseline
+            # the last safe model back (after a rollback) has served its probation already
+            self._limit = (c.rise * self._before.rms() + np.asarray(c.margins)
+                           if enough and source != self.safe else None)
+            self._served.clear()
+        squares = values * values
+        self._before.add(t, squares)
+        if source != self.current or source in self.rolled_back or self._limit is None:
+            return None
+        age = t - self._since
+        if age > c.probation:
+            self._promote(t)
+            return None
+        self._served.add(t, squares)
+        if age < c.window:
+            return None
+        rms = self._served.rms()
+        over = np.flatnonzero(rms > self._limit)
+        if not len(over):
+            return None
+        i = int(over[0])
+        self.rolled_back.add(source)
+        return Rollback(source, SIGNALS[i], float(rms[i]), float(self._limit[i]), age)
+
+    def _promote(self, t: float) -> None:
+        """The current model becomes the last safe one once it has served its probation unharmed."""
+        if (self.current is not None and self.current not in self.rolled_back and self._limit is not None
+                and t - self._since >= self.config.probation):
+            self.safe = self.current
+
+    @staticmethod
+    def base_position_error(q: np.ndarray, q_ref: np.ndarray) -> float:
+        """‖p − pᵈ‖ [m] of Pinocchio configurations."""
+        return math.dist(q[:3], q_ref[:3])

@@ -1,0 +1,67 @@
+"""The rollback watch of a served model (ciml_learning.rollback): pure, no ROS."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ciml_learning.rollback import NOMINAL_SOURCE, EffortWatch, RollbackConfig, feedback_effort
+
+DT = 0.004  # 250 Hz
+
+
+def run(watch: EffortWatch, t0: float, seconds: float, source: str, effort: float, error: float = 0.01,
+        seed: int = 0):
+    """Feed `seconds` of steps with noisy effort [Nm] and base error [m]; the rollbacks returned."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(int(round(seconds / DT))):
+        e = effort * (1.0 + 0.1 * np.sin(2 * np.pi * 1.7 * k * DT)) + rng.normal(scale=2.0)
+        back = watch.update(t0 + k * DT, source, (abs(e), error))
+        if back is not None:
+            out.append((t0 + k * DT, back))
+    return out, t0 + seconds
+
+
+def test_a_model_that_raises_the_effort_is_rolled_back_within_the_window_and_a_good_one_becomes_safe():
+    w = EffortWatch(RollbackConfig(window=0.25, baseline=5.0, probation=10.0, rise=1.5, margins=(15.0, 0.03)))
+    backs, t = run(w, 0.0, 6.0, NOMINAL_SOURCE, 45.0)
+    assert backs == []
+    backs, t = run(w, t, 12.0, "lwpr:snapshot-000001", 30.0, seed=1)   # better than nominal
+    assert backs == [] and w.safe == "lwpr:snapshot-000001"
+    t_bad = t
+    backs, t = run(w, t, 2.0, "lwpr:snapshot-000002", 120.0, seed=2)  # 4× the effort
+    assert len(backs) == 1                                            # once per model
+    at, back = backs[0]
+    assert back.source == "lwpr:snapshot-000002" and back.signal == "feedback_effort"
+    assert back.limit == pytest.approx(1.5 * 30.0 + 15.0, rel=0.1)    # the RMS of the 5 s before it
+    assert at - t_bad == pytest.approx(back.detected_after) and back.detected_after <= 0.25 + DT
+    assert "lwpr:snapshot-000002" in w.rolled_back and w.safe == "lwpr:snapshot-000001"
+    # the last safe model back: served again without a new probation against the bad seconds
+    backs, t = run(w, t, 3.0, "lwpr:snapshot-000001", 60.0, seed=3)
+    assert backs == []
+
+
+def test_the_base_tracking_error_rolls_back_too_and_a_modest_rise_does_not():
+    w = EffortWatch()
+    _, t = run(w, 0.0, 6.0, NOMINAL_SOURCE, 45.0, error=0.01)
+    backs, t = run(w, t, 10.5, "m1", 50.0, error=0.02, seed=1)        # +10 %, +1 cm: within noise and margins
+    assert backs == [] and w.safe == "m1"
+    backs, _ = run(w, t, 1.0, "m2", 50.0, error=0.12, seed=2)         # sagging 12 cm
+    assert [b.signal for _, b in backs] == ["base_position_error"]
+
+
+def test_without_a_baseline_nothing_is_judged_and_bad_values_are_ignored():
+    w = EffortWatch()
+    backs, t = run(w, 0.0, 1.0, "m1", 300.0)                          # served from the start: no reference
+    assert backs == []
+    assert w.update(t, "m1", (float("nan"), 0.0)) is None
+    with pytest.raises(ValueError):
+        RollbackConfig(window=0.0)
+
+
+def test_feedback_effort_is_the_joint_loops_pd_plus_linearization():
+    kp, kd = np.full(3, 300.0), np.full(3, 8.0)
+    q, qd = np.array([0.1, 0.2, 0.3]), np.array([1.0, 0.0, -1.0])
+    q_t, qd_t, lin = np.array([0.2, 0.2, 0.2]), np.zeros(3), np.array([1.0, 2.0, 3.0])
+    expected = np.linalg.norm(kp * (q_t - q) + kd * (qd_t - qd) + lin)
+    assert feedback_effort(kp, kd, q_t, qd_t, lin, q, qd) == pytest.approx(expected)

@@ -1,11 +1,14 @@
 """`ciml inspect --bag BAG [--out profile.yaml]`: what a bag holds and how CIML can read it.
 
 Lists every topic with its type, message count, measured rate (header stamps; the
-recording time for headerless types) and stamp problems; guesses which topic fills each
-role of the robot profile (by type, then by name: JointState → joint_state, Odometry →
-base, Imu → imu, per-foot arrays/entries named foot/contact/force → contacts, effort
-arrays or low-level commands → command) and writes a draft profile (atomically) for the
-user to edit (docs/ROBOT_PROFILE.md). With --robot/--urdf the joint and foot names are
+recording time for headerless types) and its problems (zero and duplicated stamps, zero
+quaternions); guesses which topic fills each role of the robot profile (by type, then by
+name: JointState → joint_state, Odometry → base, Imu → imu, per-foot arrays/entries named
+foot/contact/force → contacts, effort arrays or low-level commands → command); drafts what
+the log needs instead of what it cannot use (an odometry with zero quaternions is not the
+base: the IMU and the legs are; an IMU with zero quaternions gets `orientation: estimate`;
+zero header stamps get `stamp: log`) and writes a draft profile (atomically) for the user to
+edit (docs/ROBOT_PROFILE.md). With --robot/--urdf the joint and foot names are
 checked against the URDF. Pure module: no rclpy.
 """
 from __future__ import annotations
@@ -64,13 +67,30 @@ def _read(path: str) -> tuple[list[dict], dict[str, list]]:
     return sorted(topics.values(), key=lambda d: d["topic"]), msgs
 
 
+def _orientation(msg):
+    """The quaternion a message carries as its orientation (Imu, Odometry, Pose*), else None."""
+    for path in ("orientation", "pose.pose.orientation", "pose.orientation"):
+        o = msg
+        for attr in path.split("."):
+            o = getattr(o, attr, None)
+        if o is not None and hasattr(o, "w"):
+            return o
+    return None
+
+
 def _stats(items: list) -> dict:
+    """Rate and stamp problems of a topic's messages, zero stamps, duplicated stamps and zero
+    quaternions (a driver that never fills the orientation) counted per topic."""
     stamps = np.array([s for s, _, _ in items], dtype=float) * 1e-9
     rep = measure_rate(stamps)
     headerless = not hasattr(items[0][2], "header") if items else True
+    quats = [o for o in (_orientation(m) for _, _, m in items) if o is not None]
+    zero_q = sum(np.linalg.norm([o.x, o.y, o.z, o.w]) < 1e-6 for o in quats)
+    problems = rep.problems() + ([f"{zero_q} zero quaternions"] if zero_q else [])
     return {"rate_hz": None if not np.isfinite(rep.rate_hz) else round(rep.rate_hz, 2),
             "stamps": "recording time (no header)" if headerless else "header.stamp",
-            "problems": rep.problems()}
+            "zero_stamps": 0 if headerless else rep.zero_stamps, "duplicated_stamps": rep.duplicates,
+            "zero_quaternions": int(zero_q), "problems": problems}
 
 
 def _foot_names(names: list[str], feet: tuple[str, ...] | None) -> list[str]:
@@ -152,7 +172,9 @@ def inspect_bag(path: str, joint_names: tuple[str, ...] | None = None, feet: tup
     (_threshold_from). Returns {"topics": [...], "roles": {role: {...}}, "notes": [...]}."""
     topics, msgs = _read(path)
     for d in topics:
-        d.update(_stats(msgs.get(d["topic"], [])) if msgs.get(d["topic"]) else {"rate_hz": None, "problems": ["empty"]})
+        d.update(_stats(msgs[d["topic"]]) if msgs.get(d["topic"]) else
+                 {"rate_hz": None, "zero_stamps": 0, "duplicated_stamps": 0, "zero_quaternions": 0,
+                  "problems": ["empty"]})
     by_type: dict[str, list[dict]] = {}
     for d in topics:
         by_type.setdefault(d["type"], []).append(d)
@@ -218,13 +240,23 @@ def inspect_bag(path: str, joint_names: tuple[str, ...] | None = None, feet: tup
         else:
             roles["contacts"] = {"spec": {"estimate": "dynamics"},
                                  "why": "no contact or foot-force topic: estimated from the legs' dynamics"}
-    # imu
+    # imu: a quaternion that is zero is estimated from gyro and accelerometer (loginputs)
     if by_type.get(IMU):
         d = by_type[IMU][0]
         roles["imu"] = {"spec": {"topic": d["topic"], "type": IMU}, "why": f"{IMU} at {d['rate_hz']} Hz"}
-    # base
-    if by_type.get(ODOMETRY):
-        d = sorted(by_type[ODOMETRY], key=lambda d: -(d["count"]))[0]
+        if d["zero_quaternions"]:
+            roles["imu"]["spec"]["orientation"] = "estimate"
+            roles["imu"]["why"] += (f"; {d['zero_quaternions']} zero quaternions: orientation estimated from gyro "
+                                    "and accelerometer")
+    # base: an odometry without orientation cannot place the base; the IMU and the legs can
+    odometry = sorted((d for d in by_type.get(ODOMETRY, []) if not d["zero_quaternions"]), key=lambda d: -d["count"])
+    for d in by_type.get(ODOMETRY, []):
+        if d["zero_quaternions"]:
+            notes.append(f"base: {d['topic']} has {d['zero_quaternions']} zero quaternions (no orientation); "
+                         "not used as the base" + (", estimated from the IMU and the stance legs instead"
+                                                   if "imu" in roles and not odometry else ""))
+    if odometry:
+        d = odometry[0]
         frame, why = _twist_frame(msgs[d["topic"]])
         roles["base"] = {"spec": {"topic": d["topic"], "type": ODOMETRY, "twist_frame": frame},
                          "why": f"{ODOMETRY} at {d['rate_hz']} Hz; twist_frame {frame}: {why}"}
@@ -268,6 +300,13 @@ def inspect_bag(path: str, joint_names: tuple[str, ...] | None = None, feet: tup
             roles["command"] = {"spec": spec, "why": f"{why} ({d['rate_hz']} Hz)"}
         else:
             notes.append("command: none found; the actuation error will be reported not observable")
+    # a role whose header stamps are zero is timed by the recording (stamp: log)
+    by_topic = {d["topic"]: d for d in topics}
+    for role, r in roles.items():
+        d = by_topic.get(r["spec"].get("topic", ""))
+        if d is not None and d["zero_stamps"] and d["stamps"] == "header.stamp":
+            r["spec"]["stamp"] = "log"
+            r["why"] += f"; {d['zero_stamps']} zero header stamps: timed by the recording (stamp: log)"
     return {"bag": str(path), "topics": topics, "roles": roles, "notes": notes, "extra_joint_entries": extra_names}
 
 

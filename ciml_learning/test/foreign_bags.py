@@ -142,8 +142,9 @@ GO1_PROFILE = {
 }
 
 
-def imu_messages(robot, s, rate_hz: float = 500.0, seconds: float = 1.0):
-    """An IMU (orientation = the odometry's, gyro zero) at the joint-state stamps."""
+def imu_messages(robot, s, rate_hz: float = 500.0, seconds: float = 1.0, zero_quat: bool = False):
+    """An IMU (orientation = the odometry's, or a zero quaternion; gyro zero, at rest) at the
+    joint-state stamps."""
     t, *_ = go1_signals(robot, rate_hz, seconds)
     Imu, Qt = s.types["sensor_msgs/msg/Imu"], s.types["geometry_msgs/msg/Quaternion"]
     V = s.types["geometry_msgs/msg/Vector3"]
@@ -152,7 +153,8 @@ def imu_messages(robot, s, rate_hz: float = 500.0, seconds: float = 1.0):
         ns = int(round(tk * 1e9))
         out.append(("/imu", "sensor_msgs/msg/Imu", ns, Imu(
             header=_header(s, ns, "imu_link"),
-            orientation=Qt(x=0.0, y=0.0, z=float(np.sin(YAW / 2)), w=float(np.cos(YAW / 2))),
+            orientation=Qt(x=0.0, y=0.0, z=0.0, w=0.0) if zero_quat else
+            Qt(x=0.0, y=0.0, z=float(np.sin(YAW / 2)), w=float(np.cos(YAW / 2))),
             orientation_covariance=np.zeros(9), angular_velocity=V(x=0.0, y=0.0, z=0.0),
             angular_velocity_covariance=np.zeros(9), linear_acceleration=V(x=0.0, y=0.0, z=9.81),
             linear_acceleration_covariance=np.zeros(9))))

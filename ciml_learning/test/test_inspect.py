@@ -7,7 +7,7 @@ import pytest
 
 sys.path.insert(0, os.path.dirname(__file__))
 
-from foreign_bags import FEET, UNITREE_ORDER, go1_messages, store, write_bag  # noqa: E402
+from foreign_bags import FEET, UNITREE_ORDER, go1_messages, imu_messages, store, write_bag  # noqa: E402
 
 from ciml_learning.cli import main  # noqa: E402
 from ciml_learning.inspect_log import inspect_bag  # noqa: E402
@@ -85,3 +85,26 @@ def test_drafted_contact_threshold_is_a_share_of_the_weight():
     thr, _, why = _threshold_from(10.0 * forces, mass)  # another unit: the readings' weight, and a warning
     assert thr == pytest.approx(1.5 * mass * g, rel=0.01) and "check the sensor's unit" in why
     assert _threshold_from(np.zeros((10, 4)))[:2] == (0.0, 0.0)
+
+
+def test_zero_quaternions_and_zero_stamps_are_flagged_and_the_draft_uses_what_works(tmp_path, capsys):
+    """An A1-like log: joint states with zero header stamps, an odometry and an IMU whose
+    quaternions are zero. Inspect flags them per topic and drafts the fallback — stamp: log, the
+    base from the IMU (orientation estimated) and the legs, not the odometry — and the draft reads."""
+    robot = load_profile("go1").robot()
+    s = store()
+    msgs = go1_messages(robot, s, 250.0, 1.0, zero_quat=True, zero_stamps=True, with_command=False)
+    bag = write_bag(tmp_path / "a1like", msgs + imu_messages(robot, s, 250.0, 1.0, zero_quat=True))
+    rep = inspect_bag(str(bag), robot.joint_names, robot.foot_frames, robot.total_mass)
+    problems = {d["topic"]: d["problems"] for d in rep["topics"]}
+    assert "250 zero quaternions" in problems["/odom"] and "250 zero quaternions" in problems["/imu"]
+    assert any("zero stamps" in p for p in problems["/joint_states"])
+    roles = {r: v["spec"] for r, v in rep["roles"].items()}
+    assert roles["base"] == {"estimate": "imu_legs"}
+    assert roles["imu"]["orientation"] == "estimate" and roles["joint_state"]["stamp"] == "log"
+    assert any("/odom has 250 zero quaternions" in n for n in rep["notes"])
+    out = tmp_path / "draft.yaml"
+    assert main(["--robot", "go1", "inspect", "--bag", str(bag), "--out", str(out)]) == 0
+    assert "zero quaternions" in capsys.readouterr().out
+    log = load_log(robot, bag, load_profile(str(out)))
+    assert "orientation estimated" in log.sources["imu"] and len(log) > 200

@@ -302,11 +302,11 @@ def inspect_bag(path: str, joint_names: tuple[str, ...] | None = None, feet: tup
             notes.append("command: none found; the actuation error will be reported not observable")
     # a role whose header stamps are zero is timed by the recording (stamp: log)
     by_topic = {d["topic"]: d for d in topics}
-    for role, r in roles.items():
-        d = by_topic.get(r["spec"].get("topic", ""))
-        if d is not None and d["zero_stamps"] and d["stamps"] == "header.stamp":
+    for r in roles.values():
+        top = by_topic.get(r["spec"].get("topic", ""))
+        if top is not None and top["zero_stamps"] and top["stamps"] == "header.stamp":
             r["spec"]["stamp"] = "log"
-            r["why"] += f"; {d['zero_stamps']} zero header stamps: timed by the recording (stamp: log)"
+            r["why"] += f"; {top['zero_stamps']} zero header stamps: timed by the recording (stamp: log)"
     return {"bag": str(path), "topics": topics, "roles": roles, "notes": notes, "extra_joint_entries": extra_names}
 
 

@@ -26,7 +26,7 @@ def test_shipped_file_defaults_and_arguments():
     assert names == ["mujoco_bridge", "reference_generator", "id_controller", "model_server", "state_filter",
                      "error_extractor", "online_learner", "state_publisher"]
     bridge = dict(desc.nodes[0].parameters)
-    assert bridge["scenario"] == "/prefix/share/ciml_sim/config/scenarios/default_gap.yaml"
+    assert bridge["scenario"] == "" and bridge["robot"] == "hyq"  # '': the robot's own scenario (hyq: default_gap)
     assert bridge["real_time_factor"] == 1.0 and isinstance(bridge["real_time_factor"], float)
     assert bridge["seed"] == 0 and isinstance(bridge["seed"], int)
     assert dict(desc.nodes[2].parameters)["use_sim_time"] is True
@@ -36,6 +36,13 @@ def test_shipped_file_defaults_and_arguments():
     assert "online_learner" not in [n.label for n in desc.nodes]
     assert dict(desc.nodes[1].parameters)["motion"] == "walk_30"
     assert dict(desc.nodes[2].parameters)["use_model_error"] is False
+
+
+def test_robot_argument_reaches_every_node():
+    """robot:=go1 (what `ciml --robot go1 launch ...` passes) is every node's `robot` parameter."""
+    desc = lf.load(SHIPPED, {"robot": "go1"}, find_share=_share)
+    assert {n.label: dict(n.parameters)["robot"] for n in desc.nodes} == {n.label: "go1" for n in desc.nodes}
+    assert len(desc.nodes) == 8
 
 
 def test_shipped_file_is_the_ros2_yaml_launch_format():

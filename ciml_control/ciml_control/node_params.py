@@ -2,7 +2,7 @@
 of the node's declare() calls, its config/<node>.yaml and its README table."""
 from __future__ import annotations
 
-from ciml_learning.node_params import THREAD_PRIORITY
+from ciml_learning.node_params import ROBOT, THREAD_PRIORITY
 from ciml_learning.params import NodeSchema, Param
 from ciml_learning.rollback import RollbackConfig
 
@@ -10,7 +10,6 @@ from .references import MOTIONS
 from .trust import DEFAULT_MAX_VARIANCE_RATIO
 
 _ROLLBACK = RollbackConfig()
-URDF = Param("urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
 
 REFERENCE_GENERATOR = NodeSchema("ciml_control", "reference_generator",
                                  "the full-body reference of a motion on /reference", (
@@ -23,7 +22,7 @@ REFERENCE_GENERATOR = NodeSchema("ciml_control", "reference_generator",
     Param("foot_height", 0.002, "Height of the foot frames above the ground when standing (sphere foot radius "
           "of the simulation)", "m", 0.0, 0.2),
     THREAD_PRIORITY,
-    URDF,
+    ROBOT,
 ))
 
 ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
@@ -38,9 +37,12 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
     Param("model_error_timeout", 0.1, "Nominal model (ε = 0) when the newest prediction is older than this", "s",
           0.004, 5.0, read_only=False),
     Param("use_model_error", True, "Add the predicted model error ε (eq. 17) to the QP", read_only=False),
-    Param("damping_gain", 10.0, "Joint damping of the safe mode", "Nm s/rad", 0.0, 200.0, read_only=False),
-    Param("kp", 300.0, "Joint PD stiffness of the 1 kHz loop", "Nm/rad", 0.0, 2000.0, read_only=False),
-    Param("kd", 8.0, "Joint PD damping of the 1 kHz loop", "Nm s/rad", 0.0, 200.0, read_only=False),
+    Param("damping_gain", 0.0, "Joint damping of the safe mode (0 = derived from the robot: 10 Nm s/rad scaled by "
+          "its mass, standing.safe_damping_gain)", "Nm s/rad", 0.0, 200.0, read_only=False),
+    Param("kp", 0.0, "Joint PD stiffness of the 1 kHz loop (0 = derived from the robot: 300 Nm/rad scaled by its "
+          "mass, feedback.joint_gain_scale)", "Nm/rad", 0.0, 2000.0, read_only=False),
+    Param("kd", 0.0, "Joint PD damping of the 1 kHz loop (0 = derived, as kp: 8 Nm s/rad scaled)", "Nm s/rad", 0.0,
+          200.0, read_only=False),
     Param("base_kp_linear", 200.0, "Feedback linearisation gain, base position (eq. 24)", "1/s²", 0.0, 2000.0,
           read_only=False),
     Param("base_kp_angular", 200.0, "Feedback linearisation gain, base orientation", "1/s²", 0.0, 2000.0,
@@ -64,7 +66,7 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
     Param("rollback_rise", _ROLLBACK.rise, "Rollback above this × the RMS of the seconds before the model (plus "
           "15 Nm, 3 cm)", "", 1.0, 10.0),
     THREAD_PRIORITY,
-    URDF,
+    ROBOT,
 ))
 
 SCHEMAS: tuple[NodeSchema, ...] = (REFERENCE_GENERATOR, ID_CONTROLLER)

@@ -36,13 +36,18 @@ vertical bump h·64 s³(1−s)³: zero velocity and acceleration at lift-off and
 so qᵈ is C² across contact changes.
 
 Nothing here assumes HyQ: legs, feet and the standing pose come from the robot
-description and the q_stand argument.
+description and the q_stand argument. The motions' lengths (step length and height, the walk's
+CoM margin, base_only's translations) are HyQ's, the robot they were sized for, times
+`leg_scale(robot)` (leg length relative to HyQ's); their periods are kept. Measured on go1
+(go1_gap, 40 s headless, seed 1): trot_35 with HyQ's lengths 6.2 Nm RMS feedback effort, 3.3°
+attitude error, and trot_45 fell; scaled (× 0.61) 3.3 Nm, 0.5°, and trot_45 trots (3.6 Nm,
+0.8°); scaling the periods too (Froude, × √0.61) tracked worse (4.1 Nm, 4.8 Nm).
 """
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from typing import Any
 
@@ -110,7 +115,7 @@ SETTLE_TIME = 1.0
 WALK_PERIOD = 4.0
 WALK_SHIFT = 0.8        # [s] each of the two base shifts per walk cycle
 WALK_SWING = 0.6        # [s] each of the four swings per walk cycle (2·0.8 + 4·0.6 = 4.0)
-WALK_MARGIN = 0.06      # [m] distance of the CoM target from the support triangles' edges
+WALK_MARGIN = 0.06      # [m] distance of the CoM target from the support triangles' edges (HyQ; × leg_scale)
 TROT_PERIOD = 0.6
 TROT_SWING = 0.27       # [s] per diagonal pair; 0.03 s four-foot support at each switch
 TROT_RAMP = 2.0         # [s] C² velocity ramp
@@ -131,7 +136,7 @@ SPECS: dict[str, MotionSpec] = {
 assert tuple(SPECS) == MOTIONS
 
 # base-only waypoints: offsets (x, y, z [m], roll, pitch, yaw [rad]) from the standing pose,
-# one per second, periodic (the last equals the first)
+# one per second, periodic (the last equals the first); translations for HyQ (× leg_scale)
 BASE_ONLY_WAYPOINTS = np.array([
     [0.00, 0.00, 0.00, 0.00, 0.00, 0.00],
     [0.05, 0.03, -0.04, 0.06, 0.00, 0.08],
@@ -140,6 +145,25 @@ BASE_ONLY_WAYPOINTS = np.array([
     [0.02, -0.03, 0.01, 0.05, 0.04, 0.05],
     [0.00, 0.00, 0.00, 0.00, 0.00, 0.00],
 ])
+
+
+REFERENCE_LEG_LENGTH = 0.696
+"""[m] HyQ's leg length (leg_length), the robot the motions' lengths were sized for."""
+
+
+def leg_length(robot: RobotDescription) -> float:
+    """Mean distance from each leg's hip flexion axis (its second joint) to its foot with the legs
+    straight (the neutral configuration) [m]: HyQ 0.696, go1 0.426, solo12 0.323."""
+    data = robot.model.createData()
+    pin.framesForwardKinematics(robot.model, data, pin.neutral(robot.model))
+    return float(np.mean([np.linalg.norm(data.oMf[foot].translation - data.oMi[leg[1] + 2].translation)
+                          for leg, foot in zip(robot.leg_joints, robot.foot_frame_ids)]))
+
+
+def leg_scale(robot: RobotDescription) -> float:
+    """Length scale of the motions for `robot`: leg_length / REFERENCE_LEG_LENGTH, two significant
+    digits (HyQ exactly 1, go1 0.61, solo12 0.46)."""
+    return float(f"{leg_length(robot) / REFERENCE_LEG_LENGTH:.2g}")
 
 
 def spec(motion: str) -> MotionSpec:
@@ -284,7 +308,9 @@ class Reference:
             raise ReferenceError_(f"q_stand must be a finite configuration of size {robot.nq}")
         self.robot = robot
         self.motion = motion
-        self.spec = spec(motion)
+        self.scale = leg_scale(robot)
+        s = spec(motion)
+        self.spec = replace(s, step_length=s.step_length * self.scale, step_height=s.step_height * self.scale)
         self.period = self.spec.period
         self.q_stand = q_stand.copy()
         self.q_stand[3:7] /= np.linalg.norm(q_stand[3:7])
@@ -335,7 +361,8 @@ class BaseOnlyReference(Reference):
     def __init__(self, robot: RobotDescription, motion: str, q_stand: np.ndarray) -> None:
         super().__init__(robot, motion, q_stand)
         times = np.linspace(0.0, self.period, len(BASE_ONLY_WAYPOINTS))
-        self.spline = CubicSpline(times, BASE_ONLY_WAYPOINTS, bc_type="periodic")
+        waypoints = BASE_ONLY_WAYPOINTS * np.r_[np.full(3, self.scale), np.ones(3)]
+        self.spline = CubicSpline(times, waypoints, bc_type="periodic")
 
     def phase(self, t: float) -> float:
         return (t / self.period) % 1.0
@@ -625,7 +652,7 @@ class GaitReference(Reference):
         t_mid = self.t0 + n * self.period + half * (WALK_SHIFT + 2 * WALK_SWING) + WALK_SHIFT + WALK_SWING
         x, _, _ = self.progression(t_mid)
         nominal = self.com0 + x * self.direction
-        margin = min(WALK_MARGIN, 0.8 * radius)
+        margin = min(WALK_MARGIN * self.scale, 0.8 * radius)
         beta = 0.0
         d0 = b - A @ nominal
         dc = b - A @ center

@@ -17,6 +17,7 @@ from ciml_learning.robot import RobotDescription
 
 DEFAULT_KP = 300.0  # [Nm/rad] HyQ-like joint stiffness; other robots: scaled (feedback.joint_gain_scale)
 DEFAULT_KD = 8.0    # [Nm s/rad]
+SAFE_DAMPING = 10.0  # [Nm s/rad] joint damping of the safe (damping) mode on HyQ; other robots: safe_damping_gain
 
 
 @dataclass
@@ -40,6 +41,15 @@ def gravity_compensation(dyn: RigidBodyDynamics, q: np.ndarray, contacts: np.nda
         return g[6:].copy()
     lam = np.linalg.lstsq(Jc[:, :6].T, g[:6], rcond=None)[0]
     return g[6:] - Jc[:, 6:].T @ lam
+
+
+def safe_damping_gain(robot: RobotDescription) -> float:
+    """The damping mode's joint damping for `robot` [Nm s/rad]: SAFE_DAMPING scaled like the joint
+    loop's damping (feedback.joint_gain_scale, by mass; HyQ 10, go1 1.5): HyQ's value on a small
+    robot's light links is as much too stiff for the 1 kHz joint loop as HyQ's PD gains were."""
+    from .feedback import joint_gain_scale
+
+    return SAFE_DAMPING * joint_gain_scale(robot)[1]
 
 
 class StandingController:

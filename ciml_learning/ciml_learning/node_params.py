@@ -9,7 +9,11 @@ from .learning_gate import GateConfig
 from .params import NodeSchema, Param
 from .snapshot_gate import ValidationConfig
 
-URDF = Param("urdf", "", "Robot URDF ('' = HyQ from example-robot-data)")
+ROBOT = Param("robot", "hyq", "Robot profile: a profile YAML path or a shipped robot's name (hyq, go1, solo12, a1; "
+              "docs/ROBOT_PROFILE.md); every node of a graph must name the same robot")
+"""Every node's robot, declared here once (profile.load_profile reads it: URDF, feet, torque limits).
+It replaces the nodes' former `urdf` parameter, whose feet fell back to HyQ's: a URDF alone does not
+say which frames are the feet."""
 THREAD_PRIORITY = Param(realtime.THREAD_PRIORITY, 50, "SCHED_FIFO priority of the node's process (0 = normal "
                         "scheduling; without the right to, a warning and normal scheduling, as ros2_control)",
                         "", 0, 98)
@@ -21,7 +25,7 @@ STATE_PUBLISHER = NodeSchema("ciml_learning", "state_publisher",
     Param("publish_rate", 50.0, "Most /tf messages per second (each /joint_states and /base_state sample at most "
           "this often)", "Hz", 1.0, 1000.0, read_only=False),
     Param("odom_frame", "", "Parent frame of the base ('' = the frame_id of /base_state)"),
-    URDF,
+    ROBOT,
 ))
 
 STATE_FILTER = NodeSchema("ciml_learning", "state_filter",
@@ -31,7 +35,7 @@ STATE_FILTER = NodeSchema("ciml_learning", "state_filter",
     Param("max_age", 0.02, "Oldest base/contact/command sample paired with a joint sample", "s", 0.001, 1.0,
           read_only=False),
     replace(THREAD_PRIORITY, default=10),
-    URDF,
+    ROBOT,
 ))
 
 ERROR_EXTRACTOR = NodeSchema("ciml_learning", "error_extractor",
@@ -39,14 +43,14 @@ ERROR_EXTRACTOR = NodeSchema("ciml_learning", "error_extractor",
     Param("gamma", 0.02, "Regularisation of near-singular leg blocks", "m/rad", 1e-4, 0.2, read_only=False),
     Param("batch_period", 0.02, "Filtered states are extracted together every this often (wall clock); one state "
           "costs ~0.7 ms alone, ~0.2 ms in a batch of 5 (0: each state at once)", "s", 0.0, 0.5, read_only=False),
-    URDF,
+    ROBOT,
 ))
 
 MODEL_SERVER = NodeSchema("ciml_learning", "model_server",
                           "/reference → /model_error/predicted (ε of eq. 17) from the served model", (
     Param("model_dir", "", "Model folder served at start ('' = nominal model until a /model_update)"),
     Param("swap_check_period", 0.02, "How often a model loaded in the background is swapped in", "s", 0.001, 1.0),
-    URDF,
+    ROBOT,
 ))
 
 _GATE = GateConfig()
@@ -95,7 +99,7 @@ ONLINE_LEARNER = NodeSchema("ciml_learning", "online_learner",
           "", 1, 100000),
     Param("validation_margin", _VALIDATION.margin, "A snapshot's output is served only if its mean squared error on "
           "held-back samples is at most (1 − margin) × the nominal model's", "", 0.0, 0.99),
-    URDF,
+    ROBOT,
 ))
 
 SCHEMAS: tuple[NodeSchema, ...] = (STATE_FILTER, ERROR_EXTRACTOR, MODEL_SERVER, ONLINE_LEARNER, STATE_PUBLISHER)

@@ -1,6 +1,9 @@
 """`mujoco_bridge`: the simulated robot on the live graph (docs/ARCHITECTURE.md §3).
 
-Thin adapter around ciml_sim.plant.Plant (physics and HyQ's joint PD loop at 1 kHz).
+Thin adapter around ciml_sim.plant.Plant (physics and the robot's joint PD loop at 1 kHz). The
+robot is the `robot` profile's (URDF, feet, torque limits; built for MuJoCo by ciml_sim.mjcf, as
+`ciml record` does); the scenario must be written for it (scenario.scenario_of_robot: '' = the
+robot's own shipped scenario).
 
 Timing: Python cannot wake at 1 kHz reliably (docs/ARCHITECTURE.md §10), so a wall timer at the
 publish rate (250 Hz) advances the physics by the 1 ms steps owed to wall-clock time
@@ -58,15 +61,16 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
+from ciml_control.standing import safe_damping_gain
 from ciml_learning import conversions as cv
 from ciml_learning import topics
 from ciml_learning.errors import CimlError
-from ciml_learning.robot import load_robot
+from ciml_learning.profile import load_profile
 from ciml_learning.ros_common import COMMAND_QOS, OK, SENSOR_PUB_QOS, WARN, Health, declare_schema, run_node
 
 from .node_params import MUJOCO_BRIDGE
 from .plant import Plant
-from .scenario import nominal_scenario, resolve_scenario
+from .scenario import scenario_of_robot
 
 MAX_CATCH_UP = 0.02
 """[s] of wall-clock lag the bridge catches up in one tick; more is dropped (an overrun)."""
@@ -78,12 +82,14 @@ class MujocoBridge(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("mujoco_bridge", **kwargs)
         p = declare_schema(self, MUJOCO_BRIDGE, self._apply_parameters)  # node_params.py: the one schema
-        scenario, self.seed, rate, urdf = p["scenario"], p["seed"], p["publish_rate"], p["urdf"]
-        self.timeout, self.kd_safe, self.rtf = p["command_timeout"], p["damping_gain"], p["real_time_factor"]
+        scenario, self.seed, rate = p["scenario"], p["seed"], p["publish_rate"]
+        self.timeout, self.rtf = p["command_timeout"], p["real_time_factor"]
         self.hold_at_start, self.publish_truth = p["hold_standing_until_command"], p["publish_ground_truth"]
         self.lockstep, self.lockstep_timeout = p["lockstep"], p["lockstep_timeout"]
-        self.robot = load_robot(urdf or None)
-        self.scenario = resolve_scenario(scenario, self.robot) if scenario else nominal_scenario()
+        self.profile = load_profile(p["robot"])
+        self.robot = self.profile.robot()
+        self.kd_safe = p["damping_gain"] or safe_damping_gain(self.robot)  # 0: derived from the robot's size
+        self.scenario = scenario_of_robot(scenario, self.profile.name, self.robot)
         self.steps_per_sample = max(1, int(round(1000.0 / rate)))
         self.plant = Plant(self.robot, self.scenario, seed=self.seed)
         self.health = Health(self, "mujoco")
@@ -113,7 +119,8 @@ class MujocoBridge(Node):
         self.period = self.steps_per_sample * 1e-3 / self.rtf  # [s] wall clock per sample at real_time_factor
         self.create_timer(self.period, self.tick)
         self.get_logger().info(
-            f"mujoco_bridge: {self.robot.n_joints} joints, physics 1 kHz, publishing at "
+            f"mujoco_bridge: {self.profile.name} ({self.robot.n_joints} joints), scenario {self.scenario.name}, "
+            f"physics 1 kHz, publishing at "
             f"{1000.0 / self.steps_per_sample:g} Hz of simulation time, real-time factor {self.rtf:g}")
 
     def _apply_parameters(self, changes: dict) -> str | None:
@@ -122,7 +129,7 @@ class MujocoBridge(Node):
         self.lockstep_timeout = changes.get("lockstep_timeout", self.lockstep_timeout)
         self.publish_truth = changes.get("publish_ground_truth", self.publish_truth)
         if "damping_gain" in changes:
-            self.kd_safe = changes["damping_gain"]
+            self.kd_safe = changes["damping_gain"] or safe_damping_gain(self.robot)
             if self.damping:  # damping now: with the new gain
                 self._enter_damping(self.health.mode_message)
         return None

@@ -2,17 +2,20 @@
 declare() calls, config/mujoco_bridge.yaml and the README table."""
 from __future__ import annotations
 
-from ciml_learning.node_params import THREAD_PRIORITY
+from ciml_learning.node_params import ROBOT, THREAD_PRIORITY
 from ciml_learning.params import NodeSchema, Param
 
 MUJOCO_BRIDGE = NodeSchema("ciml_sim", "mujoco_bridge",
                            "the simulated robot (MuJoCo, 1 kHz joint loop) on the live graph", (
-    Param("scenario", "nominal", "Scenario: a YAML file or a shipped scenario name (nominal, default_gap, go1_gap)"),
+    Param("scenario", "nominal", "Scenario: a YAML file or a shipped scenario name, written for the robot (its "
+          "`robot:` key; another robot's is refused at start) ('' = the robot's own shipped scenario: hyq default_gap, "
+          "go1 go1_gap; nominal, for any robot, when it has none)"),
     Param("seed", 0, "Seed of the sensor noise", "", 0, 2**31 - 1),
     Param("publish_rate", 250.0, "Sensor and /clock publish rate (1000/n; physics runs at 1 kHz)", "Hz", 10.0, 1000.0),
     Param("command_timeout", 0.05, "Damping mode after this long without a valid /torque_command (simulation time)",
           "s", 0.004, 5.0, read_only=False),
-    Param("damping_gain", 10.0, "Joint damping in damping mode", "Nm s/rad", 0.0, 200.0, read_only=False),
+    Param("damping_gain", 0.0, "Joint damping in damping mode (0 = derived from the robot: 10 Nm s/rad scaled by "
+          "its mass, ciml_control.standing.safe_damping_gain)", "Nm s/rad", 0.0, 200.0, read_only=False),
     Param("real_time_factor", 1.0, "Simulation seconds per wall-clock second (the most, with lockstep)", "",
           0.05, 20.0),
     Param("lockstep", False, "Under torque control, publish the next sample only once the command stamped with "
@@ -25,7 +28,7 @@ MUJOCO_BRIDGE = NodeSchema("ciml_sim", "mujoco_bridge",
     Param("publish_ground_truth", False, "Also publish the simulation-only /sim/ topics (true v̇, contact and "
           "effect forces)", read_only=False),
     THREAD_PRIORITY,
-    Param("urdf", "", "Robot URDF ('' = HyQ from example-robot-data)"),
+    ROBOT,
 ))
 
 SCHEMAS: tuple[NodeSchema, ...] = (MUJOCO_BRIDGE,)

@@ -62,7 +62,7 @@ if set(CATALOGUE_TYPES) != set(DIAGNOSIS_EFFECT_TYPES):  # pragma: no cover - a 
 NOISE_FIELDS: tuple[str, ...] = ("q", "qd", "tau", "base_orientation", "base_position", "base_velocity")
 """Sensor-noise standard deviations: q [rad], qd [rad/s], tau [Nm], base_orientation [rad],
 base_position [m], base_velocity [m/s and rad/s]."""
-_TOP_LEVEL = ("name", "seed", "sensor_noise", "effects", "description")
+_TOP_LEVEL = ("name", "robot", "seed", "sensor_noise", "effects", "description")
 
 
 def effect_fields(effect_type: str) -> dict[str, tuple]:
@@ -89,10 +89,14 @@ class Effect:
 
 @dataclass(frozen=True)
 class Scenario:
+    """robot: the shipped robot profile the scenario was written for ('' = any robot: its effects
+    name no joint or link); the live bridge refuses a scenario of another robot."""
+
     name: str
     seed: int = 0
     sensor_noise: dict[str, float] = field(default_factory=dict)
     effects: tuple[Effect, ...] = ()
+    robot: str = ""
 
     def of_type(self, *types: str) -> list[Effect]:
         return [e for e in self.effects if e.type in types]
@@ -199,7 +203,11 @@ def parse_scenario(data: Any, robot: RobotDescription) -> Scenario:
     seed = data.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ScenarioError(f"seed: expected a non-negative integer, got {seed!r}")
-    return Scenario(name=name, seed=seed, sensor_noise={k: float(v) for k, v in noise.items()}, effects=tuple(effects))
+    robot_name = data.get("robot", "")
+    if not isinstance(robot_name, str):
+        raise ScenarioError(f"robot: expected a robot's name (hyq, go1, ...), got {robot_name!r}")
+    return Scenario(name=name, seed=seed, sensor_noise={k: float(v) for k, v in noise.items()}, effects=tuple(effects),
+                    robot=robot_name)
 
 
 def load_scenario(path: str | os.PathLike, robot: RobotDescription) -> Scenario:
@@ -239,3 +247,33 @@ def resolve_scenario(spec: str, robot: RobotDescription) -> Scenario:
             return load_scenario(path, robot)
     raise ScenarioError(f"scenario file not found: {spec}; give a YAML path or a shipped scenario: "
                         f"{', '.join(shipped_scenarios())}")
+
+
+def scenario_of_robot(spec: str, robot_name: str, robot: RobotDescription) -> Scenario:
+    """The scenario `spec` for the robot named `robot_name` (a profile's name), as the live bridge
+    takes it: '' = the shipped scenario written for that robot (its `robot:` key: hyq default_gap,
+    go1 go1_gap), nominal when none is; a scenario written for another robot is refused in one line."""
+    if not spec:
+        for name in shipped_scenarios():
+            path = os.path.join(scenario_dir(), f"{name}.yaml")
+            if _robot_key(path) == robot_name:
+                return load_scenario(path, robot)
+        return nominal_scenario()
+    path = spec if os.path.isfile(spec) else os.path.join(scenario_dir(), f"{spec}.yaml")
+    written_for = _robot_key(path) if os.path.isfile(path) else ""
+    if written_for and written_for != robot_name:
+        raise ScenarioError(f"scenario {spec} is for robot {written_for}, not {robot_name}: give robot:={written_for} "
+                            f"or a scenario of {robot_name}")
+    return resolve_scenario(spec, robot)
+
+
+def _robot_key(path: str) -> str:
+    """The `robot:` key of a scenario file ('' without one; a malformed file is left to load_scenario)."""
+    from ciml_learning.fileio import InputFileError, load_yaml_bounded
+
+    try:
+        data = load_yaml_bounded(path, "scenario file", max_bytes=256 * 1024, max_nodes=20_000)
+    except InputFileError:
+        return ""
+    value = data.get("robot", "") if isinstance(data, dict) else ""
+    return value if isinstance(value, str) else ""

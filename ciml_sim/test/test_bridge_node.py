@@ -240,3 +240,44 @@ def test_lockstep_waits_for_each_samples_command_then_releases_a_silent_controll
         log = stop(proc)
         graph.close()
     assert "Traceback" not in log, log
+
+
+@pytest.mark.ros
+def test_bridge_simulates_the_robot_parameter_and_refuses_another_robots_scenario():
+    """robot:=go1 builds go1 (joints, feet, limits of its profile) with its own scenario ('' =
+    go1_gap) and a damping gain scaled to its size; a scenario written for another robot, or an
+    unknown robot, stops the node at start with one line and exit status 1."""
+    import random
+    import subprocess
+
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from ciml_learning.profile import load_profile
+    from ciml_sim.bridge_node import MujocoBridge
+
+    go1 = load_profile("go1").robot()
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=random.SystemRandom().randint(1, 101))
+    try:
+        node = MujocoBridge(context=ctx, parameter_overrides=[Parameter("robot", value="go1"),
+                                                               Parameter("scenario", value="")])
+        assert node.robot.joint_names == go1.joint_names and node.robot.foot_frames == go1.foot_frames
+        assert node.scenario.name == "go1_gap" and node.scenario.robot == "go1"
+        assert node.kd_safe == pytest.approx(1.5)  # 10 Nm s/rad × 13.1 kg / 86.8 kg (two digits: 0.15)
+        z_stand = float(node.plant.standing_configuration()[2])
+        for _ in range(250):  # held standing for 1 s of simulation time
+            node._sample()
+        assert abs(node.plant.data.qpos[2] - z_stand) < 0.01 and 0.3 < z_stand < 0.35
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+    for args, words in ((["-p", "robot:=hyq", "-p", "scenario:=go1_gap"], "is for robot go1, not hyq"),
+                        (["-p", "robot:=nope"], "nope")):
+        proc = start_node("mujoco_bridge", *args)
+        out, _ = proc.communicate(timeout=60)
+        lines = [line for line in out.strip().splitlines() if "error" in line.lower()]
+        assert proc.returncode == 1 and len(lines) == 1 and words in lines[0], out
+        assert "Traceback" not in out
+    del subprocess

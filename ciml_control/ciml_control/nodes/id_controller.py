@@ -54,8 +54,8 @@ from std_msgs.msg import String
 from ciml_learning import conversions as cv
 from ciml_learning import topics
 from ciml_learning.errors import CimlError
+from ciml_learning.profile import load_profile
 from ciml_learning.projection import contact_invariant_basis
-from ciml_learning.robot import load_robot
 from ciml_learning.rollback import NOMINAL_SOURCE, EffortWatch, RollbackConfig, feedback_effort
 from ciml_learning.ros_common import COMMAND_QOS, LATEST_QOS, OK, WARN, Health, PublishPeriods, declare_schema, run_node
 
@@ -63,6 +63,7 @@ from ..controller import IdController
 from ..conversions import model_error_arrays, reference_point
 from ..feedback import FeedbackGains
 from ..node_params import ID_CONTROLLER
+from ..standing import safe_damping_gain
 from ..trust import TrustLaw
 
 MODE_TORQUE = 0
@@ -77,14 +78,14 @@ class IdControllerNode(Node):
         super().__init__("id_controller", **kwargs)
         p = declare_schema(self, ID_CONTROLLER, self._apply_parameters)  # node_params.py: the one schema
         self.params = dict(p)
-        rate, urdf, ratio = p["rate"], p["urdf"], p["max_variance_ratio"]
+        rate, ratio = p["rate"], p["max_variance_ratio"]
         self.state_timeout, self.reference_timeout = p["state_timeout"], p["reference_timeout"]
         self.reference_hold = p["reference_hold"]
         self.model_error_timeout, self.use_model_error = p["model_error_timeout"], p["use_model_error"]
-        self.damping_gain = p["damping_gain"]
         self.watch = EffortWatch(RollbackConfig(window=p["rollback_window"], probation=p["rollback_probation"],
                                                 rise=p["rollback_rise"]))
-        self.robot = load_robot(urdf or None)
+        self.robot = load_profile(p["robot"]).robot()
+        self.damping_gain = p["damping_gain"] or safe_damping_gain(self.robot)  # 0: derived from the robot's size
         self.trust = TrustLaw(self.robot, ratio)
         self.commanding = False  # a MODE_TORQUE command has been published (then stale inputs → damping)
         self._damped = False     # the last command was MODE_DAMPING
@@ -112,7 +113,9 @@ class IdControllerNode(Node):
         self.create_timer(1.0, self.report)
 
     def _build_controller(self, p: dict) -> IdController:
-        gains = FeedbackGains.default(self.robot, p["kp"], p["kd"], (p["base_kp_linear"], p["base_kp_angular"]),
+        # kp, kd 0: derived from the robot's size (feedback.joint_gain_scale)
+        gains = FeedbackGains.default(self.robot, p["kp"] or None, p["kd"] or None,
+                                      (p["base_kp_linear"], p["base_kp_angular"]),
                                       (p["base_kd_linear"], p["base_kd_angular"]), p["joint_lin_kp"],
                                       p["joint_lin_kd"])
         return IdController(self.robot, gains, mu=p["mu"], f_min=p["f_min"], feedback_contacts=p["feedback_contacts"])
@@ -137,7 +140,7 @@ class IdControllerNode(Node):
         self.state_timeout, self.reference_timeout = params["state_timeout"], params["reference_timeout"]
         self.reference_hold = params["reference_hold"]
         self.model_error_timeout, self.use_model_error = params["model_error_timeout"], params["use_model_error"]
-        self.damping_gain = params["damping_gain"]
+        self.damping_gain = params["damping_gain"] or safe_damping_gain(self.robot)
         return None
 
     def _warm_up(self) -> None:

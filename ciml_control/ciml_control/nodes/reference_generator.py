@@ -24,7 +24,7 @@ from rclpy.serialization import deserialize_message
 
 from ciml_learning import topics
 from ciml_learning.errors import CimlError
-from ciml_learning.robot import load_robot
+from ciml_learning.profile import load_profile
 from ciml_learning.ros_common import COMMAND_QOS, ERROR, Health, declare_schema, run_node
 
 from ..conversions import reference_msg
@@ -36,8 +36,8 @@ class ReferenceGeneratorNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("reference_generator", **kwargs)
         p = declare_schema(self, REFERENCE_GENERATOR, self._apply_parameters)  # node_params.py: the one schema
-        motion, rate, foot_height, urdf = p["motion"], p["rate"], p["foot_height"], p["urdf"]
-        self.robot = load_robot(urdf or None)
+        motion, rate, foot_height = p["motion"], p["rate"], p["foot_height"]
+        self.robot = load_profile(p["robot"]).robot()
         self.reference = make_reference(self.robot, motion, standing_configuration(self.robot, foot_height))
         self.health = Health(self)
         self.pub = self.create_publisher(RobotReference, topics.REFERENCE, COMMAND_QOS)

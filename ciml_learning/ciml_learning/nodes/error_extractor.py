@@ -19,7 +19,7 @@ from .. import topics
 from ..errors import CimlError
 from ..extraction import extract
 from ..node_params import ERROR_EXTRACTOR
-from ..robot import load_robot
+from ..profile import load_profile
 from ..ros_common import STREAM_QOS, Health, declare_schema, run_node
 
 
@@ -27,8 +27,8 @@ class ErrorExtractorNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("error_extractor", **kwargs)
         p = declare_schema(self, ERROR_EXTRACTOR, self._apply_parameters)  # node_params.py: the one schema
-        self.gamma, urdf = p["gamma"], p["urdf"]
-        self.robot = load_robot(urdf or None)
+        self.gamma = p["gamma"]
+        self.robot = load_profile(p["robot"]).robot()
         self.health = Health(self)
         self.pending: list[tuple] = []  # (stamp ns, q, v, q̈, τ, τ̇, u, contacts, valid) awaiting the next batch
         self.timer = None

@@ -38,7 +38,7 @@ from .. import topics
 from ..dynamics import ReferenceState, ReferenceTorque
 from ..errors import CimlError
 from ..node_params import MODEL_SERVER
-from ..robot import load_robot
+from ..profile import load_profile
 from ..ros_common import COMMAND_QOS, Health, declare_schema, run_node
 from ..serving import ServedModel, load_served_model, predict_at_reference
 from ..workers import LatestOnlyWorker
@@ -51,8 +51,8 @@ class ModelServerNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("model_server", **kwargs)
         p = declare_schema(self, MODEL_SERVER)  # node_params.py: the one schema (all read-only)
-        model_dir, swap_period, urdf = p["model_dir"], p["swap_check_period"], p["urdf"]
-        self.robot = load_robot(urdf or None)
+        model_dir, swap_period = p["model_dir"], p["swap_check_period"]
+        self.robot = load_profile(p["robot"]).robot()
         self.served: ServedModel | None = None
         self.previous: list[ServedModel] = []   # served before the current one, newest last (rollback)
         self.rolled_back: set[str] = set()

@@ -52,7 +52,7 @@ from ..learning_gate import GateConfig, LearningGate
 from ..models import ModelSet
 from ..node_params import ONLINE_LEARNER
 from ..online import ERROR, STATE, OnlineLearner, StampPairer, StateSample, model_error_sample, warm_up
-from ..robot import load_robot
+from ..profile import load_profile
 from ..ros_common import COMMAND_QOS, OK, WARN, Health, declare_schema, run_node
 from ..ros_common import ERROR as DIAG_ERROR
 from ..snapshot_gate import HELD_BACK, ValidationConfig
@@ -68,12 +68,12 @@ class OnlineLearnerNode(Node):
         p = declare_schema(self, ONLINE_LEARNER)  # node_params.py: the one schema (all read-only)
         model_dir, self.snapshot_period, keep = p["model_dir"], p["snapshot_period"], p["keep_snapshots"]
         learner, initial, calib = p["learner"], p["initial_model"], p["calibration_samples"]
-        max_age, depth, record, urdf = p["max_pair_age"], p["queue_depth"], p["record_stamps"], p["urdf"]
+        max_age, depth, record = p["max_pair_age"], p["queue_depth"], p["record_stamps"]
         gate = GateConfig(**{f.name: p[f.name] for f in dataclasses.fields(GateConfig)})
         validation = ValidationConfig(block=p["hold_back_block"], every=p["hold_back_every"],
                                       window=p["validation_window"], min_learned=p["min_learned"],
                                       min_heldout=p["min_heldout"], margin=p["validation_margin"])
-        self.robot = load_robot(urdf or None)
+        self.robot = load_profile(p["robot"]).robot()
         self.gate = LearningGate(self.robot, gate)
         if initial:
             ms = ModelSet.load(os.path.expanduser(initial), self.robot)

@@ -28,7 +28,7 @@ from ..errors import CimlError
 from ..filters import OnlineStateFilter
 from ..node_params import STATE_FILTER
 from ..pairing import is_strict, partner
-from ..robot import load_robot
+from ..profile import load_profile
 from ..ros_common import SENSOR_STREAM_QOS, STREAM_QOS, Health, PublishPeriods, declare_schema, run_node
 from ..stamps import measure_rate
 
@@ -40,8 +40,8 @@ class StateFilterNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("state_filter", **kwargs)
         p = declare_schema(self, STATE_FILTER, self._apply_parameters)  # node_params.py: the one schema
-        fs, self.max_age, urdf = p["rate"], p["max_age"], p["urdf"]
-        self.robot = load_robot(urdf or None)
+        fs, self.max_age = p["rate"], p["max_age"]
+        self.robot = load_profile(p["robot"]).robot()
         if 0.0 < fs < 50.0:
             raise CimlError(f"rate {fs} Hz is too low for the 10 Hz low-pass (20 Hz stopband); give ≥ 50 Hz or 0")
         self.filter = OnlineStateFilter(fs) if fs > 0 else None

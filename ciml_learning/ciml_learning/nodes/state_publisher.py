@@ -20,7 +20,7 @@ from .. import conversions as cv
 from .. import topics
 from ..errors import CimlError
 from ..node_params import STATE_PUBLISHER
-from ..robot import load_robot
+from ..profile import load_profile
 from ..ros_common import LATCHED_QOS, SENSOR_QOS, Health, declare_schema, run_node
 from ..tf_tree import LinkTransform, LinkTree
 
@@ -45,7 +45,7 @@ class StatePublisherNode(Node):
         p = declare_schema(self, STATE_PUBLISHER, self.apply)
         self.min_period_ns = int(1e9 / p["publish_rate"])
         self.odom_frame = p["odom_frame"]
-        self.robot = load_robot(p["urdf"] or None)
+        self.robot = load_profile(p["robot"]).robot()
         self.tree = LinkTree(self.robot)
         self.health = Health(self)
         self.pub_tf = self.create_publisher(TFMessage, topics.TF, TF_QOS)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ciml_learning.conversions import ConversionError, _finite, _vector, header_msg, robot_reference_arrays, stamp_to_ns
+from ciml_learning.profile import ProfileError, RobotProfile
 from ciml_learning.robot import RobotDescription
 
 from .references import ReferencePoint
@@ -64,3 +65,41 @@ def model_error_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, np.nda
     gamma = _vector(msg.actuation_error, len(msg.actuation_names), "model_error.actuation_error")[perm]
     _finite("model_error", phi, gamma)
     return phi, gamma
+
+
+# --- commands for a robot's own controllers -------------------------------------------------
+
+FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
+
+
+def effort_joint_order(profile: RobotProfile, robot: RobotDescription) -> np.ndarray:
+    """Indices into the robot's joint order, in the order of the profile's effort array: the
+    `joints` of its command role when that is a std_msgs/Float64MultiArray (a ros2_control effort
+    forward_command_controller's `commands`, e.g. solo12.yaml), else the robot's own joint order.
+    A list that misses, repeats or does not know a joint is a ProfileError (one line)."""
+    spec = profile.inputs.get("command") or {}
+    if spec.get("type") != FLOAT64_ARRAY:
+        return np.arange(robot.n_joints)
+    names = [profile.to_urdf_name(j) for j in spec.get("joints", ())]
+    if sorted(names) != sorted(robot.joint_names):
+        raise ProfileError(f"profile {profile.path or profile.name}: inputs.command.joints {list(names)} must name "
+                           f"each joint of the robot once: {list(robot.joint_names)}")
+    return np.array([robot.joint_names.index(j) for j in names], dtype=int)
+
+
+def effort_array_msg(effort: np.ndarray, order: np.ndarray):
+    """Joint torques [Nm] (robot joint order) as std_msgs/Float64MultiArray in `order`
+    (effort_joint_order): what an effort forward_command_controller takes. Headerless: it
+    acts when it arrives."""
+    from std_msgs.msg import Float64MultiArray
+
+    return Float64MultiArray(data=np.asarray(effort, float)[order].tolist())
+
+
+def feedforward_msg(robot: RobotDescription, stamp_ns: int, effort: np.ndarray):
+    """The learned joint-torque correction [Nm] as sensor_msgs/JointState (`name`, `effort`;
+    position and velocity empty), stamped with the joint sample it was computed for."""
+    from sensor_msgs.msg import JointState
+
+    return JointState(header=header_msg(stamp_ns), name=list(robot.joint_names),
+                      effort=np.asarray(effort, float).tolist())

@@ -65,6 +65,13 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
     Param("rollback_probation", _ROLLBACK.probation, "A newly served model is watched this long", "s", 0.1, 600.0),
     Param("rollback_rise", _ROLLBACK.rise, "Rollback above this × the RMS of the seconds before the model (plus "
           "15 Nm, 3 cm)", "", 1.0, 10.0),
+    Param("effort_command_topic", "", "Also publish each command as the joint torque u of the joint-loop law at "
+          "its sample [Nm], clipped to the limits, in a std_msgs/Float64MultiArray on this topic, for a ros2_control "
+          "effort forward_command_controller ('<controller>/commands'); joint order: the profile's command joints "
+          "when it is such an array, else the robot's ('' = not published)"),
+    Param("feedforward_only", False, "Command nothing (no /torque_command): compute the learned correction, the "
+          "QP feedforward with ε minus without, and publish it on /model_error/feedforward for the robot's own "
+          "controller"),
     THREAD_PRIORITY,
     ROBOT,
 ))

@@ -248,3 +248,156 @@ def test_id_controller_holds_a_late_reference_then_damps_a_dead_one():
         assert np.allclose(arr.position_target, last_ref.q[7:]) and np.allclose(arr.velocity_target, 0.0)
     assert all(m.mode == TorqueCommand.MODE_DAMPING for m in dead)
     assert int(keys.get("reference_held", 0)) >= 20 and int(keys.get("stale_reference", 0)) >= 20, keys
+
+
+def _in_process(node_class, **params):
+    """(node, context) of a node built in a private rclpy Context with `params` as overrides."""
+    import random
+
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=random.SystemRandom().randint(1, 101))
+    try:
+        return node_class(context=ctx, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]), ctx
+    except BaseException:
+        rclpy.try_shutdown(context=ctx)
+        raise
+
+
+def _feed_standing(node, robot, ns: int, qj=None, model_error=None) -> None:
+    """One sample of a standing robot (reference, base, contacts, optional prediction, then the
+    joint state that triggers the control step), handed to the node's callbacks."""
+    q_stand = standing_configuration(robot, 0.002)
+    ref = make_reference(robot, "stand", q_stand).sample(0.0)
+    node.on_reference(reference_msg(robot, ns, ref))
+    node.on_base(cv.odometry_msg(ns, q_stand[:3], q_stand[3:7], np.zeros(3), np.zeros(3)))
+    node.on_contacts(cv.contact_state_msg(robot, ns, np.ones(robot.n_feet, bool)))
+    if model_error is not None:
+        node.on_model_error(model_error)
+    qj = q_stand[7:] if qj is None else qj
+    node.on_joints(cv.joint_state_msg(robot, ns, qj, np.full(robot.n_joints, 0.1), np.zeros(robot.n_joints)))
+
+
+@pytest.mark.ros
+def test_id_controller_publishes_a_ros2_control_effort_array_in_the_profiles_joint_order(tmp_path):
+    """effort_command_topic: each command also as std_msgs/Float64MultiArray, the joint-loop law's
+    torque at the sample (clipped to the limits) in the order of the profile's effort-array
+    joints (here go1 with its legs listed FR, FL, RR, RL); damping commands too; a profile whose
+    array misses a joint stops the node at start with one line."""
+    import rclpy
+    import yaml
+
+    from ciml_control.conversions import effort_joint_order
+    from ciml_control.nodes.id_controller import IdControllerNode
+    from ciml_learning.errors import CimlError
+    from ciml_learning.profile import load_profile, shipped_profile
+
+    data = yaml.safe_load(open(shipped_profile("go1")))
+    data["urdf"] = load_profile("go1").urdf
+    legs = ["FR", "FL", "RR", "RL"]
+    joints = [f"{leg}_{j}_joint" for leg in legs for j in ("hip", "thigh", "calf")]
+    data["inputs"]["command"] = {"topic": "/effort_controller/commands", "type": "std_msgs/msg/Float64MultiArray",
+                                 "field": "data", "joints": joints}
+    path = tmp_path / "go1_effort.yaml"
+    path.write_text(yaml.safe_dump(data))
+    robot = load_profile(str(path)).robot()
+    order = effort_joint_order(load_profile(str(path)), robot)
+    assert [robot.joint_names[i] for i in order] == joints and list(order) != list(range(12))
+
+    node, ctx = _in_process(IdControllerNode, robot=str(path), effort_command_topic="/effort_controller/commands")
+    try:
+        commands, arrays = [], []
+        node.pub.publish, node.effort_pub.publish = commands.append, arrays.append
+        rng = np.random.default_rng(1)
+        q_stand = standing_configuration(robot, 0.002)
+        for k in range(5):
+            qj = q_stand[7:] + 0.8 * rng.standard_normal(12)  # far from the target: some torques at their limits
+            _feed_standing(node, robot, 10**9 + k * 4_000_000, qj)
+            cmd = cv.torque_command_arrays(robot, commands[-1])
+            u = cmd.total(qj, np.full(12, 0.1), robot.torque_limits)
+            assert len(arrays) == k + 1 and np.allclose(arrays[-1].data, u[order], atol=1e-12)
+            assert np.all(np.abs(arrays[-1].data) <= robot.torque_limits[order] + 1e-12)
+        assert np.any(np.abs(u) >= robot.torque_limits - 1e-9)  # the clipping was exercised
+        node.publish_damping("stale_state", "test", 2 * 10**9)  # damping: u = −d q̇ at the last sample
+        assert np.allclose(arrays[-1].data, -node.damping_gain * 0.1 * np.ones(12))
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+    data["inputs"]["command"]["joints"] = joints[:-1]
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(CimlError) as err:
+        _in_process(IdControllerNode, robot=str(path))
+    assert "inputs.command.joints" in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.ros
+def test_feedforward_only_publishes_the_learned_correction_and_commands_nothing():
+    """feedforward_only: no /torque_command at all; /model_error/feedforward carries, per joint
+    sample (its stamp, the robot's joint names), the QP feedforward with the trusted ε minus the
+    nominal one: zero without a prediction, the learned correction with a confident one."""
+    import rclpy
+
+    from ciml_control.controller import IdController
+    from ciml_control.nodes.id_controller import IdControllerNode
+
+    node, ctx = _in_process(IdControllerNode, feedforward_only=True)
+    try:
+        commands, corrections = [], []
+        node.pub.publish, node.feedforward_pub.publish = commands.append, corrections.append
+        _feed_standing(node, ROBOT, 10**9)  # no prediction: the nominal model, no correction
+        assert len(corrections) == 1 and np.allclose(corrections[0].effort, 0.0, atol=1e-9)
+        phi = np.zeros(18)
+        phi[2] = 60.0  # 60 N more weight on the base
+        gamma = np.full(ROBOT.n_joints, -2.0)  # every actuator 2 Nm short
+        ns = 10**9 + 4_000_000
+        prediction = cv.model_error_msg(ROBOT, ns, "test", phi, np.ones(18, bool), gamma,
+                                        np.ones(ROBOT.n_joints, bool))
+        _feed_standing(node, ROBOT, ns, model_error=prediction)
+        msg = corrections[-1]
+        assert list(msg.name) == list(ROBOT.joint_names) and cv.stamp_to_ns(msg.header.stamp) == ns
+        # the same correction from the controller law itself, with the ε the node trusted
+        ref = node.reference[2]
+        eps, _ = node.epsilon(ref, node._now())
+        q_stand = standing_configuration(ROBOT, 0.002)
+        v = np.r_[np.zeros(6), np.full(ROBOT.n_joints, 0.1)]
+        ctl = IdController(ROBOT)
+        expected = (ctl.compute(q_stand, v, np.ones(4, bool), ref, eps).feedforward
+                    - ctl.compute(q_stand, v, np.ones(4, bool), ref, np.zeros(ROBOT.nv)).feedforward)
+        assert np.linalg.norm(expected) > 5.0 and np.allclose(msg.effort, expected, atol=1e-6)
+        assert commands == [] and not node.commanding and node.health.message == "feedforward only"
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+@pytest.mark.ros
+def test_model_error_predicted_as_a_feedforward_without_a_model():
+    """/model_error/predicted as a user's controller reads it (docs/LIVE_GRAPH.md): one message per
+    /reference, stamped with the reference's stamp, Γ by joint name in the robot's joint order [Nm],
+    Φ̃' by name (base wrench [N, Nm], then 3 per foot [N]); without a served model it is the
+    nominal model: source 'nominal', zeros, nothing observed, the prior variances (large)."""
+    import rclpy
+
+    from ciml_learning.nodes.model_server import ModelServerNode
+    from ciml_learning.profile import load_profile
+
+    robot = load_profile("go1").robot()
+    node, ctx = _in_process(ModelServerNode, robot="go1")
+    try:
+        out = []
+        node.pub.publish = out.append
+        ref = make_reference(robot, "trot_35", standing_configuration(robot, 0.002)).sample(2.0)
+        node.on_reference(reference_msg(robot, 123_456_789, ref))
+        (msg,) = out
+        assert cv.stamp_to_ns(msg.header.stamp) == 123_456_789 and msg.source == "nominal"
+        assert list(msg.actuation_names) == list(robot.joint_names)
+        assert list(msg.rbd_names) == list(robot.rbd_error_names)
+        assert not any(msg.actuation_observed) and not any(msg.rbd_observed)
+        assert np.all(np.asarray(msg.actuation_error) == 0) and np.all(np.asarray(msg.rbd_error) == 0)
+        assert np.all(np.asarray(msg.actuation_variance) > 0) and np.all(np.asarray(msg.rbd_variance) > 0)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)

@@ -13,6 +13,8 @@ CLOCK = "/clock"
 FILTERED_STATE = "/filtered_state"
 MODEL_ERROR_MEASURED = "/model_error/measured"
 MODEL_ERROR_PREDICTED = "/model_error/predicted"
+MODEL_ERROR_FEEDFORWARD = "/model_error/feedforward"
+"""id_controller with feedforward_only: the learned joint-torque correction (sensor_msgs/JointState effort)."""
 MODEL_UPDATE = "/model_update"
 MODEL_ROLLBACK = "/model_rollback"
 """The controller's request to stop serving a model (std_msgs/String: the model's `source` name)."""
@@ -40,6 +42,7 @@ TYPES: dict[str, str] = {
     FILTERED_STATE: "ciml_msgs/msg/RobotState",
     MODEL_ERROR_MEASURED: "ciml_msgs/msg/ModelError",
     MODEL_ERROR_PREDICTED: "ciml_msgs/msg/ModelError",
+    MODEL_ERROR_FEEDFORWARD: "sensor_msgs/msg/JointState",
     MODEL_UPDATE: "ciml_msgs/msg/ModelUpdate",
     MODEL_ROLLBACK: "std_msgs/msg/String",
     REFERENCE: "ciml_msgs/msg/RobotReference",

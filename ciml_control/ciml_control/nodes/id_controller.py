@@ -30,6 +30,15 @@ absent never stops the controller). All 18 + 12 predicted entries pass the trust
 variance exceeds `max_variance_ratio` × its prior variance is not used (counted:
 epsilon_gated, steps with a gated entry), and ε is clipped to the robot's physical bounds
 (m·g, m·g·leg span, torque limits; counted: epsilon_clipped, with a warning).
+Outputs for a robot's own controllers: with `effort_command_topic` every command (damping too) is
+also published as ros2_control takes it — a std_msgs/Float64MultiArray of the joint-loop law's
+torque at the command's sample (conversions.commanded_torque, clipped to the limits; a
+forward_command_controller holds it until the next one, there is no 1 kHz PD between), in the
+profile's joint order (conversions.effort_joint_order). With `feedforward_only` the node commands
+nothing: per joint sample it solves the QP with ε and with ε = 0 and publishes the difference of
+the two feedforwards, the learned correction in joint torques, on /model_error/feedforward
+(sensor_msgs/JointState: names, effort [Nm], the joint sample's stamp; zero while no model is
+served or trusted; not published after a QP failure, counted feedforward_skipped).
 Rollback (`rollback`): every step's feedback effort and base position error go to an
 EffortWatch (ciml_learning.rollback) with the `source` of the prediction used; when a newly
 served model makes either rise beyond `rollback_rise` × the RMS of the seconds before it (RMS
@@ -49,7 +58,7 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
-from std_msgs.msg import String
+from std_msgs.msg import Float64MultiArray, String
 
 from ciml_learning import conversions as cv
 from ciml_learning import topics
@@ -60,7 +69,7 @@ from ciml_learning.rollback import NOMINAL_SOURCE, EffortWatch, RollbackConfig, 
 from ciml_learning.ros_common import COMMAND_QOS, LATEST_QOS, OK, WARN, Health, PublishPeriods, declare_schema, run_node
 
 from ..controller import IdController
-from ..conversions import model_error_arrays, reference_point
+from ..conversions import effort_array_msg, effort_joint_order, feedforward_msg, model_error_arrays, reference_point
 from ..feedback import FeedbackGains
 from ..node_params import ID_CONTROLLER
 from ..standing import safe_damping_gain
@@ -84,7 +93,10 @@ class IdControllerNode(Node):
         self.model_error_timeout, self.use_model_error = p["model_error_timeout"], p["use_model_error"]
         self.watch = EffortWatch(RollbackConfig(window=p["rollback_window"], probation=p["rollback_probation"],
                                                 rise=p["rollback_rise"]))
-        self.robot = load_profile(p["robot"]).robot()
+        profile = load_profile(p["robot"])
+        self.robot = profile.robot()
+        self.feedforward_only = p["feedforward_only"]
+        self.effort_order = effort_joint_order(profile, self.robot)  # the array's order: checked at start
         self.damping_gain = p["damping_gain"] or safe_damping_gain(self.robot)  # 0: derived from the robot's size
         self.trust = TrustLaw(self.robot, ratio)
         self.commanding = False  # a MODE_TORQUE command has been published (then stale inputs → damping)
@@ -100,6 +112,10 @@ class IdControllerNode(Node):
         self.model_error = None
         self.compute_times: deque = deque(maxlen=1000)
         self.pub = self.create_publisher(TorqueCommand, topics.TORQUE_COMMAND, COMMAND_QOS)
+        self.effort_pub = (self.create_publisher(Float64MultiArray, p["effort_command_topic"], COMMAND_QOS)
+                           if p["effort_command_topic"] else None)
+        self.feedforward_pub = (self.create_publisher(JointState, topics.MODEL_ERROR_FEEDFORWARD, COMMAND_QOS)
+                                if self.feedforward_only else None)
         self.rollback_pub = self.create_publisher(String, topics.MODEL_ROLLBACK, COMMAND_QOS)
         # base and contacts first: rclpy's executor takes ready subscriptions in creation order, and
         # the robot driver publishes a sample's base and contact state before its joint state (the
@@ -263,11 +279,15 @@ class IdControllerNode(Node):
             self.health.count("qp_failures", f"QP failed, fallback feedforward: {out.qp_error}")
         if out.epsilon_rejected:
             self.health.count("epsilon_rejected", "non-finite model error: nominal model used")
+        if self.feedforward_only:
+            self.publish_feedforward(stamp, q, v, ref, out)
+            self.compute_times.append(time.perf_counter() - t0)
+            return
         cmd = cv.TorqueCommandArrays(mode=MODE_TORQUE, feedforward=out.feedforward,
                                      feedback_linearization=out.feedback_linearization,
                                      position_target=out.q_target, velocity_target=out.qd_target,
                                      stiffness=out.kp, damping=out.kd)
-        self.pub.publish(cv.torque_command_msg(self.robot, stamp, cmd))
+        self.send(stamp, cmd)
         self.periods.mark()
         self.health.counts["commands"] += 1
         if self.params["rollback"]:
@@ -288,14 +308,32 @@ class IdControllerNode(Node):
         self.health.count("rollbacks", f"model {back.source} rolled back: {back.signal} RMS {back.rms:.3g} above "
                                        f"{back.limit:.3g} {1e3 * back.detected_after:.0f} ms after it served")
 
+    def send(self, stamp: int, cmd: cv.TorqueCommandArrays) -> None:
+        """A command to the robot: /torque_command, and the ros2_control effort array if asked."""
+        self.pub.publish(cv.torque_command_msg(self.robot, stamp, cmd))
+        if self.effort_pub is not None:
+            qj, qdj = self.joints[2][:2] if self.joints is not None else (cmd.position_target, cmd.velocity_target)
+            u = cmd.total(qj, qdj, self.robot.torque_limits)  # the joint-loop law at this sample, within the limits
+            self.effort_pub.publish(effort_array_msg(u, self.effort_order))
+
+    def publish_feedforward(self, stamp: int, q: np.ndarray, v: np.ndarray, ref, out) -> None:
+        """feedforward_only: the QP feedforward with the trusted ε minus the nominal model's."""
+        nominal = self.controller.compute(q, v, self.contacts[2], ref, np.zeros(self.robot.nv))
+        if out.qp_failed or nominal.qp_failed:  # a fallback torque is no learned correction
+            self.health.count("feedforward_skipped", "QP failed: no learned feedforward for this sample")
+            return
+        self.feedforward_pub.publish(feedforward_msg(self.robot, stamp, out.feedforward - nominal.feedforward))
+        self.health.counts["feedforwards"] += 1
+        if self.health.mode_message != "feedforward only":
+            self.health.set(OK, "feedforward only")
+
     def publish_damping(self, event: str, reason: str, stamp: int | None = None) -> None:
         n = self.robot.n_joints
         q_now = self.joints[2][0] if self.joints is not None else np.zeros(n)
         cmd = cv.TorqueCommandArrays(mode=MODE_DAMPING, feedforward=np.zeros(n), feedback_linearization=np.zeros(n),
                                      position_target=q_now, velocity_target=np.zeros(n), stiffness=np.zeros(n),
                                      damping=np.full(n, self.damping_gain))
-        ns = stamp if stamp is not None else self.get_clock().now().nanoseconds
-        self.pub.publish(cv.torque_command_msg(self.robot, ns, cmd))
+        self.send(stamp if stamp is not None else self.get_clock().now().nanoseconds, cmd)
         self.health.count(event, reason)
         if not self._damped:
             self._damped = True

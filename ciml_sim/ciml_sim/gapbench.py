@@ -95,9 +95,10 @@ SUITE: tuple[dict, ...] = (
     _case([{"type": "link_mass_scale", "link": "rh_upperleg", "value": 1.5},
            {"type": "encoder_offset", "joint": "lf_kfe_joint", "value": -0.03},
            {"type": "torque_gain", "joint": "rf_kfe_joint", "value": 1.15}], 18),
-    # outside the catalogue: must be reported as unexplained, localised to the right leg
+    # Stribeck friction (in the catalogue since the effect registry; named Coulomb before)
     _case([{"type": "joint_stribeck_friction", "joint": "rf_kfe_joint", "breakaway": 12.0, "coulomb": 4.0,
             "velocity": 0.1}], 19),
+    # outside the catalogue: must be reported as unexplained, localised to the right leg
     _case([{"type": "joint_spring", "joint": "lh_hfe_joint", "stiffness": 80.0, "rest": 0.0}], 20),
     _case([{"type": "torque_ripple", "joint": "lf_kfe_joint", "amplitude": 6.0, "period": 0.3}], 21),
     # the torque sensor (not the actuator): its gain and offset in the catalogue, a reading ripple outside it

@@ -64,6 +64,7 @@ from ciml_learning.errors import CimlError
 from ciml_learning.robot import RobotDescription
 
 from . import joint_loop
+from .effects import SIM_EFFECTS, Truth
 from .mjcf import (
     FOOT_RADIUS,
     TIMESTEP,
@@ -129,31 +130,13 @@ class GroundTruth:
 # --- inertial effects on the Pinocchio model ----------------------------------------------
 
 
-def _add_inertial_effect(robot: RobotDescription, model: pin.Model, e: Effect) -> None:
-    if e.type == "payload":
-        # a point mass at `com` in the trunk frame (the root body when there is no trunk)
-        frame_name = "trunk" if model.existFrame("trunk") else model.frames[2].name
-        frame = model.frames[model.getFrameId(frame_name)]
-        point = pin.Inertia(e.params["mass"], np.asarray(e.params["com"], float), np.zeros((3, 3)))
-        model.inertias[frame.parentJoint] = model.inertias[frame.parentJoint] + frame.placement.act(point)
-    elif e.type == "link_mass_scale":
-        found = robot.link_inertias.get(e.link) if e.link else None
-        if found is None:
-            raise CimlError(f"link {e.link!r} has no inertial in {robot.urdf_path}")
-        joint, inertia = found
-        s = e.params["value"] - 1.0  # scales the link's mass and rotational inertia about its CoM
-        # dynamic parameters are linear in the inertia: adds s times the link (s < 0 removes mass)
-        model.inertias[joint] = pin.Inertia.FromDynamicParameters(
-            model.inertias[joint].toDynamicParameters() + s * inertia.toDynamicParameters())
-
-
 def true_pinocchio_model(robot: RobotDescription, effects: list[Effect] | Scenario) -> pin.Model:
     """A copy of the nominal model with the inertial effects (payload, link mass) applied."""
     effects = list(effects.effects) if isinstance(effects, Scenario) else effects
     model = robot.model.copy()
     for e in effects:
-        if e.type in ("payload", "link_mass_scale"):
-            _add_inertial_effect(robot, model, e)
+        if SIM_EFFECTS[e.type].changes_inertia:
+            SIM_EFFECTS[e.type].inertial(robot, model, e)
     return model
 
 
@@ -189,61 +172,29 @@ class Plant:
         self.sensor[:, 3] = 1.0
         self.coulomb = np.zeros(nj)
         self.viscous = np.zeros(nj)
-        self._stribeck: list[tuple[Effect, np.ndarray]] = []
-        self._springs: list[tuple[Effect, np.ndarray]] = []
-        self._ripples: list[tuple[Effect, np.ndarray]] = []
+        self.imu_roll = self.imu_pitch = 0.0
+        self.friction_levels: list[tuple[Effect, np.ndarray]] = []  # frictionloss levels set between steps
+        self.side_effects: list[tuple[Effect, np.ndarray]] = []     # explicit joint torques set between steps
         self._inertial: list[tuple[Effect, pin.Model, pin.Data]] = []
-        roll = pitch = 0.0
-        for e in scenario.effects:
-            j = np.asarray(e.joints, dtype=int)
-            p = e.params
-            if e.type == "joint_coulomb_friction":
-                self.coulomb[j] += p["value"]
-            elif e.type == "joint_viscous_friction":
-                self.viscous[j] += p["value"]
-            elif e.type == "actuator_lag":
-                self.lag_time_constant[j] += p["time_constant"]
-            elif e.type == "torque_gain":
-                self.gain[j] += p["value"] - 1.0
-            elif e.type == "torque_offset":
-                self.offset[j] += p["value"]
-            elif e.type == "encoder_offset":
-                self.encoder_offset[j] += p["value"]
-            elif e.type == "torque_sensor_gain":
-                self.sensor[j, 0] += p["value"] - 1.0
-            elif e.type == "torque_sensor_offset":
-                self.sensor[j, 1] += p["value"]
-            elif e.type == "torque_sensor_ripple":
-                if np.any(self.sensor[j, 2] != 0.0):
-                    raise CimlError("one torque_sensor_ripple per joint")
-                self.sensor[j, 2], self.sensor[j, 3] = p["amplitude"], p["period"]
-            elif e.type == "base_imu_tilt":
-                roll, pitch = roll + p["roll"], pitch + p["pitch"]
-            elif e.type == "joint_stribeck_friction":
-                self._stribeck.append((e, j))
-            elif e.type == "joint_spring":
-                self._springs.append((e, j))
-            elif e.type == "torque_ripple":
-                self._ripples.append((e, j))
-            elif e.type in ("payload", "link_mass_scale"):
+        for e in scenario.effects:  # each effect's simulation module (ciml_sim.effects) sets its part
+            sim = SIM_EFFECTS[e.type]
+            sim.configure(self, e, np.asarray(e.joints, dtype=int))
+            if sim.changes_inertia:
                 m = true_pinocchio_model(robot, [e])
                 self._inertial.append((e, m, m.createData()))
-            else:  # pragma: no cover - scenario.py validates the types
-                raise CimlError(f"effect type {e.type} has no implementation")
         self.model.dof_frictionloss[6:] = self.coulomb
         self.model.dof_damping[6:] = self.viscous
-        # ground truth: per effect (effect, joint indices, (true model, data) of an inertial effect)
-        inertial_of = {id(e): (m, md) for e, m, md in self._inertial}
-        self._gt_effects = [(e, np.asarray(e.joints, dtype=int), inertial_of.get(id(e))) for e in scenario.effects]
-        self._gt_kinds = {e.type for e in scenario.effects}
+        self._gt_effects = [(e, np.asarray(e.joints, dtype=int)) for e in scenario.effects]
+        self._gt_friction = any(SIM_EFFECTS[e.type].frictionloss for e in scenario.effects)
         self._alpha = DT / (self.lag_time_constant + DT)  # backward-Euler lag: τ_k = τ_{k−1} + α (u_k − τ_{k−1})
         self._has_lag = bool(np.any(self.lag_time_constant > 0))
         self._has_gain = bool(np.any(self.gain != 1.0) or np.any(self.offset != 0.0))
         identity = np.all(self.sensor[:, 0] == 1.0) and not np.any(self.sensor[:, 1:3])
         self._sensor = np.empty((0, 4)) if identity else self.sensor  # empty: the sensor reads τ
-        self._has_side = bool(self._springs or self._ripples)
-        self._extra = bool(self._stribeck) or self._has_side  # effects evaluated in Python between steps
+        self._has_side = bool(self.side_effects)
+        self._extra = bool(self.friction_levels) or self._has_side  # effects evaluated in Python between steps
         self._no_noise = np.empty((0, nj))
+        roll, pitch = self.imu_roll, self.imu_pitch
         tilt = quaternion_xyzw(pin.rpy.rpyToMatrix(roll, pitch, 0.0))  # x y z w
         self._imu_tilt = np.empty(0) if roll == pitch == 0.0 else np.array([tilt[3], tilt[0], tilt[1], tilt[2]])
         self.noise = {k: float(scenario.sensor_noise.get(k, 0.0)) for k in
@@ -383,29 +334,27 @@ class Plant:
                              noise_qd[0] if len(noise_qd) else none, float(self.data.time), out)
         return out
 
-    def _stribeck_levels(self) -> list[np.ndarray]:
+    def _friction_levels(self) -> list[np.ndarray]:
+        """Current frictionloss levels of the effects that set one between steps (per effect)."""
         qd = self._vj
-        return [e.params["coulomb"] + (e.params["breakaway"] - e.params["coulomb"])
-                * np.exp(-(qd[j] / e.params["velocity"]) ** 2) for e, j in self._stribeck]
+        return [SIM_EFFECTS[e.type].friction_level(e, qd[j]) for e, j in self.friction_levels]
 
     def _side_torques(self) -> list[np.ndarray]:
-        """Explicit joint-side torques of joint_spring and torque_ripple effects (per effect)."""
+        """Explicit joint-side torques of the effects that set one between steps (per effect)."""
         q = self._qj
-        out = [-e.params["stiffness"] * (q[j] - e.params["rest"]) for e, j in self._springs]
-        out += [e.params["amplitude"] * np.sin(2 * np.pi * q[j] / e.params["period"]) for e, j in self._ripples]
-        return out
+        return [SIM_EFFECTS[e.type].side_torque(e, q[j]) for e, j in self.side_effects]
 
     def _apply(self, tau: np.ndarray) -> None:
         """Actuator torque and the joint-side effects into MjData for the next evaluation."""
         self._ctrl[:] = tau
-        if self._stribeck:
+        if self.friction_levels:
             fl = self.coulomb.copy()
-            for (e, j), level in zip(self._stribeck, self._stribeck_levels()):
+            for (e, j), level in zip(self.friction_levels, self._friction_levels()):
                 fl[j] += level
             self.model.dof_frictionloss[6:] = fl
         if self._has_side:
             f = np.zeros(self.robot.n_joints)
-            for (e, j), t in zip(self._springs + self._ripples, self._side_torques()):
+            for (e, j), t in zip(self.side_effects, self._side_torques()):
                 f[j] += t
             self._qfrc_j[:] = f
 
@@ -531,54 +480,33 @@ class Plant:
         vdot[:3] = R.T @ d.qacc[:3] - np.array([w[1] * vl[2] - w[2] * vl[1], w[2] * vl[0] - w[0] * vl[2],
                                                  w[0] * vl[1] - w[1] * vl[0]])
         nv = self.robot.nv
-        effects: dict[str, np.ndarray] = {}
-        kinds = self._gt_kinds
-
-        def joint_force(j: np.ndarray, values: np.ndarray) -> np.ndarray:
-            f = np.zeros(nv)
-            f[6 + j] = values
-            return f
-
-        if kinds & {"joint_coulomb_friction", "joint_stribeck_friction"}:
+        share = levels = None
+        if self._gt_friction:
             # joint friction constraint forces, shared among the effects by their current levels
             friction = np.zeros(nv)
             rows = d.efc_type[: d.nefc] == _FRICTION_DOF  # one row per DOF with friction loss
             friction[d.efc_id[: d.nefc][rows]] = d.efc_force[: d.nefc][rows]
             level = self.coulomb.copy()
-            stribeck_levels = self._stribeck_levels()
-            for (e, j), lv in zip(self._stribeck, stribeck_levels):
+            current = self._friction_levels()
+            for (e, j), lv in zip(self.friction_levels, current):
                 level[j] += lv
             share = np.divide(friction[6:], level, out=np.zeros_like(level), where=level > 0)
-            strib = dict(zip((id(e) for e, _ in self._stribeck), stribeck_levels))
-        side = (dict(zip((id(e) for e, _ in self._springs + self._ripples), self._side_torques()))
-                if self._has_side else {})
-        if "actuator_lag" in kinds:
-            lag_share = np.divide(lag - u, self.lag_time_constant, out=np.zeros_like(u),
-                                  where=self.lag_time_constant > 0)
-        if self._inertial:
-            nominal_id = pin.rnea(self.robot.model, self._nominal_data, q, v, vdot)
-        for e, j, inertial in self._gt_effects:
-            p = e.params
-            if e.type == "joint_coulomb_friction":
-                f = joint_force(j, share[j] * p["value"])
-            elif e.type == "joint_stribeck_friction":
-                f = joint_force(j, share[j] * strib[id(e)])
-            elif e.type == "joint_viscous_friction":
-                f = joint_force(j, -p["value"] * self._vj[j])
-            elif e.type in ("joint_spring", "torque_ripple"):
-                f = joint_force(j, side[id(e)])
-            elif e.type == "actuator_lag":
-                f = joint_force(j, lag_share[j] * p["time_constant"])
-            elif e.type == "torque_gain":
-                f = joint_force(j, (p["value"] - 1.0) * lag[j])
-            elif e.type == "torque_offset":
-                f = joint_force(j, np.full(len(j), p["value"]))
-            elif inertial is not None:  # payload, link_mass_scale: the true model and its data
-                m, md = inertial
-                f = -(pin.rnea(m, md, q, v, vdot) - nominal_id)
-            else:  # encoder_offset, base_imu_tilt: measurement only
-                continue
-            effects[e.label] = f
+            levels = dict(zip((id(e) for e, _ in self.friction_levels), current))
+        side = dict(zip((id(e) for e, _ in self.side_effects), self._side_torques())) if self._has_side else {}
+        lag_share = np.divide(lag - u, self.lag_time_constant, out=np.zeros_like(u), where=self.lag_time_constant > 0)
+        inertial_of = {id(e): (m, md) for e, m, md in self._inertial}
+        nominal_id = pin.rnea(self.robot.model, self._nominal_data, q, v, vdot) if self._inertial else None
+
+        def inertial_force(e: Effect) -> np.ndarray:
+            m, md = inertial_of[id(e)]
+            return -(pin.rnea(m, md, q, v, vdot) - nominal_id)
+
+        truth = Truth(nv, self._vj, u, lag, share, levels or {}, side, lag_share, inertial_force)
+        effects: dict[str, np.ndarray] = {}
+        for e, j in self._gt_effects:
+            f = SIM_EFFECTS[e.type].force(truth, e, j)
+            if f is not None:  # measurement effects exert none
+                effects[e.label] = f
         return GroundTruth(q=q, v=v, vdot=vdot, contact_forces=forces.copy(), u=u.copy(), tau=tau.copy(),
                            effect_forces=effects)
 

@@ -1,8 +1,9 @@
 """Scenarios: the unmodelled effects that make the simulation the "real robot" (docs/ARCHITECTURE.md §5).
 
-A scenario is a YAML file, validated on load: an unknown type, joint or link, a
-missing, extra or out-of-range field gives a ScenarioError with one line naming the
-field and the valid choices. The nominal model (Pinocchio) never sees a scenario.
+A scenario is a YAML file, validated on load against the effect registry
+(ciml_learning.effects: each type's fields, units and ranges): an unknown type, joint or
+link, a missing, extra or out-of-range field gives a ScenarioError with one line naming
+the field and the valid choices. The nominal model (Pinocchio) never sees a scenario.
 
 Effects combine. Several effects of one type on the same joint (or link) add up:
 frictions and offsets add, gains and link-mass scales add their deviations from 1
@@ -18,8 +19,7 @@ import sys
 from dataclasses import dataclass, field
 from typing import Any
 
-from ciml_learning.diagnosis.candidates import EFFECT_TYPES as DIAGNOSIS_EFFECT_TYPES
-from ciml_learning.diagnosis.candidates import MEASUREMENT_TYPES as DIAGNOSIS_MEASUREMENT_TYPES
+from ciml_learning.effects import CATALOGUE, EFFECTS, MEASUREMENT_ONLY, OUT_OF_CATALOGUE, Field
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import RobotDescription
 
@@ -28,46 +28,18 @@ class ScenarioError(CimlError):
     """A scenario file is missing or invalid."""
 
 
-# type -> {field: (kind, lo, hi)}; kind: joints (a name, a list of names or "all") | link | float | vec3
-_CATALOGUE: dict[str, dict[str, tuple]] = {
-    "payload": {"mass": ("float", 0.0, 100.0), "com": ("vec3", -1.0, 1.0)},
-    "joint_coulomb_friction": {"joint": ("joints",), "value": ("float", 0.0, 100.0)},
-    "joint_viscous_friction": {"joint": ("joints",), "value": ("float", 0.0, 100.0)},
-    "actuator_lag": {"joints": ("joints",), "time_constant": ("float", 0.0, 0.2)},
-    "torque_gain": {"joint": ("joints",), "value": ("float", 0.1, 2.0)},
-    "torque_offset": {"joint": ("joints",), "value": ("float", -50.0, 50.0)},
-    "link_mass_scale": {"link": ("link",), "value": ("float", 0.1, 5.0)},
-    "encoder_offset": {"joint": ("joints",), "value": ("float", -0.2, 0.2)},
-    "base_imu_tilt": {"roll": ("float", -0.2, 0.2), "pitch": ("float", -0.2, 0.2)},
-    # the torque *sensor* (measured τ_m = value·τ, τ + value), the torque the joint receives unchanged
-    "torque_sensor_gain": {"joint": ("joints",), "value": ("float", 0.1, 2.0)},
-    "torque_sensor_offset": {"joint": ("joints",), "value": ("float", -50.0, 50.0)},
-    # outside the diagnosis' catalogue (used to check that it says "unexplained"):
-    "joint_stribeck_friction": {"joint": ("joints",), "breakaway": ("float", 0.0, 100.0),
-                                "coulomb": ("float", 0.0, 100.0), "velocity": ("float", 1e-3, 5.0)},
-    "joint_spring": {"joint": ("joints",), "stiffness": ("float", 0.0, 1000.0), "rest": ("float", -3.2, 3.2)},
-    "torque_ripple": {"joint": ("joints",), "amplitude": ("float", 0.0, 50.0), "period": ("float", 0.01, 6.3)},
-    # a torque-sensor reading error amplitude·sin(2π q/period) (the joint's true torque unchanged)
-    "torque_sensor_ripple": {"joint": ("joints",), "amplitude": ("float", 0.0, 50.0), "period": ("float", 0.01, 6.3)},
-}
-EFFECT_TYPES: tuple[str, ...] = tuple(_CATALOGUE)
-CATALOGUE_TYPES: tuple[str, ...] = tuple(t for t in EFFECT_TYPES if t in DIAGNOSIS_EFFECT_TYPES)
-"""The effect types the diagnosis has candidates for (defined once: ciml_learning.diagnosis.candidates)."""
-OUT_OF_CATALOGUE_TYPES: tuple[str, ...] = tuple(t for t in EFFECT_TYPES if t not in DIAGNOSIS_EFFECT_TYPES)
-MEASUREMENT_ONLY_TYPES: tuple[str, ...] = DIAGNOSIS_MEASUREMENT_TYPES + ("torque_sensor_ripple",)
+EFFECT_TYPES: tuple[str, ...] = tuple(EFFECTS)
+"""Every effect type the simulator knows: the registry's (ciml_learning.effects), each simulated by
+its module of ciml_sim.effects."""
+CATALOGUE_TYPES: tuple[str, ...] = CATALOGUE
+"""The effect types the diagnosis has candidates for."""
+OUT_OF_CATALOGUE_TYPES: tuple[str, ...] = OUT_OF_CATALOGUE
+MEASUREMENT_ONLY_TYPES: tuple[str, ...] = MEASUREMENT_ONLY
 """Effects that bias a measurement and exert no force."""
-if set(CATALOGUE_TYPES) != set(DIAGNOSIS_EFFECT_TYPES):  # pragma: no cover - a programming error
-    raise ImportError(f"scenario effects and the diagnosis' catalogue differ: "
-                      f"{sorted(set(DIAGNOSIS_EFFECT_TYPES) ^ set(CATALOGUE_TYPES))}")
 NOISE_FIELDS: tuple[str, ...] = ("q", "qd", "tau", "base_orientation", "base_position", "base_velocity")
 """Sensor-noise standard deviations: q [rad], qd [rad/s], tau [Nm], base_orientation [rad],
 base_position [m], base_velocity [m/s and rad/s]."""
 _TOP_LEVEL = ("name", "robot", "seed", "sensor_noise", "effects", "description")
-
-
-def effect_fields(effect_type: str) -> dict[str, tuple]:
-    """The fields of an effect type: {name: (kind, lo, hi)} (for docs and the diagnosis)."""
-    return dict(_CATALOGUE[effect_type])
 
 
 @dataclass(frozen=True)
@@ -136,9 +108,9 @@ def _parse_effect(e: Any, i: int, robot: RobotDescription) -> tuple[Effect, str]
     if not isinstance(e, dict) or "type" not in e:
         raise ScenarioError(f"{where}: expected a mapping with a 'type'; valid types: {', '.join(EFFECT_TYPES)}")
     typ = e["type"]
-    if typ not in _CATALOGUE:
+    if not isinstance(typ, str) or typ not in EFFECTS:
         raise ScenarioError(f"{where}.type: unknown effect {typ!r}; valid: {', '.join(EFFECT_TYPES)}")
-    spec = _CATALOGUE[typ]
+    spec: dict[str, Field] = EFFECTS[typ].fields
     given = set(e) - {"type"}
     unknown, missing = sorted(given - set(spec)), sorted(set(spec) - given)
     if unknown:
@@ -152,21 +124,21 @@ def _parse_effect(e: Any, i: int, robot: RobotDescription) -> tuple[Effect, str]
     for k, s in spec.items():
         v = e[k]
         w = f"{where}.{k}"
-        if s[0] == "joints":
+        if s.kind == "joints":
             joints, suffix = _resolve_joints(v, robot, w)
-        elif s[0] == "link":
+        elif s.kind == "link":
             if v not in robot.link_names:
                 raise ScenarioError(f"{w}: unknown link {v!r}; valid: {', '.join(robot.link_names)}")
             link = suffix = v
-        elif s[0] == "vec3":
+        elif s.kind == "vec3":
             if not (isinstance(v, list) and len(v) == 3):
-                raise ScenarioError(f"{w}: expected [x, y, z] in metres, each in [{s[1]}, {s[2]}], got {v!r}")
-            params[k] = [_number(x, s[1], s[2], f"{w}[{n}]") for n, x in enumerate(v)]
+                raise ScenarioError(f"{w}: expected [x, y, z] in metres, each in [{s.lo}, {s.hi}], got {v!r}")
+            params[k] = [_number(x, s.lo, s.hi, f"{w}[{n}]") for n, x in enumerate(v)]
         else:
-            params[k] = _number(v, s[1], s[2], w)
-    if typ == "joint_stribeck_friction" and params["breakaway"] < params["coulomb"]:
-        raise ScenarioError(f"{where}.breakaway: must be at least coulomb ({params['coulomb']}), "
-                            f"got {params['breakaway']}")
+            params[k] = _number(v, s.lo, s.hi, w)
+    problem = EFFECTS[typ].check(params)
+    if problem is not None:
+        raise ScenarioError(f"{where}.{problem}")
     label = re.sub(r"[^A-Za-z0-9_]", "_", f"{typ}_{suffix}" if suffix else typ)
     return Effect(typ, params, joints, link), label
 

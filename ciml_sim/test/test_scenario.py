@@ -47,7 +47,7 @@ def _one(effect: dict) -> dict:
 
 
 def test_every_effect_type_parses_and_design_example_loads(tmp_path):
-    assert set(VALID) == set(EFFECT_TYPES) and len(CATALOGUE_TYPES) == 11
+    assert set(VALID) == set(EFFECT_TYPES) and len(CATALOGUE_TYPES) == 12  # Stribeck friction joined it
     scen = parse_scenario({"name": "all", "seed": 3, "sensor_noise": {"q": 0.0005, "tau": 0.5},
                            "effects": [{"type": t, **p} for t, p in VALID.items()]}, ROBOT)
     assert [e.type for e in scen.effects] == list(VALID)

@@ -16,6 +16,8 @@ Features (e-convention, per sample; q, q̇, q̈, τ, τ̇ are the filtered log):
     base IMU tilt              e = −∂(Mq̈+h)/∂θ_{roll,pitch}           θ = (roll, pitch) [rad]
                                (a body-frame rotation of the base: only gravity changes; the
                                contact term drops out exactly because P_c is rotation-invariant)
+    joint Stribeck friction j  e_{6+j} = LP(tanh(q̇_j / v_s) exp(−(q̇_j / v_k)²)) for each v_k of its grid
+                               (joint_feature0: columns an effect type declares, EffectType.joint_features)
     root inertial parameters   e = Y_root(q, q̇, q̈) Δπ_root             (payload: Δπ of a point mass)
     link mass scale l          e = Y_joint(l)(q, q̇, q̈) π_l            θ = s − 1
     joint torque j             e_{6+j} = 1   (no candidate: a unit torque error at joint j, for the
@@ -42,7 +44,9 @@ of rows — an actuator gain or offset shows in Γ only:
     unmodelled sensor torque j e_{6+j} = f_j(q_j) and Γ_j: f_j(q_j)   (the probe at sensor level:
                                a position-dependent torque reading error, e.g. a ripple)
 
-Bounds of every parameter: bounds.py.
+Which features each effect type's candidates combine, their bounds and the θ ↔ physical
+conversion: the type's module in ciml_learning/effects (the registry); this module holds the
+feature columns and evaluates them.
 
 The actuation line is exact for τ = g·ℓ + o, T ℓ̇ + ℓ = u (a first-order lag ℓ of the command,
 then gain and offset): Γ = τ − u = (1 − 1/g)(τ − o) + o − (T/g) τ̇. λ in the encoder term is
@@ -58,28 +62,28 @@ from functools import cached_property
 import numpy as np
 import pinocchio as pin
 
+from ..effects import CATALOGUE, EFFECTS, MEASUREMENT_ONLY, Candidate, Refinement, effect_type
+from ..effects.base import COULOMB_SMOOTHING
+from ..effects.payload import point_mass_rotational
 from ..filters import filter_offline, lowpass_taps
 from ..robot import RobotDescription
-from .bounds import parameter_bounds
+from .bounds import BASELINE, parameter_bounds
 
-COULOMB_SMOOTHING = 0.03
-"""Velocity [rad/s] of the tanh that smooths sign(q̇) for the Coulomb regressor."""
+__all__ = ["COULOMB_SMOOTHING", "Candidate", "FeatureLayout", "point_mass_rotational"]
+
 MIN_LINK_MASS = 0.05
 """Links lighter than this [kg] get no link_mass_scale candidate (URDF placeholders)."""
 
-RBD_TYPES = ("joint_coulomb_friction", "joint_viscous_friction", "payload", "link_mass_scale",
-             "encoder_offset", "base_imu_tilt")
-ACTUATION_TYPES = ("actuator_lag", "torque_gain", "torque_offset")
-SENSOR_TYPES = ("torque_sensor_gain", "torque_sensor_offset")
+SENSOR_TYPES = tuple(t for t in CATALOGUE if EFFECTS[t].kind == "sensor")
 """Torque-sensor effects: they act on Φ̃ and Γ through the measured τ (module docstring)."""
-MEASUREMENT_TYPES = ("encoder_offset", "base_imu_tilt") + SENSOR_TYPES
+MEASUREMENT_TYPES = tuple(t for t in CATALOGUE if t in MEASUREMENT_ONLY)
 """Effects that change only what is measured: they exert no force on the robot."""
-EFFECT_TYPES = RBD_TYPES + ACTUATION_TYPES + SENSOR_TYPES
+JOINT_FEATURE_TYPES = tuple(t for t in CATALOGUE if EFFECTS[t].joint_feature_count)
+"""Effect types that add per-joint joint-torque columns of their own (EffectType.joint_features)."""
 UNMODELLED_TYPE = "unmodelled_joint_torque"
 """The out-of-catalogue probe: a free position-dependent joint torque f_j(q_j) (generic_joint_basis)."""
 UNMODELLED_SENSOR_TYPE = "unmodelled_sensor_torque"
 """The probe at sensor level: a position-dependent torque *reading* error f_j(q_j), in Φ̃ and Γ."""
-PROBE_TYPES = (UNMODELLED_TYPE, UNMODELLED_SENSOR_TYPE)
 GENERIC_NAMES = ("1", "z", "z2", "z3")
 """Columns of generic_joint_basis: a cubic in z = (q_j − q̄_j)/s_j."""
 N_GENERIC = len(GENERIC_NAMES)
@@ -109,56 +113,6 @@ def link_inertias(robot: RobotDescription, min_mass: float = MIN_LINK_MASS) -> l
             for name, (joint, inertia) in robot.link_inertias.items() if inertia.mass >= min_mass]
 
 
-def point_mass_rotational(com: np.ndarray) -> np.ndarray:
-    """Rotational inertia about the origin of a unit point mass at `com`, in Pinocchio's
-    dynamic-parameter order (Ixx, Ixy, Iyy, Ixz, Iyz, Izz): ‖c‖² I − c cᵀ."""
-    c = np.asarray(com, float)
-    I = np.dot(c, c) * np.eye(3) - np.outer(c, c)
-    return np.array([I[0, 0], I[0, 1], I[1, 1], I[0, 2], I[1, 2], I[2, 2]])
-
-
-@dataclass(frozen=True)
-class Candidate:
-    """One candidate effect at one location, with its linear parameters θ.
-
-    features: indices into the FeatureLayout; `matrix(layout)` gives A (n_features × n_params)
-    such that the candidate's prediction is features · A θ.
-    """
-
-    type: str
-    kind: str  # "rbd" | "actuation"
-    param_names: tuple[str, ...]
-    lower: tuple[float, ...]
-    upper: tuple[float, ...]
-    features: tuple[int, ...]
-    joint: str | None = None
-    joints: tuple[str, ...] = ()
-    link: str | None = None
-
-    @property
-    def label(self) -> str:
-        where = self.link or self.joint or ("all" if len(self.joints) > 1 else "base")
-        return f"{self.type}:{where}"
-
-    @property
-    def n_params(self) -> int:
-        return len(self.param_names)
-
-    @property
-    def in_catalogue(self) -> bool:
-        """A physical effect of the catalogue (False for the out-of-catalogue probes)."""
-        return self.type not in PROBE_TYPES
-
-    def location(self) -> dict:
-        if self.link is not None:
-            return {"link": self.link}
-        if self.joint is not None:
-            return {"joint": self.joint}
-        if self.joints:
-            return {"joints": "all"}
-        return {}
-
-
 @dataclass
 class FeatureLayout:
     """Names and kinds of the feature columns, and the catalogue of candidates over them."""
@@ -169,6 +123,7 @@ class FeatureLayout:
     q_scale: np.ndarray | None = None   # them from its identification data; default 0 and 1 rad)
     names: list[str] = field(default_factory=list)
     n_rbd: int = 0
+    joint_feature0: dict[str, int] = field(default_factory=dict)  # first column of a type's joint features
 
     def __post_init__(self) -> None:
         nj = self.robot.n_joints
@@ -185,6 +140,9 @@ class FeatureLayout:
             + [f"generic:{j}:{g}" for j in jn for g in GENERIC_NAMES]
             + ["baseline:qd", "baseline:qdd", "baseline:udot"]
         )
+        for t in JOINT_FEATURE_TYPES:  # per joint, joint_feature_count columns (EffectType.joint_features)
+            self.joint_feature0[t] = len(self.names)
+            self.names += [f"{t}:{j}:{k}" for j in jn for k in range(EFFECTS[t].joint_feature_count)]
         self.q_center = np.zeros(nj) if self.q_center is None else np.asarray(self.q_center, float)
         self.q_scale = np.ones(nj) if self.q_scale is None else np.maximum(np.asarray(self.q_scale, float), 1e-3)
         self.n_rbd = len(self.names)
@@ -204,6 +162,12 @@ class FeatureLayout:
     def n_features(self) -> int:
         return len(self.names)
 
+    def joint_feature_columns(self) -> np.ndarray:
+        """The columns of every type's own joint features (joint_feature0)."""
+        nj = self.robot.n_joints
+        return np.array([c for t, c0 in self.joint_feature0.items()
+                         for c in range(c0, c0 + nj * EFFECTS[t].joint_feature_count)], dtype=int)
+
     def actuation_feature(self, joint: int, what: str) -> int:
         return self.act0 + N_ACT * joint + ACTUATION_NAMES.index(what)
 
@@ -215,84 +179,45 @@ class FeatureLayout:
     def baseline(self) -> Candidate:
         """The command-update sampling term (module docstring): part of every model, never an effect."""
         b = self.baseline0
-        lo, hi = parameter_bounds(self.robot, "command_update_sampling")
-        return Candidate("command_update_sampling", "rbd", ("qd", "qdd", "udot"), lo, hi,
-                         (b, b + 1, b + 2), joints=tuple(self.robot.joint_names))
+        lo, hi = parameter_bounds(self.robot, BASELINE)
+        return Candidate(BASELINE, "rbd", ("qd", "qdd", "udot"), lo, hi, (b, b + 1, b + 2),
+                         joints=tuple(self.robot.joint_names))
 
     @cached_property
     def candidates(self) -> list[Candidate]:
-        r = self.robot
+        """Every registered type's candidates (ordered by their keys), then the out-of-catalogue probes."""
+        keyed = [kc for t in CATALOGUE for kc in EFFECTS[t].candidates(self)]
+        out = [c for _, c in sorted(keyed, key=lambda kc: kc[0])]
         inf = np.inf
-        out: list[Candidate] = []
-
-        def cand(typ, kind, names, features, joint=None, **kw):
-            lo, hi = parameter_bounds(r, typ, joint)
-            return Candidate(typ, kind, names, lo, hi, tuple(features), joint=joint, **kw)
-
-        for j, name in enumerate(r.joint_names):
-            out.append(cand("joint_coulomb_friction", "rbd", ("value",), (self.coulomb0 + j,), name))
-            out.append(cand("joint_viscous_friction", "rbd", ("value",), (self.viscous0 + j,), name))
-            out.append(cand("encoder_offset", "rbd", ("value",), (self.encoder0 + j,), name))
-        out.append(cand("base_imu_tilt", "rbd", ("roll", "pitch"), (self.imu0, self.imu0 + 1)))
-        out.append(cand("payload", "rbd", ("mass", "mass_com_x", "mass_com_y", "mass_com_z"),
-                        range(self.root0, self.root0 + 10)))
-        for k, link in enumerate(self.links):
-            out.append(cand("link_mass_scale", "rbd", ("scale_minus_one",), (self.link0 + k,), link=link.name))
-        for j, name in enumerate(r.joint_names):
-            out.append(cand("actuator_lag", "actuation", ("lag_over_gain",), (self.actuation_feature(j, "lag"),), name))
-            out.append(cand("torque_gain", "actuation", ("one_minus_inverse_gain",),
-                            (self.actuation_feature(j, "gain"),), name))
-            out.append(cand("torque_offset", "actuation", ("offset_over_gain",),
-                            (self.actuation_feature(j, "offset"),), name))
-        out.append(cand("actuator_lag", "actuation", ("lag_over_gain",),
-                        tuple(self.actuation_feature(j, "lag") for j in range(r.n_joints)),
-                        joints=tuple(r.joint_names)))
-        for j, name in enumerate(r.joint_names):
-            out.append(cand("torque_sensor_gain", "sensor", ("one_minus_inverse_gain",),
-                            (self.sensor_gain0 + j, self.actuation_feature(j, "gain")), name))
-            out.append(cand("torque_sensor_offset", "sensor", ("offset_over_gain",),
-                            (self.torque0 + j, self.actuation_feature(j, "offset")), name))
-        for j, name in enumerate(r.joint_names):
+        for j, name in enumerate(self.robot.joint_names):
             g0 = self.generic0 + N_GENERIC * j
             out.append(Candidate(UNMODELLED_TYPE, "rbd", GENERIC_NAMES, (-inf,) * N_GENERIC, (inf,) * N_GENERIC,
-                                 tuple(range(g0, g0 + N_GENERIC)), joint=name))
-        for j, name in enumerate(r.joint_names):
+                                 tuple(range(g0, g0 + N_GENERIC)), joint=name, in_catalogue=False))
+        for j, name in enumerate(self.robot.joint_names):
             g0 = self.generic0 + N_GENERIC * j
             a0 = self.actuation_feature(j, "generic_1")
             features = tuple(range(g0, g0 + N_GENERIC)) + tuple(range(a0, a0 + N_GENERIC))
             out.append(Candidate(UNMODELLED_SENSOR_TYPE, "sensor", GENERIC_NAMES, (-inf,) * N_GENERIC,
-                                 (inf,) * N_GENERIC, features, joint=name))
+                                 (inf,) * N_GENERIC, features, joint=name, in_catalogue=False))
         return out
 
     def matrix(self, cand: Candidate, payload_com: np.ndarray | None = None,
-               lag_scale: dict[str, float] | None = None) -> np.ndarray:
+               lag_scale: dict[str, float] | None = None, nonlinear: dict[str, float] | None = None) -> np.ndarray:
         """A (n_features × n_params): the candidate's columns as combinations of features.
 
-        The payload's mass column carries the rotational inertia of a point mass at
-        `payload_com` (refined by the identification; zero at first). The all-joint lag's
-        column for joint j is scaled by lag_scale[j] = 1/g_j = 1 − a_j where a torque gain is
-        identified too (its coefficient there is c_j = T/g_j, candidates docstring).
-        """
+        A catalogue candidate's A is its effect type's (EffectType.matrix), given the model's
+        bilinear parts: the payload's CoM (its point-mass rotational inertia), the all-joint lag's
+        1/g_j per joint, a non-linear parameter per candidate label (Stribeck velocity)."""
         A = np.zeros((self.n_features, cand.n_params))
-        if cand.type == "payload":
-            r0 = self.root0
-            A[r0, 0] = 1.0
-            if payload_com is not None:
-                A[r0 + 4:r0 + 10, 0] = point_mass_rotational(payload_com)
-            for k in range(3):
-                A[r0 + 1 + k, 1 + k] = 1.0
-        elif cand.type in ("base_imu_tilt", "command_update_sampling", UNMODELLED_TYPE):
-            for k, f in enumerate(cand.features):
-                A[f, k] = 1.0
+        if cand.in_catalogue and cand.type != BASELINE:
+            effect_type(cand.type).matrix(self, cand, A, Refinement(payload_com, lag_scale, nonlinear))
         elif cand.type == UNMODELLED_SENSOR_TYPE:  # the same coefficients on Φ̃ (rbd) and Γ columns
             for k in range(N_GENERIC):
                 A[cand.features[k], k] = 1.0
                 A[cand.features[N_GENERIC + k], k] = 1.0
-        else:  # one parameter; several features for the all-joint lag (one joint per row) and the sensor effects
-            A[list(cand.features), 0] = 1.0
-            if len(cand.joints) > 1 and lag_scale:
-                for name, scale in lag_scale.items():
-                    A[self.actuation_feature(self.robot.joint_names.index(name), "lag"), 0] = scale
+        else:  # the baseline and the joint probe: one parameter per feature
+            for k, f in enumerate(cand.features):
+                A[f, k] = 1.0
         return A
 
 
@@ -301,13 +226,28 @@ def coulomb_regressor(v_joints: np.ndarray, segment: np.ndarray | None, fs: "flo
     """LP(tanh(q̇/v_s)) per joint: the Coulomb friction torque per unit f_c as it appears after
     the same 10 Hz low-pass as the log (the friction torque switches at velocity reversals;
     the log's torques and accelerations are low-passed, so the regressor is too)."""
-    s = np.tanh(np.asarray(v_joints, float) / smoothing)
+    return _lowpass(np.tanh(np.asarray(v_joints, float) / smoothing), segment, fs)
+
+
+def effect_joint_regressors(v_joints: np.ndarray, segment: np.ndarray | None,
+                            fs: "float | np.ndarray" = 250.0) -> dict[str, np.ndarray]:
+    """Per type of JOINT_FEATURE_TYPES, its joint_features (N × n_j × k) after the log's low-pass
+    (like the Coulomb regressor: the friction switches at velocity reversals)."""
+    out = {}
+    for t in JOINT_FEATURE_TYPES:
+        x = EFFECTS[t].joint_features(v_joints)
+        out[t] = _lowpass(x.reshape(len(x), -1), segment, fs).reshape(x.shape)
+    return out
+
+
+def _lowpass(x: np.ndarray, segment: np.ndarray | None, fs: "float | np.ndarray") -> np.ndarray:
+    """The log's low-pass of the columns of x (N × m), segment by segment."""
     if segment is None:
-        segment = np.zeros(len(s), dtype=int)
-    out = np.empty_like(s)
+        segment = np.zeros(len(x), dtype=int)
+    out = np.empty_like(x)
     for seg in np.unique(segment):
         idx = np.flatnonzero(segment == seg)
-        out[idx], _ = filter_offline(s[idx], lowpass_taps(_segment_rate(fs, seg)))
+        out[idx], _ = filter_offline(x[idx], lowpass_taps(_segment_rate(fs, seg)))
     return out
 
 
@@ -327,12 +267,7 @@ def generic_joint_basis(q_joints: np.ndarray, layout: "FeatureLayout", segment: 
     1 and z are linear in the filtered log."""
     q = np.asarray(q_joints, float)
     z = (q - layout.q_center) / layout.q_scale
-    if segment is None:
-        segment = np.zeros(len(q), dtype=int)
-    powers = np.stack([z ** 2, z ** 3], axis=-1).reshape(len(q), -1)
-    for seg in np.unique(segment):
-        idx = np.flatnonzero(segment == seg)
-        powers[idx], _ = filter_offline(powers[idx], lowpass_taps(_segment_rate(fs, seg)))
+    powers = _lowpass(np.stack([z ** 2, z ** 3], axis=-1).reshape(len(q), -1), segment, fs)
     return np.concatenate([np.ones_like(z)[..., None], z[..., None], powers.reshape(z.shape + (2,))], axis=-1)
 
 
@@ -348,13 +283,15 @@ class RegressorEvaluator:
 
     def chunk(self, q: np.ndarray, v: np.ndarray, a: np.ndarray, contacts: np.ndarray, residual: np.ndarray,
               coulomb: np.ndarray, u_dot: np.ndarray | None = None,
-              generic: np.ndarray | None = None, tau: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+              generic: np.ndarray | None = None, tau: np.ndarray | None = None,
+              joint_extra: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Generalized-force features E (n × nv × n_rbd) and foot Jacobians (n × n_feet × 3 × nv).
 
         residual: measured r = Sᵀτ − M q̈ − h (for the contact-force estimate of the encoder term);
         u_dot: derivative of the commanded torque (for the command-update sampling term);
         generic: generic_joint_basis of these samples (the out-of-catalogue probe; None: zeros);
-        tau: the measured joint torques (the torque-sensor gain's Φ̃ part; None: zeros).
+        tau: the measured joint torques (the torque-sensor gain's Φ̃ part; None: zeros);
+        joint_extra: effect_joint_regressors of these samples (None: zeros).
         """
         r, lay, model, data = self.robot, self.layout, self.model, self.data
         n, nv, nj = len(q), r.nv, r.n_joints
@@ -373,6 +310,10 @@ class RegressorEvaluator:
         if generic is not None:
             for j in range(nj):
                 E[:, 6 + j, lay.generic0 + N_GENERIC * j:lay.generic0 + N_GENERIC * (j + 1)] = generic[:, j]
+        for t, x in (joint_extra or {}).items():
+            k, c0 = x.shape[2], lay.joint_feature0[t]
+            for j in range(nj):
+                E[:, 6 + j, c0 + k * j:c0 + k * (j + 1)] = x[:, j]
         frames = r.foot_frame_ids
         unit = np.zeros(nv)
         for k in range(n):

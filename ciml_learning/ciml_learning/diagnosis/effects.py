@@ -10,9 +10,18 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..effects import EFFECTS, Conversion, effect_type
 from ..errors import CimlError
 from ..robot import RobotDescription
-from .candidates import N_ACT, SENSOR_TYPES, FeatureLayout, RegressorEvaluator, link_inertias
+from .candidates import (
+    COULOMB_SMOOTHING,
+    JOINT_FEATURE_TYPES,
+    N_ACT,
+    SENSOR_TYPES,
+    FeatureLayout,
+    RegressorEvaluator,
+    link_inertias,
+)
 
 
 class DiagnosisError(CimlError):
@@ -35,8 +44,8 @@ def _find(layout: FeatureLayout, effect: dict):
             return cand
         if effect.get("joints") == "all" and len(cand.joints) > 1:
             return cand
-        if typ in ("payload", "base_imu_tilt"):
-            return cand
+        if not {"link", "joint", "joints"} & set(effect) and not cand.location():
+            return cand  # a base effect (payload, IMU tilt): one per robot
     raise DiagnosisError(f"effect {effect!r} does not match this robot's candidates")
 
 
@@ -44,50 +53,24 @@ def feature_coefficients(layout: FeatureLayout, effects: Sequence[dict]) -> tupl
     """Coefficients on the feature columns (candidates.py) of a list of effects given in the
     scenario's / diagnosis' terms ({type, joint|joints|link, params}); and the matched candidates.
 
-    Actuation parameters of a joint convert together (a = 1 − 1/g, b = o/g, c = T/g)."""
-    robot = layout.robot
-    theta = np.zeros(layout.n_features)
-    gain = {}
+    Each type converts its own parameters (EffectType.feature_theta); the actuation and sensor
+    parameters of a joint convert together (a = 1 − 1/g, b = o/g, c = T/g: the joint's gains first)."""
+    conv = Conversion()
     for e in effects:
-        if e.get("type") == "torque_gain":
-            g = float(e["params"]["value"])
-            if not np.isfinite(g) or g <= 0:
-                raise DiagnosisError(f"torque_gain of {e.get('joint')}: invalid value {g}")
-            gain[e["joint"]] = g
+        if e.get("type") in ("torque_gain", "torque_sensor_gain"):
+            gains = conv.gain if e["type"] == "torque_gain" else conv.sensor_gain
+            g = e.get("params", {}).get("value")
+            if isinstance(g, bool) or not isinstance(g, (int, float)) or not np.isfinite(g) or g <= 0:
+                raise DiagnosisError(f"{e['type']} of {e.get('joint')}: invalid value {g}")
+            gains[str(e.get("joint"))] = float(g)
+    theta = np.zeros(layout.n_features)
     matched = []
     for e in effects:
         cand = _find(layout, e)
         matched.append(cand)
         p = e.get("params", {})
         try:
-            if cand.type == "payload":
-                m, com = float(p["mass"]), np.asarray(p["com"], float)
-                theta += layout.matrix(cand, com) @ np.concatenate([[m], m * com])
-            elif cand.type == "base_imu_tilt":
-                theta += layout.matrix(cand) @ np.array([float(p["roll"]), float(p["pitch"])])
-            elif cand.type == "link_mass_scale":
-                theta += layout.matrix(cand)[:, 0] * (float(p["value"]) - 1.0)
-            elif cand.type == "torque_gain":
-                theta += layout.matrix(cand)[:, 0] * (1.0 - 1.0 / gain[cand.joint])
-            elif cand.type == "torque_offset":
-                theta += layout.matrix(cand)[:, 0] * float(p["value"]) / gain.get(cand.joint, 1.0)
-            elif cand.type == "torque_sensor_gain":
-                g_s = float(p["value"])
-                if not np.isfinite(g_s) or g_s <= 0:
-                    raise DiagnosisError(f"torque_sensor_gain of {e.get('joint')}: invalid value {g_s}")
-                theta += layout.matrix(cand)[:, 0] * (1.0 - 1.0 / g_s)
-            elif cand.type == "torque_sensor_offset":
-                g_s = next((float(x["params"]["value"]) for x in effects if x.get("type") == "torque_sensor_gain"
-                            and x.get("joint") == cand.joint), 1.0)
-                theta += layout.matrix(cand)[:, 0] * float(p["value"]) / g_s
-            elif cand.type == "actuator_lag":
-                if cand.joint:
-                    theta += layout.matrix(cand)[:, 0] * float(p["time_constant"]) / gain.get(cand.joint, 1.0)
-                else:
-                    for j, name in enumerate(robot.joint_names):
-                        theta[layout.actuation_feature(j, "lag")] += float(p["time_constant"]) / gain.get(name, 1.0)
-            else:
-                theta += layout.matrix(cand)[:, 0] * float(p["value"])
+            theta += effect_type(cand.type).feature_theta(layout, cand, p, conv)
         except (KeyError, TypeError, ValueError) as err:
             raise DiagnosisError(f"effect {e.get('type')}: invalid parameters {p!r} ({err})") from err
     if not np.all(np.isfinite(theta)):
@@ -99,8 +82,6 @@ class EffectModel:
     """Sum of identified effects: e(q, q̇, q̈) (Φ̃ convention, nv) and Γ(τ, τ̇) (n_j)."""
 
     def __init__(self, robot: RobotDescription, effects: Sequence[dict], coulomb_smoothing: float | None = None):
-        from .candidates import COULOMB_SMOOTHING
-
         self.robot = robot
         self.layout = FeatureLayout(robot, link_inertias(robot))
         self.coulomb_smoothing = coulomb_smoothing or COULOMB_SMOOTHING
@@ -114,14 +95,16 @@ class EffectModel:
     def rbd_force(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
         """e (nv): the effects' model error Φ̃ at (q, q̇, q̈) — minus the force they exert.
 
-        Coulomb friction uses tanh(q̇/v_s) (no low-pass at a single state); the encoder-offset
+        Joint friction uses tanh(q̇/v_s) (no low-pass at a single state); the encoder-offset
         term keeps its inverse-dynamics part only (its contact-force part needs the unknown λ)."""
         lay = self.layout
         if not self.has_rbd:
             return np.zeros(self.robot.nv)
         coulomb = np.tanh(np.asarray(v[6:], float) / self.coulomb_smoothing)[None]
         no_contact = np.zeros((1, self.robot.n_feet), bool)
-        E, _ = self.evaluator.chunk(q[None], v[None], a[None], no_contact, np.zeros((1, self.robot.nv)), coulomb)
+        extra = {t: EFFECTS[t].joint_features(np.asarray(v[6:], float)[None]) for t in JOINT_FEATURE_TYPES}
+        E, _ = self.evaluator.chunk(q[None], v[None], a[None], no_contact, np.zeros((1, self.robot.nv)), coulomb,
+                                    joint_extra=extra)
         return E[0] @ self.theta[:lay.n_rbd]
 
     def actuation_error(self, tau: np.ndarray, tau_dot: np.ndarray) -> np.ndarray:

@@ -21,6 +21,7 @@ from .candidates import (
     RegressorEvaluator,
     actuation_features,
     coulomb_regressor,
+    effect_joint_regressors,
     generic_joint_basis,
 )
 
@@ -77,6 +78,7 @@ def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples:
     # the regressors pass through the same low-pass as the log: designed for each log's rate
     fs = log.segment_rate_hz if log.segment_rate_hz is not None else log.rate_hz
     coulomb = coulomb_regressor(log.v[:, 6:], log.segment, fs=fs)
+    joint_extra = effect_joint_regressors(log.v[:, 6:], log.segment, fs=fs)
     generic = generic_joint_basis(log.q[:, 7:], layout, log.segment, fs=fs)
     u_dot = command_rate(log)
     ev = RegressorEvaluator(robot, layout)
@@ -92,7 +94,7 @@ def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples:
         bar = tqdm(total=len(samples), desc=desc, unit="sample", leave=False, mininterval=0.5)
     for c_i, idx in enumerate(chunks):
         E, jac = ev.chunk(log.q[idx], log.v[idx], log.a[idx], log.contacts[idx], targets.residual[idx], coulomb[idx],
-                          u_dot[idx], generic[idx], log.tau[idx])
+                          u_dot[idx], generic[idx], log.tau[idx], {t: x[idx] for t, x in joint_extra.items()})
         basis = contact_invariant_bases(jac, robot.leg_joints)
         O, _ = observation_operators(jac, basis, log.contacts[idx])
         phi = O @ E  # batched matmul (BLAS), = einsum("nij,njf->nif")

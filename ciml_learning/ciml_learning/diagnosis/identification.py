@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import brentq
 
+from ..effects import EFFECTS, Conversion, effect_type
 from .bounds import physical_violation
 from .candidates import Candidate, FeatureLayout
 from .features import Grams, Rows
@@ -125,11 +126,13 @@ class Model:
     payload_com: np.ndarray | None = None
     lag_scale: dict[str, float] | None = None
     sampling: CommandSampling | None = None  # how the logs sample the command (the lag's reading, lag_time_constant)
+    nonlinear: dict[str, float] = field(default_factory=dict)  # candidate label → its non-linear parameter
 
     def matrix(self) -> np.ndarray:
         if not self.candidates:
             return np.zeros((self.layout.n_features, 0))
-        return np.hstack([self.layout.matrix(c, self.payload_com, self.lag_scale) for c in self.candidates])
+        return np.hstack([self.layout.matrix(c, self.payload_com, self.lag_scale, self.nonlinear)
+                          for c in self.candidates])
 
     def feature_theta(self) -> np.ndarray:
         """Coefficients on the feature columns (A θ)."""
@@ -147,7 +150,8 @@ class Model:
         sl = self.slices()
         theta = [self.theta[sl[self.candidates.index(c)]] for c in cands]
         return Model(self.layout, list(cands), np.concatenate(theta) if theta else np.zeros(0), self.payload_com,
-                     self.lag_scale, self.sampling)
+                     self.lag_scale, self.sampling, {c.label: self.nonlinear[c.label] for c in cands
+                                                     if c.label in self.nonlinear})
 
     def params_of(self, cand: Candidate) -> np.ndarray:
         i = self.candidates.index(cand)
@@ -160,13 +164,58 @@ def _bounds(cands: list[Candidate]) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
+def _nonlinear_range(cand: Candidate) -> tuple[str, float, float] | None:
+    """(name, lo, hi) of a candidate's non-linear parameter (EffectType.nonlinear), None for most."""
+    t = EFFECTS.get(cand.type)
+    return t.nonlinear if t is not None and cand.in_catalogue else None
+
+
+NONLINEAR_XTOL = 0.005
+"""[octaves] resolution of the 1-D search of a non-linear parameter (0.35 %)."""
+
+
+def _solve(model: Model, G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
+    """θ of the model's current A (bounded least squares); returns the objective θᵀHθ − 2cᵀθ
+    (the training residual up to a constant)."""
+    A = model.matrix()
+    H, g = A.T @ G @ A, A.T @ c
+    model.theta = bounded_least_squares(H, g, lo, hi)
+    return float(model.theta @ H @ model.theta - 2 * g @ model.theta)
+
+
+def _search_nonlinear(model: Model, cand: Candidate, G: np.ndarray, c: np.ndarray, lo: np.ndarray,
+                      hi: np.ndarray, start: float | None) -> None:
+    """Fit a candidate's non-linear parameter p (Stribeck velocity) by a 1-D search over log₂ p, every
+    linear parameter refitted at each trial: a scan at half octaves then a bounded Brent search around
+    the best (around `start` alone when given: a warm start within half an octave)."""
+    from scipy.optimize import minimize_scalar
+
+    _, p_lo, p_hi = _nonlinear_range(cand)  # type: ignore[misc]
+    span = float(np.log2(p_hi / p_lo))
+
+    def f(x: float) -> float:
+        model.nonlinear[cand.label] = p_lo * 2.0 ** float(np.clip(x, 0.0, span))
+        return _solve(model, G, c, lo, hi)
+
+    if start is None:
+        grid = np.linspace(0.0, span, int(round(2 * span)) + 1)
+        x0 = float(grid[int(np.argmin([f(x) for x in grid]))])
+    else:
+        x0 = float(np.clip(np.log2(start / p_lo), 0.0, span))
+    res = minimize_scalar(f, bounds=(max(0.0, x0 - 0.5), min(span, x0 + 0.5)), method="bounded",
+                          options={"xatol": NONLINEAR_XTOL})
+    f(float(res.x))
+
+
 def fit_model(layout: FeatureLayout, cands: list[Candidate], G: np.ndarray, c: np.ndarray,
-              refine_payload: int = 3, sampling: CommandSampling | None = None) -> Model:
+              refine_payload: int = 3, sampling: CommandSampling | None = None,
+              start: dict[str, float] | None = None) -> Model:
     """Fit the parameters of a candidate set on weighted Grams (G = Σ w_d G_d, c = Σ w_d c_d).
 
     Two terms are bilinear and refined by refitting (refine iterations): a payload's point-mass
     rotational inertia depends on its CoM; the all-joint lag's coefficient on a joint with an
-    identified torque gain is T/g_j."""
+    identified torque gain is T/g_j. A non-linear parameter (Stribeck velocity) is then fitted by a
+    1-D search (_search_nonlinear; `start`: label → a warm start)."""
     model = Model(layout, list(cands), np.zeros(sum(k.n_params for k in cands)), sampling=sampling)
     if not cands:
         return model
@@ -175,9 +224,12 @@ def fit_model(layout: FeatureLayout, cands: list[Candidate], G: np.ndarray, c: n
     gains = [k for k in cands if k.type == "torque_gain"]
     coupled = bool(gains) and any(k.type == "actuator_lag" and len(k.joints) > 1 for k in cands)
     refine = refine_payload if (payload is not None or coupled) else 0
+    nonlinear = [k for k in cands if _nonlinear_range(k) is not None]
+    for k in nonlinear:
+        _, p_lo, p_hi = _nonlinear_range(k)  # type: ignore[misc]
+        model.nonlinear[k.label] = (start or {}).get(k.label) or float(np.sqrt(p_lo * p_hi))
     for _ in range(1 + refine):
-        A = model.matrix()
-        model.theta = bounded_least_squares(A.T @ G @ A, A.T @ c, lo, hi)
+        _solve(model, G, c, lo, hi)
         if coupled:
             model.lag_scale = {str(k.joint): float(1.0 - model.params_of(k)[0]) for k in gains}
         if payload is not None:
@@ -188,7 +240,18 @@ def fit_model(layout: FeatureLayout, cands: list[Candidate], G: np.ndarray, c: n
                 com = p[1:4] / p[0]
                 n = np.linalg.norm(com)
                 model.payload_com = com if n <= MAX_PAYLOAD_LEVER else com * (MAX_PAYLOAD_LEVER / n)
+    for k in nonlinear:
+        _search_nonlinear(model, k, G, c, lo, hi, (start or {}).get(k.label))
     return model
+
+
+def _nonlinear_at_bound(model: Model, cand: Candidate) -> bool:
+    """A non-linear parameter at an end of its range (within the search's resolution)."""
+    r = _nonlinear_range(cand)
+    if r is None or cand.label not in model.nonlinear:
+        return False
+    x = np.log2(model.nonlinear[cand.label] / r[1])
+    return bool(x <= 4 * NONLINEAR_XTOL or x >= np.log2(r[2] / r[1]) - 4 * NONLINEAR_XTOL)
 
 
 def _at_bound(model: Model, cand: Candidate, rel: float = 1e-6) -> bool:
@@ -198,10 +261,13 @@ def _at_bound(model: Model, cand: Candidate, rel: float = 1e-6) -> bool:
     lo, hi = np.asarray(cand.lower), np.asarray(cand.upper)
     tol = rel * np.maximum(np.abs(th), 1.0) + 1e-12
     on = (np.abs(th - lo) <= tol) | (np.abs(th - hi) <= tol)
+    kind = EFFECTS.get(cand.type) if cand.in_catalogue else None
+    if kind is not None and kind.may_vanish:
+        on &= ~np.array([n in kind.may_vanish and b == 0.0 for n, b in zip(cand.param_names, lo)])
     if cand.type == "payload":
         return bool(on[0] or th[0] < MIN_PAYLOAD_MASS or (
             model.payload_com is not None and np.linalg.norm(model.payload_com) >= MAX_PAYLOAD_LEVER * (1 - 1e-9)))
-    if on.any():
+    if on.any() or _nonlinear_at_bound(model, cand):
         return True
     # a converted parameter can leave its range while θ is inside its box (bounds.py)
     return cand.type == "actuator_lag" and physical_violation(cand.type, _physical_of(model, cand)) is not None
@@ -223,7 +289,7 @@ def _at_far_bound(model: Model, cand: Candidate) -> bool:
     if cand.type == "payload":
         return bool(model.payload_com is not None
                     and np.linalg.norm(model.payload_com) >= MAX_PAYLOAD_LEVER * (1 - 1e-9))
-    return False
+    return _nonlinear_at_bound(model, cand)
 
 
 def dimension_pools(layout: FeatureLayout) -> list[np.ndarray]:
@@ -251,6 +317,10 @@ def noise_levels(layout: FeatureLayout, g: Grams, fallback: Grams | None = None)
     # fit with them takes that noise for a model error and σ comes out far too small
     used = np.unique(np.concatenate([np.asarray(c.features) for c in layout.candidates + [layout.baseline]
                                      if c.in_catalogue and c.kind != "sensor"]))
+    # nor the columns of a non-linear parameter's grid (Stribeck velocities): together they span a free
+    # function of the joint's speed, far more than the one curve of the effect, and would absorb as noise
+    # what no catalogue effect explains
+    used = np.setdiff1d(used, layout.joint_feature_columns())
     Gw, cw = Gw[np.ix_(used, used)], cw[used]
     # ridge relative to each feature's scale: the full catalogue is collinear (lag per joint and all)
     diag = np.maximum(np.diag(Gw), 1e-300)
@@ -377,12 +447,22 @@ class _Problem:
         self.Gt, self.ct, _ = train.weighted(wk)
         self.Gh, self.ch, self.sh = heldout.weighted(wk)
         self.rows = float(heldout.n[dims].sum())
+        self.start: dict[str, float] = {}  # warm starts of the non-linear parameters (fit_model)
 
     def fit(self, cands: list[Candidate]) -> Model:
-        return fit_model(self.layout, cands, self.Gt, self.ct)
+        m = fit_model(self.layout, cands, self.Gt, self.ct, start=self.start)
+        for label, v in m.nonlinear.items():
+            self.start.setdefault(label, v)
+        return m
 
     def ss(self, model: Model) -> float:
         return _heldout_ss(model, self.Gh, self.ch, self.sh)
+
+
+def _grouped(k: Candidate, current: list[Candidate]) -> bool:
+    """k nests or is nested by a candidate of the model (one group: e.g. Stribeck and Coulomb friction
+    of a joint): the two never enter one model."""
+    return k.group is not None and any(c.group == k.group for c in current)
 
 
 def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total_nominal: float,
@@ -418,7 +498,7 @@ def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total
     while len(current) < MAX_EFFECTS:
         trials = []
         for k in usable:
-            if k in current:
+            if k in current or _grouped(k, current):
                 continue
             t = trial(current + [k], k, current_ss)
             if t is not None and current_ss - t[0] >= thr(k):
@@ -447,11 +527,13 @@ def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total
             best: tuple[float, int | None, Candidate | None] = (np.inf, None, None)
             for i in range(len(current)):
                 for k2 in usable:
-                    if k2 in current or not k2.in_catalogue:
+                    if k2 in current or not k2.in_catalogue or _grouped(k2, current[:i] + current[i + 1:]):
                         continue
                     cset = current[:i] + [k2] + current[i + 1:]
                     t = trial(cset, k2)
                     margin = SWAP_MARGIN * min(thr(k2), thr(current[i]))
+                    if k2.group is not None and k2.group == current[i].group and k2.n_params > current[i].n_params:
+                        margin = thr(k2)  # a nesting effect's extra parameters pass the test of a new effect
                     if t is not None and t[0] < current_ss - margin and t[0] < best[0]:
                         best = (t[0], i, k2)
             _, at, replacement = best
@@ -488,6 +570,27 @@ def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total
         current_ss = prob.ss(prob.fit(fixed + current))
         steps.append(Step(f"dropped {k.label}", -cost / total_nominal, None, 0.0))
     return current
+
+
+def _fall_back_to_nested(prob: _Problem, fixed: list[Candidate], current: list[Candidate], cands: list[Candidate],
+                         rejected: Candidate, thresholds: dict[str, float], relevance, steps: list[Step],
+                         total_nominal: float) -> None:
+    """After `rejected` (a nesting effect, e.g. Stribeck friction) is rejected, put back the best effect
+    it nests (Coulomb friction of the joint) if that pays for itself (in place)."""
+    nested = [k for k in cands if k.group is not None and k.group == rejected.group and k.n_params < rejected.n_params
+              and k not in current]
+    ss_now = prob.ss(prob.fit(fixed + current))
+    best = None
+    for k in nested:
+        m = prob.fit(fixed + current + [k])
+        gain = ss_now - prob.ss(m)
+        ok = not _at_bound(m, k) and (relevance is None or relevance(m, k) >= MIN_RELEVANCE)
+        if ok and gain >= thresholds[k.kind] and (best is None or gain > best[0]):
+            best = (gain, k)
+    if best is not None:
+        current.append(best[1])
+        steps.append(Step(f"{best[1].label} (in place of the rejected {rejected.label})", best[0] / total_nominal,
+                          None, 0.0))
 
 
 def _prune(prob: _Problem, fixed: list[Candidate], current: list[Candidate], thresholds: dict[str, float],
@@ -603,6 +706,7 @@ def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
             rejected.append((k.label, sp))
             steps.append(Step(f"rejected {k.label}: its parameter varies by {sp:.0%} across contact "
                               "configurations and bags", 0.0, None, 0.0))
+            _fall_back_to_nested(prob, base, current, cands, k, thresholds, relevance, steps, nominal)
         model = fit_model(layout, base + current, Gt, ct)
     # after every refit: an estimate on a physical bound is not identified (bounds.py)
     stuck = [k for k in current if _at_bound(model, k)]
@@ -652,6 +756,8 @@ def _not_identified_entry(cand: Candidate, model: Model, gain_share: float) -> d
     th = model.params_of(cand)
     lo, hi = np.asarray(cand.lower), np.asarray(cand.upper)
     names = [n for n, t, a, b in zip(cand.param_names, th, lo, hi) if _on(t, a) or _on(t, b)]
+    if _nonlinear_at_bound(model, cand):
+        names.append(_nonlinear_range(cand)[0])  # type: ignore[index]
     e: dict[str, Any] = {"type": cand.type}
     e.update(cand.location())
     e.update({"params": _physical_of(model, cand), "status": "at bound — not identified", "confidence": None,
@@ -752,45 +858,22 @@ def physical_parameters(model: Model) -> list[dict]:
     for how the logs sample the command, lag_time_constant). Torque-sensor effects:
     g_s = 1/(1 − a_s), o_s = b_s g_s.
     """
-    gain = {}
+    conv = Conversion(lag_time_constant=lambda c, joint: lag_time_constant(c, model.sampling, joint)[0],
+                      nonlinear=dict(model.nonlinear))
     for cand in model.candidates:
-        if cand.type == "torque_gain":
-            a = float(model.params_of(cand)[0])
-            gain[cand.joint] = 1.0 / (1.0 - a)
-    sensor_gain = {c.joint: 1.0 / (1.0 - float(model.params_of(c)[0])) for c in model.candidates
-                   if c.type == "torque_sensor_gain"}
+        if cand.type in ("torque_gain", "torque_sensor_gain"):
+            gains = conv.gain if cand.type == "torque_gain" else conv.sensor_gain
+            gains[str(cand.joint)] = 1.0 / (1.0 - float(model.params_of(cand)[0]))
     out = []
     for cand in model.candidates:
         th = model.params_of(cand)
         p: dict[str, Any]
-        if cand.type in ("joint_coulomb_friction", "joint_viscous_friction", "encoder_offset"):
-            p = {"value": float(th[0])}
-        elif cand.type == "base_imu_tilt":
-            p = {"roll": float(th[0]), "pitch": float(th[1])}
-        elif cand.type == "payload":
-            m = float(th[0])
-            com = (th[1:4] / m).tolist() if m > 1e-9 else [0.0, 0.0, 0.0]
-            p = {"mass": m, "com": [float(x) for x in com]}
-        elif cand.type == "link_mass_scale":
-            p = {"value": 1.0 + float(th[0])}
-        elif cand.type == "torque_gain":
-            p = {"value": gain[cand.joint]}
-        elif cand.type == "torque_offset":
-            p = {"value": float(th[0]) * gain.get(cand.joint, 1.0)}
-        elif cand.type == "actuator_lag":
-            # a joint's own lag: c = T/g; the all-joint lag's column already carries 1/g_j (fit_model)
-            p = {"time_constant": lag_time_constant(float(th[0]), model.sampling, cand.joint)[0]
-                 * (gain.get(cand.joint, 1.0) if cand.joint else 1.0)}
-        elif cand.type == "torque_sensor_gain":
-            p = {"value": sensor_gain[cand.joint]}
-        elif cand.type == "torque_sensor_offset":
-            p = {"value": float(th[0]) * sensor_gain.get(cand.joint, 1.0)}
-        elif cand.type == "command_update_sampling":
+        if cand.type == "command_update_sampling":
             p = {"qd": float(th[0]), "qdd": float(th[1]), "udot": float(th[2])}
         elif not cand.in_catalogue:
             p = {"coefficients": [float(x) for x in th]}
-        else:  # pragma: no cover
-            raise ValueError(cand.type)
+        else:
+            p = effect_type(cand.type).to_physical(th, cand, conv)
         out.append(p)
     return out
 
@@ -884,7 +967,8 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
         c = np.zeros(nf)
         G[np.ix_(feats, feats)] = Gs
         c[feats] = cs
-        return _flatten(physical_parameters(fit_model(layout, model.candidates, G, c, sampling=model.sampling)))
+        return _flatten(physical_parameters(fit_model(layout, model.candidates, G, c, sampling=model.sampling,
+                                                      start=model.nonlinear)))
 
     draws = unc.block_bootstrap(Gb, cb, fit, n_boot, seed)
     sampling = unc.bootstrap_std(draws, len(Gb))
@@ -892,7 +976,7 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
     reproduction = np.zeros_like(flat)
     if heldout is not None and np.any(heldout.n > 0):
         Gh, ch, _ = heldout.weighted(selection.weights)
-        m_ho = fit_model(layout, model.candidates, Gh, ch, sampling=model.sampling)
+        m_ho = fit_model(layout, model.candidates, Gh, ch, sampling=model.sampling, start=model.nonlinear)
         reproduction = np.abs(_flatten(physical_parameters(m_ho)) - flat) / np.sqrt(2.0)
     conversion = np.zeros_like(flat)
     misspecification = np.zeros_like(flat)
@@ -905,9 +989,7 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
             T, conv = lag_time_constant(float(model.params_of(cand)[0]), model.sampling, cand.joint)
             conversion[k] = conv * (p["time_constant"] / T if T > 0 else 1.0)  # × the joint's gain
         # deviations from the null value ("no effect") scale with the bound
-        null = _flatten([{key: (1.0 if key == "value" and cand.type in ("link_mass_scale", "torque_gain",
-                                                                       "torque_sensor_gain") else 0.0)
-                          if not isinstance(v, list) else [0.0] * len(v) for key, v in p.items()}])
+        null = _flatten([{key: _null_of(cand, key, v) for key, v in p.items()}])
         misspecification[k:k + n] = unc.MISSPECIFICATION_SCALE * rel * np.abs(flat[k:k + n] - null)
         resolution[k:k + n] = unc.RESOLUTION * np.abs(flat[k:k + n] - null)
         k += n
@@ -918,6 +1000,13 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
             "autocorrelation_time_s": unc.integrated_autocorrelation_time_max(_residual_series(selection, rows)) / fs,
             "draws": int(len(draws))}
     return _unflatten(base, std), info
+
+
+def _null_of(cand: Candidate, key: str, value: Any) -> Any:
+    """A physical parameter's "no effect" value (the effect type's null; 0 for the baseline and probes)."""
+    t = EFFECTS.get(cand.type) if cand.in_catalogue else None
+    null = t.null.get(key, 0.0) if t is not None else 0.0
+    return [0.0] * len(value) if isinstance(value, list) and not isinstance(null, list) else null
 
 
 def misspecification_bounds(selection: Selection, heldout: Grams) -> list[float]:

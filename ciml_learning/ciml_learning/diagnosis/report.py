@@ -9,6 +9,7 @@ import os
 
 import numpy as np
 
+from ..effects import EFFECTS
 from ..errors import CimlError
 from .files import REPORT_HTML, read_diagnosis_json, write_diagnosis_dir
 
@@ -256,7 +257,8 @@ def render_report(robot, result: dict, series: dict, rows_ho, selection) -> str:
     a = answers(result)
     e = html.escape
     rows = "".join(
-        f"<tr><td>{e(x['type'])}</td><td>{e(_where(x))}</td><td>{e(_fmt_params(x['params'], x['std']))}</td>"
+        f"<tr><td>{e(x['type'])}<br><small>{e(_wording(x['type']))}</small></td><td>{e(_where(x))}</td>"
+        f"<td>{e(_fmt_params(x['params'], x['std']))}</td>"
         f"<td>{x['share']:.1%}</td>"
         f"<td>{e(x.get('confidence', ''))} (spread {x.get('consistency_spread', 0):.0%})</td></tr>"
         for x in eff) or "<tr><td colspan=5>none</td></tr>"
@@ -319,3 +321,9 @@ Held-out noise-normalised RMS before → after the baseline: {s["baseline"]["hel
 {s["baseline"]["heldout_rms_after_baseline"]:.3g} (the "nominal" above is after it).</p>
 </body></html>
 """
+
+
+def _wording(effect_type: str) -> str:
+    """The registry's sentence for an effect type (empty for a name it does not hold)."""
+    kind = EFFECTS.get(effect_type)
+    return kind.wording if kind is not None else ""

@@ -24,6 +24,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..effects import EFFECTS
 from ..fileio import check_out_dir
 from ..pipeline import load_dataset
 from ..robot import RobotDescription
@@ -112,7 +113,8 @@ def friction_speed_subsets(robot: RobotDescription, dataset, rows):
     speed = np.abs(dataset.log.v[rows.samples, 6:])
 
     def subsets(cand) -> list:
-        if cand.type not in ("joint_coulomb_friction", "joint_viscous_friction") or cand.joint is None:
+        kind = EFFECTS.get(cand.type)  # None for the baseline and the probes
+        if kind is None or not kind.speed_bins or cand.joint is None:
             return []
         if cand.joint not in cache:
             v = speed[:, robot.joint_names.index(cand.joint)]
@@ -150,7 +152,7 @@ def _confidence(cand, params: dict, std: dict, spread: float) -> str:
     v, s = params[key], std.get(key)
     if isinstance(v, list):
         return "medium" if spread <= 0.3 else "low"
-    null = 1.0 if cand.type in ("link_mass_scale", "torque_gain", "torque_sensor_gain") else 0.0
+    null = EFFECTS[cand.type].null.get(key, 0.0)
     z = abs(v - null) / max(float(s), 1e-300) if isinstance(s, float) else np.inf
     if spread <= 0.1 and z >= 4:
         return "high"

@@ -1,0 +1,53 @@
+"""Joint Stribeck friction, added to the catalogue through the effect registry alone (issue 29), on
+the simulator's logs: a Coulomb-only log does not turn into Stribeck friction (the Stribeck candidate
+nests the Coulomb one; its extra parameters must pay for themselves on held-out data, and a Stribeck
+fit that is not consistent across contact configurations and speeds falls back to Coulomb)."""
+from __future__ import annotations
+
+import os
+import sys
+
+import pytest
+
+sys.path.insert(0, os.path.dirname(__file__))
+from diag_data import record_plant_bag  # noqa: E402
+
+from ciml_learning.diagnosis.run import diagnose  # noqa: E402
+from ciml_learning.robot import load_robot  # noqa: E402
+
+ROBOT = load_robot()
+STRIBECK = {"type": "joint_stribeck_friction", "joint": "lf_kfe_joint", "breakaway": 12.0, "coulomb": 4.0,
+            "velocity": 0.15}  # between two of the layout's velocity columns (0.1, 0.2)
+COULOMB = {"type": "joint_coulomb_friction", "joint": "lf_kfe_joint", "value": 8.0}
+
+
+def _diagnose(tmp_path, effect: dict, seed: int) -> dict:
+    bag = str(tmp_path / effect["type"])
+    scenario = {"name": "probe", "seed": seed, "sensor_noise": {"tau": 0.2}, "effects": [effect]}
+    info = record_plant_bag(ROBOT, scenario, bag, seconds=12.0, seed=seed)
+    assert not info["fell"]
+    return diagnose(ROBOT, [bag], None, None, progress=False)
+
+
+@pytest.mark.xfail(strict=False, reason="open defect (issue 29): on the simulator's logs the Stribeck candidate "
+                   "loses to Coulomb friction on held-out data (named Coulomb 4.3 Nm, share 0.74): the stick phases "
+                   "(|q̇| < 0.05 rad/s in 42 % of the samples), where MuJoCo's friction is whatever holds the joint, "
+                   "dominate the fit; on rows that follow the Stribeck law it is named "
+                   "(ciml_learning/test/test_effect_registry.py)")
+def test_stribeck_friction_is_named_with_its_parameters(tmp_path):
+    d = _diagnose(tmp_path, STRIBECK, 6)
+    strib = [e for e in d["effects"] if e["type"] == "joint_stribeck_friction"]
+    assert len(strib) == 1 and strib[0]["joint"] == STRIBECK["joint"], d["effects"]
+    assert not [e for e in d["effects"] if e["type"] == "joint_coulomb_friction" and e["share"] > 0.05]
+    p, lo_hi = strib[0]["params"], strib[0]["interval_95"]
+    for key, rel in (("breakaway", 0.2), ("coulomb", 0.3), ("velocity", 0.4)):
+        assert p[key] == pytest.approx(STRIBECK[key], rel=rel), (key, p)
+        assert strib[0]["std"][key] > 0 and lo_hi[key][0] < lo_hi[key][1]
+    assert strib[0]["share"] > 0.5
+
+
+def test_coulomb_friction_does_not_turn_into_stribeck(tmp_path):
+    d = _diagnose(tmp_path, COULOMB, 7)
+    assert not [e for e in d["effects"] if e["type"] == "joint_stribeck_friction"], d["effects"]
+    coul = [e for e in d["effects"] if e["type"] == "joint_coulomb_friction" and e["joint"] == COULOMB["joint"]]
+    assert coul and coul[0]["params"]["value"] == pytest.approx(COULOMB["value"], rel=0.15)

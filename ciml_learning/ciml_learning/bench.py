@@ -47,7 +47,11 @@ def _machine() -> dict:
             "platform": platform.platform(), "commit": commit}
 
 
-def run(names: list[str] | None, out: str) -> dict:
+def run(names: list[str] | None, out: str, options: dict[str, str] | None = None) -> dict:
+    """Run the selected benchmarks (all by default); `options` (NAME -> VALUE, strings) go to each
+    selected benchmark whose function takes a parameter of that name."""
+    import inspect
+
     from .errors import CimlError
 
     benchmarks = installed_benchmarks()
@@ -55,11 +59,18 @@ def run(names: list[str] | None, out: str) -> dict:
     unknown = [n for n in selected if n not in benchmarks]
     if unknown:
         raise CimlError(f"unknown benchmark(s) {unknown}; available: {sorted(benchmarks)}")
+    options = options or {}
+    functions = {name: benchmarks[name].load() for name in selected} if options else {}
+    taken = {name: set(inspect.signature(fn).parameters) for name, fn in functions.items()}
+    unused = sorted(set(options) - set().union(*taken.values())) if options else []
+    if unused:
+        valid = sorted(set().union(*taken.values()))
+        raise CimlError(f"option(s) {unused} taken by none of {selected}; valid: {valid or 'none'}")
     result: dict[str, Any] = {"machine": _machine(), "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "benchmarks": {}}
     for name in selected:
         print(f"[bench] {name} ...", file=sys.stderr, flush=True)
         t0 = time.perf_counter()
-        value = benchmarks[name].load()()
+        value = benchmarks[name].load()(**{k: v for k, v in options.items() if k in taken.get(name, ())})
         value["wall_time_s"] = round(time.perf_counter() - t0, 3)
         result["benchmarks"][name] = value
         atomic_write_json(out, result)  # partial results survive a later failure

@@ -95,7 +95,16 @@ def path(text: str) -> str:
     return text
 
 
+def assignment(text: str) -> tuple[str, str]:
+    """NAME=VALUE (a benchmark option): (name, value)."""
+    name, sep, value = text.partition("=")
+    if not sep or not name.isidentifier() or not value:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    return name, value
+
+
 path.__name__ = "path"
+assignment.__name__ = "NAME=VALUE"
 jobs.__name__ = "jobs"
 
 

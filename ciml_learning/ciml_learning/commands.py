@@ -19,7 +19,7 @@ def bench(args: argparse.Namespace) -> int:
     from .fileio import check_out_file
 
     check_out_file(args.out)
-    run(args.only, args.out)
+    run(args.only, args.out, dict(args.set))
     return 0
 
 

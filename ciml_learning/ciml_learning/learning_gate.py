@@ -100,6 +100,11 @@ class LearningGate:
         self._references.append((stamp_ns, np.asarray(q_ref, dtype=float)))
         self.references_seen += 1
 
+    @property
+    def newest_reference(self) -> int | None:
+        """Stamp [ns] of the newest reference kept (None before the first)."""
+        return self._references[-1][0] if self._references else None
+
     def reference_at(self, stamp_ns: int) -> np.ndarray | None:
         """q of the reference with the nearest stamp within max_reference_age, else None."""
         if not self._references:

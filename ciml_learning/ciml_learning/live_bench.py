@@ -121,12 +121,13 @@ class GraphProbe:
     keeps each node's newest counters.
     """
 
-    def __init__(self, rate_topics: dict[str, str] | None = None, keep_samples: bool = False,
-                 priority: int = 0) -> None:
+    def __init__(self, rate_topics: dict[str, str] | None = None, effort_robot=None, priority: int = 0) -> None:
         """priority > 0: the probe's threads (its spin thread and its DDS threads, not the rest of
         this process, whose children must not inherit it) run SCHED_FIFO at that priority where
         permitted, so what it times is the graph's delivery, not its own wait for the CPU
-        (`self.scheduling` says which it got)."""
+        (`self.scheduling` says which it got). With `effort_robot` (a RobotDescription) the probe
+        keeps (stamp [s], feedback_effort) of every MODE_TORQUE command on its joint sample in
+        `efforts`, not the messages (hours of them would not fit in memory)."""
         import rclpy
         from ciml_msgs.msg import TorqueCommand
         from diagnostic_msgs.msg import DiagnosticArray
@@ -140,16 +141,17 @@ class GraphProbe:
         self.node = rclpy.create_node("ciml_graph_probe", context=self.context)
         self.lock = threading.Lock()
         self.recording = False
-        self.keep_samples = keep_samples
+        self.robot = effort_robot
+        self.efforts: list[tuple[float, float]] = []
+        self._joint_arrays: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # stamp ns -> (q, q̇), the newest
         self.receipts: dict[str, list[float]] = defaultdict(list)
         self.diagnostics: dict[str, dict[str, str]] = {}
         self.published: dict[str, list[tuple[float, float]]] = defaultdict(list)
         """`<topic>_rate_hz` / `_jitter_p99_ms` of PublishPeriods: (rate, jitter) per window, while recording."""
         self.diag_levels: dict[str, int] = {}
         self.base_z: list[tuple[float, float]] = []       # (stamp [s], z [m])
+        self._lowest_z = float("inf")
         self.base_x: list[tuple[float, float]] = []
-        self.commands: list[tuple[int, int, object]] = []  # (stamp ns, mode, msg)
-        self.joints: dict[int, object] = {}                # stamp ns -> JointState
         self.n_commands = self.n_damping = 0
         self.first_torque_stamp: int | None = None
         self.first_torque_time: float | None = None
@@ -197,15 +199,21 @@ class GraphProbe:
         if self.recording:
             self.n_commands += 1
             self.n_damping += msg.mode != 0
-        if self.keep_samples and msg.mode == 0:
+        if self.robot is not None and msg.mode == 0:
             with self.lock:
-                self.commands.append((stamp, msg.mode, msg))
+                js = self._joint_arrays.get(stamp)
+                if js is not None:
+                    cmd = cv.torque_command_arrays(self.robot, msg)
+                    self.efforts.append((stamp * 1e-9, feedback_effort(cmd, *js)))
 
     def _on_joints(self, msg) -> None:
         self._stamp(topics.JOINT_STATES)
-        if self.keep_samples:
+        if self.robot is not None:
+            q, qd, _tau = cv.joint_state_arrays(self.robot, msg)
             with self.lock:
-                self.joints[cv.stamp_to_ns(msg.header.stamp)] = msg
+                self._joint_arrays[cv.stamp_to_ns(msg.header.stamp)] = (q, qd)
+                while len(self._joint_arrays) > 64:   # a command follows its joint sample within a few
+                    del self._joint_arrays[next(iter(self._joint_arrays))]
 
     def _on_base(self, msg) -> None:
         self._stamp(topics.BASE_STATE)
@@ -213,6 +221,7 @@ class GraphProbe:
         with self.lock:
             t = cv.stamp_to_ns(msg.header.stamp) * 1e-9
             self.base_z.append((t, p.z))
+            self._lowest_z = min(self._lowest_z, p.z)
             self.base_x.append((t, p.x))
 
     def _on_diagnostics(self, msg) -> None:
@@ -241,6 +250,16 @@ class GraphProbe:
         """(x, z) of the newest /base_state [m]."""
         with self.lock:
             return (self.base_x[-1][1], self.base_z[-1][1]) if self.base_z else None
+
+    def sim_time(self) -> float:
+        """Stamp of the newest /base_state [s] (0 before the first)."""
+        with self.lock:
+            return self.base_z[-1][0] if self.base_z else 0.0
+
+    def lowest_z(self) -> float:
+        """Lowest base height seen [m] (inf before the first)."""
+        with self.lock:
+            return self._lowest_z
 
     def counter(self, node: str, key: str) -> float | None:
         with self.lock:
@@ -414,61 +433,156 @@ def _rates_run(arguments: dict[str, str], duration: float, warmup: float, startu
     return result
 
 
-def online_learning_effort(duration: float = 60.0, window: float = 10.0, startup_timeout: float = 300.0) -> dict:
-    """`live_online_learning`: feedback effort RMS over the first and the last `window`
-    seconds of a `duration` trot on the default gap, nominal model vs online learning."""
+LEARNING_COUNTERS = {
+    "online_learner": ("samples_learned", "held_back_samples", "invalid_samples", "states_lost", "paused_fall",
+                       "paused_tracking_error", "paused_no_reference", "paused_recovering",
+                       "paused_target_beyond_bounds", "unmatched_states", "unmatched_errors", "snapshots_accepted",
+                       "snapshots_refused_too_few_samples", "snapshots_refused_not_better_than_nominal",
+                       "outputs_served", "learn_us_mean"),
+    "model_server": ("model_swaps", "load_ms", "rollbacks", "refused_models", "predictions"),
+    "id_controller": ("commands", "rollbacks", "rollback_detect_ms", "epsilon_gated", "qp_failures",
+                      "reference_held", "stale_reference"),
+}
+"""The counters `live_online_learning` samples from /diagnostics at the end of every period."""
+
+
+def online_learning_runs(seeds: tuple[int, ...] = (0, 1, 2, 3, 4), scenarios: tuple[str, ...] = ("default_gap",),
+                         duration: float = 600.0, period: float = 60.0, startup_timeout: float = 300.0) -> dict:
+    """`live_online_learning`: per scenario and seed (the launch file's `seed`: the sensor noise),
+    one run of the shipped graph without and one with online learning, `duration` seconds of
+    simulated trot each (lockstep: the graph's own pace on a loaded machine). Per `period` of
+    simulated time: the RMS feedback effort (feedback_effort), the lowest base height and the
+    learning chain's counters (LEARNING_COUNTERS); a fall ends a run. Summary: falls, the
+    effort cut per period (mean over seeds) and per run in its last period, and each run's worst
+    period against its pair without learning, next to the noise (the spread of the runs without
+    learning between seeds in that period)."""
     _private_domain()
-    out: dict = {"duration_s": duration, "window_s": window, "load_average_start": _load_average()}
-    for label, online in (("nominal", "false"), ("online_learning", "true")):
-        out[label] = _effort_run({"online_learning": online}, duration, window, startup_timeout)
-    n, o = out["nominal"], out["online_learning"]
-    if n.get("last_rms_nm") and o.get("last_rms_nm"):
-        out["last_window_reduction_pct"] = round(100.0 * (1.0 - o["last_rms_nm"] / n["last_rms_nm"]), 1)
+    out: dict = {"seeds": list(seeds), "scenarios": list(scenarios), "duration_s": duration, "period_s": period,
+                 "load_average_start": _load_average(), "runs": []}
+    for scenario in scenarios:
+        for seed in seeds:
+            for online in (False, True):
+                args = {"online_learning": "true" if online else "false", "seed": str(seed), "scenario": scenario}
+                run = _effort_run(args, duration, period, startup_timeout)
+                out["runs"].append({"scenario": scenario, "seed": seed, "online": online, **run})
+                print(f"[bench] live_online_learning {scenario} seed {seed} online={online}: effort per period "
+                      f"{[p['effort_rms_nm'] for p in run['periods']]}, fell {run['fell']}", flush=True)
+    out["summary"] = learning_summary(out["runs"])
     out["load_average_end"] = _load_average()
     return out
 
 
-def _effort_run(arguments: dict[str, str], duration: float, window: float, startup_timeout: float) -> dict:
+def learning_summary(runs: list[dict]) -> dict:
+    """Falls and effort cuts of online_learning_runs' runs (see there), per scenario."""
+    summary: dict = {"runs_with_learning": sum(r["online"] for r in runs),
+                     "falls_with_learning": sum(r["fell"] for r in runs if r["online"]),
+                     "falls_without_learning": sum(r["fell"] for r in runs if not r["online"]), "scenarios": {}}
+    for scenario in dict.fromkeys(r["scenario"] for r in runs):
+        pairs = {}
+        for r in runs:
+            if r["scenario"] == scenario:
+                pairs.setdefault(r["seed"], {})[r["online"]] = r
+        pairs = {k: v for k, v in pairs.items() if len(v) == 2}
+        n_periods = min((min(len(v[False]["periods"]), len(v[True]["periods"])) for v in pairs.values()), default=0)
+
+        def effort(online: bool, k: int) -> np.ndarray:
+            return np.array([v[online]["periods"][k]["effort_rms_nm"] for v in pairs.values()], dtype=float)
+
+        per_period = []
+        for k in range(n_periods):
+            nominal, learned = effort(False, k), effort(True, k)
+            per_period.append({"effort_without_nm": round(float(np.mean(nominal)), 2),
+                               "effort_with_nm": round(float(np.mean(learned)), 2),
+                               "cut_pct": round(100.0 * (1.0 - np.mean(learned) / np.mean(nominal)), 1),
+                               "noise_nm": round(float(np.std(nominal)), 2)})
+        per_run = {}
+        for seed, v in pairs.items():
+            a, b = v[False]["periods"], v[True]["periods"]
+            n = min(len(a), len(b))
+            diffs = [b[k]["effort_rms_nm"] - a[k]["effort_rms_nm"] for k in range(n)]
+            per_run[str(seed)] = {
+                "last_period_cut_pct": round(100.0 * (1.0 - b[n - 1]["effort_rms_nm"] / a[n - 1]["effort_rms_nm"]), 1)
+                if n else None,
+                "worst_period_excess_nm": round(max(diffs), 2) if diffs else None,
+                "worst_period_excess_over_noise": (round(max(d - per_period[k]["noise_nm"]
+                                                             for k, d in enumerate(diffs)), 2) if diffs else None)}
+        summary["scenarios"][scenario] = {"per_period": per_period, "per_run": per_run}
+    return summary
+
+
+def plot_learning_runs(result: dict, path: str) -> None:
+    """Per scenario, the effort per period of every run without (grey) and with (blue) learning (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .fileio import atomic_write_bytes
+
+    scenarios = result["scenarios"]
+    fig, axes = plt.subplots(1, len(scenarios), figsize=(6 * len(scenarios), 4), squeeze=False)
+    for ax, scenario in zip(axes[0], scenarios):
+        for r in result["runs"]:
+            if r["scenario"] != scenario:
+                continue
+            t = [p["t_end_s"] / 60.0 for p in r["periods"]]
+            e = [p["effort_rms_nm"] for p in r["periods"]]
+            ax.plot(t, e, "o-" if r["online"] else "s--", color="tab:blue" if r["online"] else "0.6", lw=1, ms=3)
+            if r["fell"]:
+                ax.plot(t[-1:], e[-1:], "rx", ms=10)
+        ax.set_title(f"{scenario}: blue with online learning, grey without")
+        ax.set_xlabel("simulated time [min] (end of period)")
+        ax.set_ylabel("RMS feedback effort per period [Nm]")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def _effort_run(arguments: dict[str, str], duration: float, period: float, startup_timeout: float) -> dict:
     from .robot import load_robot
 
     robot = load_robot()
     with tempfile.TemporaryDirectory(prefix="ciml_live_") as tmp:
         args = {"model_dir": os.path.join(tmp, "online_model"), **arguments}
-        probe = GraphProbe(keep_samples=True)
+        probe = GraphProbe(effort_robot=robot)
         launcher, log = start_graph(args, tmp)
+        periods: list[dict] = []
+        fell_at = None
+        t_wall = time.monotonic()
         try:
             if not probe.wait_for(lambda: probe.first_torque_stamp is not None, startup_timeout):
                 raise CimlError(f"the graph sent no torque command within {startup_timeout:g} s")
-            t0 = probe.first_torque_stamp
-            assert t0 is not None
-            # simulated time: wait until the trot has run `duration` seconds of it
-            probe.wait_for(lambda: bool(probe.base_z) and probe.base_z[-1][0] - t0 * 1e-9 >= duration,
-                           duration * 10 + 60)  # lockstep on a loaded machine: sim time runs slower
-            snapshots = probe.counter("online_learner", "snapshots_written")
-            swaps = probe.counter("model_server", "model_swaps")
+            t0 = probe.first_torque_stamp * 1e-9
+            deadline = time.monotonic() + duration * 10 + 60  # lockstep on a loaded machine: sim time runs slower
+            start = 0
+            while len(periods) * period < duration and time.monotonic() < deadline:
+                end = (len(periods) + 1) * period
+                probe.wait_for(lambda: probe.sim_time() - t0 >= end or probe.lowest_z() < FALL_HEIGHT,
+                               deadline - time.monotonic())
+                if probe.sim_time() - t0 < end and probe.lowest_z() >= FALL_HEIGHT:
+                    break  # the deadline: the graph stopped advancing
+                time.sleep(1.1)  # the counters of this period (/diagnostics at 1 Hz of wall clock)
+                with probe.lock:
+                    efforts = [e for t, e in probe.efforts[start:] if t - t0 < end]
+                    start += len(efforts)
+                    z = [v for t, v in probe.base_z if end - period <= t - t0 < end]
+                periods.append({"t_end_s": end, "effort_rms_nm": round(float(np.sqrt(np.mean(np.square(efforts)))), 2)
+                                if efforts else None, "commands": len(efforts),
+                                "base_height_min_m": round(min(z), 3) if z else None,
+                                **{f"{node}.{key}": probe.counter(node, key)
+                                   for node, keys in LEARNING_COUNTERS.items() for key in keys}})
+                if probe.lowest_z() < FALL_HEIGHT:
+                    fell_at = next(t - t0 for t, v in probe.base_z if v < FALL_HEIGHT)
+                    break
         finally:
             rc = launcher.stop()
             log.close()
             probe.close()
-    with probe.lock:
-        commands, joints = list(probe.commands), dict(probe.joints)
-        z = [v for _t, v in probe.base_z]
-    times, efforts = [], []
-    for stamp, _mode, msg in commands:
-        js = joints.get(stamp)
-        if js is None:
-            continue
-        q, qd, _tau = cv.joint_state_arrays(robot, js)
-        efforts.append(feedback_effort(cv.torque_command_arrays(robot, msg), q, qd))
-        times.append((stamp - t0) * 1e-9)
-    t, effort = np.asarray(times), np.asarray(efforts)
-
-    def rms(mask) -> float | None:
-        return round(float(np.sqrt(np.mean(effort[mask] ** 2))), 2) if mask.any() else None
-
-    return {"first_rms_nm": rms(t < window), "last_rms_nm": rms((t >= duration - window) & (t < duration)),
-            "commands_matched": int(len(t)), "commands_received": len(commands),
-            "simulated_s": round(float(t[-1]), 1) if len(t) else 0.0,
-            "base_height_min_m": round(min(z), 3) if z else None,
-            "fell": bool(z) and min(z) < FALL_HEIGHT,
-            "snapshots_written": snapshots, "model_swaps": swaps, "shutdown_rc": rc}
+    return {"periods": periods, "fell": fell_at is not None,
+            "fell_at_s": round(fell_at, 2) if fell_at is not None else None,
+            "wall_s": round(time.monotonic() - t_wall, 1), "shutdown_rc": rc}

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import copy
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -151,6 +151,59 @@ class StampPairer:
         for side, pending in enumerate(self.pending):
             self.counts[f"unmatched_{self._NAMES[side]}"] += len(pending)
             pending.clear()
+
+
+class LostSamples:
+    """Samples missing from a stream at a steady rate, from its stamps: a step of k periods lost
+    k − 1 (period: the smallest step among the last `memory`). Counts what a full subscription
+    queue overwrote or the publisher never sent — losses DDS does not report."""
+
+    def __init__(self, memory: int = 250) -> None:
+        self._steps: deque[int] = deque(maxlen=memory)
+        self.last: int | None = None
+        self.lost = 0
+
+    def add(self, stamp_ns: int) -> None:
+        stamp_ns = int(stamp_ns)
+        if self.last is not None and stamp_ns > self.last:
+            self._steps.append(stamp_ns - self.last)
+            self.lost += max(int(round(self._steps[-1] / min(self._steps))) - 1, 0)
+        elif self.last is not None:  # a restarted stream: start over
+            self._steps.clear()
+        self.last = stamp_ns
+
+
+class AwaitReference:
+    """Pairs wait here, in stamp order, until the /reference stream has passed their stamp.
+
+    The gate checks a pair against the reference of the same stamp, but the three streams
+    arrive independently: a learner that is behind takes a burst of states and errors before the
+    references of the same instants, and judging a pair then pauses learning for `resume_after`
+    on a reference that is merely in the queue. ready() releases, in order, the pairs whose stamp
+    the newest reference has reached (within `tolerance_ns`: the gate's own max_reference_age),
+    all pairs while no reference was ever seen (a replayed log), and pairs that waited more than
+    `max_wait_ns` of stamps behind the newest pair (the reference stream is late or dead: the
+    gate then pauses on "no reference", as it must)."""
+
+    def __init__(self, tolerance_ns: int, max_wait_ns: int) -> None:
+        self.tolerance_ns = int(tolerance_ns)
+        self.max_wait_ns = int(max_wait_ns)
+        self.pending: deque[tuple[int, Any, Any]] = deque()
+
+    def push(self, pair: tuple[int, Any, Any]) -> None:
+        self.pending.append(pair)
+
+    def ready(self, newest_reference: int | None) -> list[tuple[int, Any, Any]]:
+        out = []
+        newest = self.pending[-1][0] if self.pending else 0
+        while self.pending:
+            stamp = self.pending[0][0]
+            if (newest_reference is None or newest_reference >= stamp - self.tolerance_ns
+                    or newest - stamp > self.max_wait_ns):
+                out.append(self.pending.popleft())
+            else:
+                break
+        return out
 
 
 # ---------------------------------------------------------------------- learning

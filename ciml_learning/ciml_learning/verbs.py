@@ -58,6 +58,8 @@ def _play(s: argparse.ArgumentParser) -> None:
 def _bench(s: argparse.ArgumentParser) -> None:
     s.add_argument("--out", type=ca.path, required=True, help="bench .json")
     s.add_argument("--only", nargs="+", help="run only these benchmarks")
+    s.add_argument("--set", nargs="+", default=[], type=ca.assignment, metavar="NAME=VALUE",
+                   help="options of the selected benchmarks, e.g. live_online_learning's seeds=0,1 duration=120")
 
 
 def _launch(s: argparse.ArgumentParser) -> None:

@@ -19,7 +19,9 @@ from ciml_learning.models import ModelFileError, ModelSet, ModelSetError, read_m
 from ciml_learning.online import (
     ERROR,
     STATE,
+    AwaitReference,
     ErrorSample,
+    LostSamples,
     OnlineLearner,
     StampPairer,
     StateSample,
@@ -546,3 +548,29 @@ def test_snapshot_writer_writes_only_accepted_snapshots_with_their_accepted_outp
     record = json.loads(read_model_file(saved.model_dir, meta, VALIDATION_FILE))
     assert record["decision"] == ACCEPTED
     assert [o["accepted"] for o in record["outputs"].values()] == saved.validation.accepted.tolist()
+
+
+def test_lost_samples_are_counted_from_stamp_steps():
+    lost = LostSamples()
+    for k in [0, 1, 2, 5, 6, 7, 9]:          # 3 and 4 missing, then 8
+        lost.add(1_000_000_000 + 4_000_000 * k)
+    assert lost.lost == 3
+    lost.add(0)                               # a restarted stream is not a loss
+    lost.add(4_000_000)
+    assert lost.lost == 3
+
+
+def test_pairs_wait_for_the_reference_of_their_stamp_in_order():
+    ms = 1_000_000
+    wait = AwaitReference(tolerance_ns=20 * ms, max_wait_ns=500 * ms)
+    wait.push((100 * ms, "s", "e"))
+    assert [p[0] // ms for p in wait.ready(None)] == [100]               # no reference stream: at once
+    for s in (104, 108, 112):
+        wait.push((s * ms, "s", "e"))
+    assert wait.ready(50 * ms) == []                                     # references behind: wait
+    assert [p[0] // ms for p in wait.ready(90 * ms)] == [104, 108]        # within 20 ms of the newest reference
+    assert [p[0] // ms for p in wait.ready(112 * ms)] == [112]
+    wait.push((120 * ms, "s", "e"))
+    wait.push((700 * ms, "s", "e"))                                      # the reference stream died: 120 waited 580 ms
+    assert [p[0] // ms for p in wait.ready(112 * ms)] == [120]
+    assert len(wait.pending) == 1

@@ -108,9 +108,17 @@ def live_graph_memory() -> dict:
     return live_bench.graph_rates(duration=600.0, layouts=("lockstep",))
 
 
-def live_online_learning() -> dict:
-    """The online learner's effort on the live graph for 60 s (ciml_learning.live_bench)."""
-    return live_bench.online_learning_effort(duration=60.0)
+def live_online_learning(seeds: str = "0,1,2,3,4", scenarios: str = "default_gap", duration: str = "600",
+                         period: str = "60", plot: str = "") -> dict:
+    """Online learning on the live graph, with and without, per seed and scenario, per period
+    (ciml_learning.live_bench.online_learning_runs); `plot`: also a PNG of the effort per period.
+    Options (ciml bench --set NAME=VALUE): seeds and scenarios comma-separated (a scenario: a
+    shipped name or a YAML file), duration and period in simulated seconds."""
+    result = live_bench.online_learning_runs(tuple(int(s) for s in seeds.split(",")), tuple(scenarios.split(",")),
+                                             float(duration), float(period))
+    if plot:
+        live_bench.plot_learning_runs(result, plot)
+    return result
 
 
 def rate_benchmark(seconds: float = 8.0, publish_rate: float = 250.0) -> dict:

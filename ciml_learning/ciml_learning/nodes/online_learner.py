@@ -12,6 +12,9 @@ learned, the whole-model checksum: model.json's `checksum`, which the model serv
 requires). Snapshots also carry probe_inputs.npy (64 learned inputs, in the manifest) for
 the server's bounds check. Subscription queues of `queue_depth` absorb the copy's stall.
 
+Where the samples go, on /diagnostics: states_received, states_lost (missing stamps: a full
+queue while this node was behind, or never sent), then per pair one of samples_learned,
+held_back_samples, invalid_samples, paused_* (the gate below), unmatched_* (no partner).
 Rejected inputs are counted on /diagnostics and never learned: states or errors that do
 not convert (non-finite values, wrong joint/foot/error names, wrong sizes), states and
 errors without a partner of the same stamp within `max_pair_age` (unmatched_*), pairs
@@ -51,7 +54,17 @@ from ..errors import CimlError
 from ..learning_gate import GateConfig, LearningGate
 from ..models import ModelSet
 from ..node_params import ONLINE_LEARNER
-from ..online import ERROR, STATE, OnlineLearner, StampPairer, StateSample, model_error_sample, warm_up
+from ..online import (
+    ERROR,
+    STATE,
+    AwaitReference,
+    LostSamples,
+    OnlineLearner,
+    StampPairer,
+    StateSample,
+    model_error_sample,
+    warm_up,
+)
 from ..profile import load_profile
 from ..ros_common import COMMAND_QOS, OK, WARN, Health, declare_schema, run_node
 from ..ros_common import ERROR as DIAG_ERROR
@@ -84,6 +97,8 @@ class OnlineLearnerNode(Node):
                                      validation=validation)
         self.get_logger().info(f"learner code ready in {warm_up(self.robot, ms.learner):.2f} s")
         self.pairer = StampPairer(int(max_age * 1e9))
+        self.waiting = AwaitReference(int(gate.max_reference_age * 1e9), int(max_age * 1e9))
+        self.lost_states = LostSamples()
         self.writer = SnapshotWriter(model_dir or DEFAULT_MODEL_DIR, keep, validation)
         self.worker = LatestOnlyWorker(self.writer.write, name="snapshot-writer")
         self.snapshot_samples = 0   # samples in the newest snapshot submitted
@@ -111,7 +126,12 @@ class OnlineLearnerNode(Node):
         except CimlError as err:
             self.health.count("rejected_states", f"filtered_state rejected: {err}")
             return
-        self._pair(STATE, cv.stamp_to_ns(msg.header.stamp), StateSample(q, v, a, tau, tau_dot, valid))
+        stamp = cv.stamp_to_ns(msg.header.stamp)
+        self.lost_states.add(stamp)
+        c = self.health.counts
+        c["states_received"] += 1
+        c["states_lost"] = self.lost_states.lost
+        self._pair(STATE, stamp, StateSample(q, v, a, tau, tau_dot, valid))
 
     def on_reference(self, msg) -> None:
         try:
@@ -120,6 +140,7 @@ class OnlineLearnerNode(Node):
             self.health.count("rejected_references", f"reference rejected: {err}")
             return
         self.gate.add_reference(cv.stamp_to_ns(msg.header.stamp), q)
+        self._learn_ready()
 
     def on_error(self, msg) -> None:
         try:
@@ -141,8 +162,15 @@ class OnlineLearnerNode(Node):
         self._last_input = self.get_clock().now().nanoseconds * 1e-9
         pair = self.pairer.add(side, stamp, item)
         self._sync_counts(self.pairer.counts)
-        if pair is None:
-            return
+        if pair is not None:
+            self.waiting.push(pair)
+            self._learn_ready()
+
+    def _learn_ready(self) -> None:
+        for pair in self.waiting.ready(self.gate.newest_reference):
+            self._learn(pair)
+
+    def _learn(self, pair) -> None:
         t0 = time.perf_counter()
         reason = self.learner.learn(*pair)
         dt = time.perf_counter() - t0

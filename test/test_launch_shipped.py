@@ -43,6 +43,11 @@ def test_robot_argument_reaches_every_node():
     desc = lf.load(SHIPPED, {"robot": "go1"}, find_share=_share)
     assert {n.label: dict(n.parameters)["robot"] for n in desc.nodes} == {n.label: "go1" for n in desc.nodes}
     assert len(desc.nodes) == 8
+    desc = lf.load(SHIPPED, {"effort_command_topic": "/effort_controller/commands", "feedforward_only": "true"},
+                   find_share=_share)
+    controller = dict(next(n for n in desc.nodes if n.label == "id_controller").parameters)
+    assert controller["effort_command_topic"] == "/effort_controller/commands"
+    assert controller["feedforward_only"] is True
 
 
 def test_shipped_file_is_the_ros2_yaml_launch_format():

@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 
+import pytest
 import yaml
 
 from ciml_learning import launch_file as lf
@@ -83,3 +84,41 @@ def test_cli_errors_exit_1_with_one_line(tmp_path):
         assert len(r.stderr.strip().splitlines()) == 1 and r.stderr.startswith("ciml launch: error:"), r.stderr
     r = subprocess.run([ciml, "launch", "--show-args", SHIPPED], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and "online_learning" in r.stdout and "scenario" in r.stdout
+
+
+@pytest.mark.ros
+def test_every_node_reads_the_robot_parameter(tmp_path):
+    """Each of the eight nodes, built with robot=go1 in a private context, has go1's joints and
+    feet (no node falls back to HyQ); an unknown robot is a one-line CimlError."""
+    import importlib
+    import random
+
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from ciml_learning.errors import CimlError
+    from ciml_learning.profile import load_profile
+
+    go1 = load_profile("go1").robot()
+    classes = {"ciml_sim.bridge_node": "MujocoBridge",
+               "ciml_control.nodes.reference_generator": "ReferenceGeneratorNode",
+               "ciml_control.nodes.id_controller": "IdControllerNode",
+               "ciml_learning.nodes.model_server": "ModelServerNode",
+               "ciml_learning.nodes.state_filter": "StateFilterNode",
+               "ciml_learning.nodes.error_extractor": "ErrorExtractorNode",
+               "ciml_learning.nodes.online_learner": "OnlineLearnerNode",
+               "ciml_learning.nodes.state_publisher": "StatePublisherNode"}
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=random.SystemRandom().randint(1, 101))
+    try:
+        for module, name in classes.items():
+            cls = getattr(importlib.import_module(module), name)
+            extra = [Parameter("model_dir", value=str(tmp_path / "m"))] if name == "OnlineLearnerNode" else []
+            node = cls(context=ctx, parameter_overrides=[Parameter("robot", value="go1"), *extra])
+            assert node.robot.joint_names == go1.joint_names and node.robot.foot_frames == go1.foot_frames, name
+            node.destroy_node()
+            with pytest.raises(CimlError) as err:
+                cls(context=ctx, parameter_overrides=[Parameter("robot", value="no_such_robot")])
+            assert "no_such_robot" in str(err.value) and "\n" not in str(err.value), name
+    finally:
+        rclpy.try_shutdown(context=ctx)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import os
 import random
+import sys
 import tempfile
 import threading
 import time
@@ -447,66 +448,62 @@ LEARNING_COUNTERS = {
 
 
 def online_learning_runs(seeds: tuple[int, ...] = (0, 1, 2, 3, 4), scenarios: tuple[str, ...] = ("default_gap",),
-                         duration: float = 600.0, period: float = 60.0, startup_timeout: float = 300.0) -> dict:
-    """`live_online_learning`: per scenario and seed (the launch file's `seed`: the sensor noise),
-    one run of the shipped graph without and one with online learning, `duration` seconds of
-    simulated trot each (lockstep: the graph's own pace on a loaded machine). Per `period` of
-    simulated time: the RMS feedback effort (feedback_effort), the lowest base height and the
-    learning chain's counters (LEARNING_COUNTERS); a fall ends a run. Summary: falls, the
-    effort cut per period (mean over seeds) and per run in its last period, and each run's worst
-    period against its pair without learning, next to the noise (the spread of the runs without
-    learning between seeds in that period)."""
+                         duration: float = 600.0, period: float = 60.0, baseline_seeds: tuple[int, ...] | None = None,
+                         startup_timeout: float = 300.0) -> dict:
+    """`live_online_learning`: per scenario, one run of the shipped graph with online learning per
+    seed of `seeds` and one without per seed of `baseline_seeds` (default: the same; the launch
+    file's `seed` is the sensor noise's), `duration` seconds of simulated trot each (lockstep: the
+    graph's own pace on a loaded machine). Per `period` of simulated time: the RMS feedback effort
+    (feedback_effort), the lowest base height and the learning chain's counters
+    (LEARNING_COUNTERS); a fall ends a run. Summary (learning_summary): falls, the effort cut per
+    period, and per run with learning its cut in its last period and its worst period against the
+    runs without, next to their noise (their spread between seeds)."""
     _private_domain()
-    out: dict = {"seeds": list(seeds), "scenarios": list(scenarios), "duration_s": duration, "period_s": period,
-                 "load_average_start": _load_average(), "runs": []}
+    baseline_seeds = seeds if baseline_seeds is None else baseline_seeds
+    out: dict = {"seeds": list(seeds), "baseline_seeds": list(baseline_seeds), "scenarios": list(scenarios),
+                 "duration_s": duration, "period_s": period, "load_average_start": _load_average(), "runs": []}
     for scenario in scenarios:
-        for seed in seeds:
-            for online in (False, True):
+        for online, run_seeds in ((False, baseline_seeds), (True, seeds)):
+            for seed in run_seeds:
                 args = {"online_learning": "true" if online else "false", "seed": str(seed), "scenario": scenario}
                 run = _effort_run(args, duration, period, startup_timeout)
                 out["runs"].append({"scenario": scenario, "seed": seed, "online": online, **run})
                 print(f"[bench] live_online_learning {scenario} seed {seed} online={online}: effort per period "
-                      f"{[p['effort_rms_nm'] for p in run['periods']]}, fell {run['fell']}", flush=True)
+                      f"{[p['effort_rms_nm'] for p in run['periods']]}, fell {run['fell']}", file=sys.stderr,
+                      flush=True)
     out["summary"] = learning_summary(out["runs"])
     out["load_average_end"] = _load_average()
     return out
 
 
 def learning_summary(runs: list[dict]) -> dict:
-    """Falls and effort cuts of online_learning_runs' runs (see there), per scenario."""
+    """Falls and effort cuts of online_learning_runs' runs (see there), per scenario: runs with
+    learning against the mean of the runs without, period by period."""
     summary: dict = {"runs_with_learning": sum(r["online"] for r in runs),
                      "falls_with_learning": sum(r["fell"] for r in runs if r["online"]),
                      "falls_without_learning": sum(r["fell"] for r in runs if not r["online"]), "scenarios": {}}
     for scenario in dict.fromkeys(r["scenario"] for r in runs):
-        pairs = {}
-        for r in runs:
-            if r["scenario"] == scenario:
-                pairs.setdefault(r["seed"], {})[r["online"]] = r
-        pairs = {k: v for k, v in pairs.items() if len(v) == 2}
-        n_periods = min((min(len(v[False]["periods"]), len(v[True]["periods"])) for v in pairs.values()), default=0)
+        def efforts(online: bool) -> list[list[float]]:
+            return [[np.nan if p["effort_rms_nm"] is None else p["effort_rms_nm"] for p in r["periods"]] for r in runs
+                    if r["scenario"] == scenario and r["online"] == online]
 
-        def effort(online: bool, k: int) -> np.ndarray:
-            return np.array([v[online]["periods"][k]["effort_rms_nm"] for v in pairs.values()], dtype=float)
-
-        per_period = []
-        for k in range(n_periods):
-            nominal, learned = effort(False, k), effort(True, k)
-            per_period.append({"effort_without_nm": round(float(np.mean(nominal)), 2),
-                               "effort_with_nm": round(float(np.mean(learned)), 2),
-                               "cut_pct": round(100.0 * (1.0 - np.mean(learned) / np.mean(nominal)), 1),
-                               "noise_nm": round(float(np.std(nominal)), 2)})
-        per_run = {}
-        for seed, v in pairs.items():
-            a, b = v[False]["periods"], v[True]["periods"]
-            n = min(len(a), len(b))
-            diffs = [b[k]["effort_rms_nm"] - a[k]["effort_rms_nm"] for k in range(n)]
-            per_run[str(seed)] = {
-                "last_period_cut_pct": round(100.0 * (1.0 - b[n - 1]["effort_rms_nm"] / a[n - 1]["effort_rms_nm"]), 1)
-                if n else None,
-                "worst_period_excess_nm": round(max(diffs), 2) if diffs else None,
-                "worst_period_excess_over_noise": (round(max(d - per_period[k]["noise_nm"]
-                                                             for k, d in enumerate(diffs)), 2) if diffs else None)}
-        summary["scenarios"][scenario] = {"per_period": per_period, "per_run": per_run}
+        without, with_ = efforts(False), efforts(True)
+        n = min((len(e) for e in without + with_), default=0)
+        if not without or not n:
+            continue
+        base = np.array([e[:n] for e in without], dtype=float)
+        mean, noise = base.mean(axis=0), base.std(axis=0)
+        learned = np.array([e[:n] for e in with_], dtype=float) if with_ else np.zeros((0, n))
+        summary["scenarios"][scenario] = {
+            "per_period": [{"t_end_s": runs[0]["periods"][k]["t_end_s"] if runs[0]["periods"] else None,
+                            "effort_without_nm": round(float(mean[k]), 2),
+                            "effort_with_nm": round(float(learned[:, k].mean()), 2) if len(learned) else None,
+                            "cut_pct": round(100.0 * (1.0 - learned[:, k].mean() / mean[k]), 1) if len(learned)
+                            else None,
+                            "noise_nm": round(float(noise[k]), 2)} for k in range(n)],
+            "last_period_cut_pct_per_run": [round(100.0 * (1.0 - e[-1] / mean[-1]), 1) for e in learned],
+            "worst_period_excess_over_noise_nm": [round(float(np.max(e - mean - noise)), 2) for e in learned],
+            "periods_compared": n}
     return summary
 
 

@@ -21,8 +21,9 @@ the stance legs' joint errors added back), evaluated with the snapshot's own leg
 learner forms them when it learns.
 
 Why these defaults: the one fall seen live (docs/LIVE_GRAPH.md) came while serving snapshots
-learned from 400–530 samples; `min_learned` = 2500 (10 s at 250 Hz, four snapshot periods of
-stream after the 20 % hold-back) keeps early, sparse models away. A margin of 0.25 asks an
+learned from 400–530 samples; `min_learned` = 1000 keeps models of that size away whatever the
+held-back samples say (with `min_heldout` = 200 held back, one in five, an output needs ~800
+learned samples for a decision anyway; a trot keeps ~50 valid samples per second). A margin of 0.25 asks an
 output to explain a quarter of the error variance: with a few hundred autocorrelated held-back
 samples the estimate of either mean square varies by ~10–20 %, so a smaller margin would let
 chance decide.
@@ -48,7 +49,7 @@ class ValidationConfig:
     block: float = 0.5          # [s] of stamps per hold-back block
     every: int = 5              # one block in `every` is held back (20 %)
     window: int = 1500          # newest held-back samples kept (6 s of them, the last 30 s of stream)
-    min_learned: int = 2500     # samples learned before any snapshot is served
+    min_learned: int = 1000     # samples learned before any snapshot is served
     min_heldout: int = 200      # held-back samples, per output, for a decision on it
     margin: float = 0.25        # an output's MSE must be ≤ (1 − margin) × the nominal model's
 

@@ -109,13 +109,17 @@ def live_graph_memory() -> dict:
 
 
 def live_online_learning(seeds: str = "0,1,2,3,4", scenarios: str = "default_gap", duration: str = "600",
-                         period: str = "60", plot: str = "") -> dict:
+                         period: str = "60", baseline_seeds: str = "", plot: str = "") -> dict:
     """Online learning on the live graph, with and without, per seed and scenario, per period
     (ciml_learning.live_bench.online_learning_runs); `plot`: also a PNG of the effort per period.
-    Options (ciml bench --set NAME=VALUE): seeds and scenarios comma-separated (a scenario: a
-    shipped name or a YAML file), duration and period in simulated seconds."""
-    result = live_bench.online_learning_runs(tuple(int(s) for s in seeds.split(",")), tuple(scenarios.split(",")),
-                                             float(duration), float(period))
+    Options (ciml bench --set NAME=VALUE): seeds, baseline_seeds (the runs without learning;
+    default: seeds) and scenarios comma-separated (a scenario: a shipped name or a YAML file),
+    duration and period in simulated seconds."""
+    def ints(text: str) -> tuple[int, ...]:
+        return tuple(int(s) for s in text.split(","))
+
+    result = live_bench.online_learning_runs(ints(seeds), tuple(scenarios.split(",")), float(duration),
+                                             float(period), ints(baseline_seeds) if baseline_seeds else None)
     if plot:
         live_bench.plot_learning_runs(result, plot)
     return result

@@ -7,7 +7,10 @@ a. Standing start in either order: the bridge holds the robot standing until the
    hold; once /reference runs, the robot trots off without falling.
 b. A poisoned model (×1e6, with a valid checksum) or a model announced without its checksum
    is refused by model_server (refused_models) and the old model keeps serving.
-c. A fall stops the online learner: /diagnostics WARN "learning paused: fall…", paused_fall.
+c. A fall stops the online learner: /diagnostics WARN "learning paused: fall…", paused_fall; a
+   learner whose inputs stop says WARN "no samples …".
+d. A served model that raises the feedback effort is rolled back (controller → /model_rollback →
+   model server) before the robot falls.
 (The controller's clip/gate of ε is in ciml_control/test/test_control_nodes.py; the pure
 gate, bounds and refusals in ciml_learning/test/test_online.py.)
 """
@@ -290,9 +293,13 @@ def test_online_learner_pauses_on_a_fall_and_says_so(tmp_path):
         assert stream(0.6, -30.0, lambda: _diag(listener, "online_learner").level == b"\x00"
                       and int(values()["samples_learned"]) > learned_before + 20, timeout=20), values()
         recovered = _diag(listener, "online_learner")
+        # the chain upstream stops: the learner says so (input_timeout 2 s)
+        silent = listener.wait_for(lambda: "no samples" in _diag(listener, "online_learner").message, timeout=10)
+        quiet = _diag(listener, "online_learner")
     finally:
         log = stop(learner)
         listener.close()
+    assert silent and quiet.level == b"\x01", quiet.message
     assert fallen.level == b"\x01" and "base height 0.200 m" in fallen.message, fallen.message
     assert recovered.message.startswith("learning"), recovered.message
     assert "learning resumed" in log

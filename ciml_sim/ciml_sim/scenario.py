@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ciml_learning.effects import CATALOGUE, EFFECTS, MEASUREMENT_ONLY, OUT_OF_CATALOGUE, Field
+from ciml_learning.effects.scenario import NOISE_FIELDS, TOP_LEVEL
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import RobotDescription
 
@@ -36,10 +37,6 @@ CATALOGUE_TYPES: tuple[str, ...] = CATALOGUE
 OUT_OF_CATALOGUE_TYPES: tuple[str, ...] = OUT_OF_CATALOGUE
 MEASUREMENT_ONLY_TYPES: tuple[str, ...] = MEASUREMENT_ONLY
 """Effects that bias a measurement and exert no force."""
-NOISE_FIELDS: tuple[str, ...] = ("q", "qd", "tau", "base_orientation", "base_position", "base_velocity")
-"""Sensor-noise standard deviations: q [rad], qd [rad/s], tau [Nm], base_orientation [rad],
-base_position [m], base_velocity [m/s and rad/s]."""
-_TOP_LEVEL = ("name", "robot", "seed", "sensor_noise", "effects", "description")
 
 
 @dataclass(frozen=True)
@@ -146,10 +143,10 @@ def _parse_effect(e: Any, i: int, robot: RobotDescription) -> tuple[Effect, str]
 def parse_scenario(data: Any, robot: RobotDescription) -> Scenario:
     """Validate a scenario mapping (as loaded from YAML) against the robot."""
     if not isinstance(data, dict):
-        raise ScenarioError(f"scenario: expected a mapping with keys {', '.join(_TOP_LEVEL)}")
-    extra = sorted(set(data) - set(_TOP_LEVEL))
+        raise ScenarioError(f"scenario: expected a mapping with keys {', '.join(TOP_LEVEL)}")
+    extra = sorted(set(data) - set(TOP_LEVEL))
     if extra:
-        raise ScenarioError(f"scenario: unknown field(s) {', '.join(map(str, extra))}; valid: {', '.join(_TOP_LEVEL)}")
+        raise ScenarioError(f"scenario: unknown field(s) {', '.join(map(str, extra))}; valid: {', '.join(TOP_LEVEL)}")
     name = data.get("name", "unnamed")
     if not isinstance(name, str) or not name:
         raise ScenarioError(f"name: expected a non-empty string, got {name!r}")

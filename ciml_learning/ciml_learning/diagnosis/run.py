@@ -32,7 +32,7 @@ from .bounds import physical_ranges
 from .candidates import COULOMB_SMOOTHING, UNMODELLED_SENSOR_TYPE, FeatureLayout, link_inertias
 from .effects import DiagnosisError
 from .features import build_rows, grams
-from .files import is_diagnosis_dir, write_diagnosis_dir
+from .files import IDENTIFIED_SCENARIO, is_diagnosis_dir, write_diagnosis_dir
 from .identification import (
     parameter_uncertainty,
     physical_parameters,
@@ -40,6 +40,7 @@ from .identification import (
     relevance_function,
     select,
 )
+from .identified import identified_scenario_yaml
 from .localization import dimension_names, leg_summary, localize
 from .report import render_report
 from .shrink import residual_series, residuals, shrink
@@ -356,7 +357,7 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
             _say(progress, "report")
             series = residual_series(corr_ho, res, sel.sigma, ds_ho.targets.t)
             html = render_report(robot, result, series, rows_ho, sel)
-        write_diagnosis_dir(out_dir, result, html)
+        write_diagnosis_dir(out_dir, result, html, files={IDENTIFIED_SCENARIO: identified_scenario_yaml(result)})
         result["time_s"] = round(time.perf_counter() - t_start, 2)
     return result
 

@@ -103,6 +103,19 @@ def _join_feet(argv: list[str], verbs: set[str]) -> list[str]:
     return out
 
 
+class _Version(argparse.Action):
+    """--version, with the commit looked up only when asked for (it runs git)."""
+
+    def __init__(self, option_strings, dest, **kwargs) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        from .version import version_text
+
+        print(version_text())
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = ca.OneLineParser(
         prog="ciml",
@@ -110,6 +123,7 @@ def build_parser() -> argparse.ArgumentParser:
         "error from sensor logs, control with it, and diagnose the sim-to-real gap.",
     )
     _global_options(p, suppress=False)
+    p.add_argument("--version", action=_Version, help="the package version and the commit it runs from, then exit")
     sub = p.add_subparsers(dest="verb", metavar="VERB", required=True)
     parent = ca.OneLineParser(add_help=False)
     _global_options(parent, suppress=True)

@@ -1,4 +1,6 @@
 """The command line: global options before or after the verb, --feet in both spellings, help with examples."""
+import os
+
 import pytest
 
 from ciml_learning.cli import build_parser, main, profile_from_args, robot_from_args
@@ -164,3 +166,17 @@ def test_a_scenario_of_another_robot_names_the_robot_to_give(verb, tmp_path, cap
     assert "unknown joint 'FL_calf_joint'" in msg and msg.endswith("add --robot go1")
     assert main(["--robot", "go1", *verb, "--scenario", "default_gap", "--motion", "trot_35", "--out", out]) == 1
     assert _one_line_error(capsys).endswith("is for robot hyq: add --robot hyq")
+
+
+def test_version_names_the_package_version_and_the_commit(capsys):
+    import subprocess
+
+    from ciml_learning.version import package_version
+
+    with pytest.raises(SystemExit) as done:
+        main(["--version"])
+    assert done.value.code == 0
+    out = capsys.readouterr().out.strip()
+    head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                          cwd=os.path.dirname(__file__)).stdout.strip()
+    assert out.startswith(f"ciml {package_version()} (commit {head}") and package_version() != "unknown", out

@@ -36,6 +36,8 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
           0.0, 10.0, read_only=False),
     Param("model_error_timeout", 0.1, "Nominal model (ε = 0) when the newest prediction is older than this", "s",
           0.004, 5.0, read_only=False),
+    Param("max_prediction_lag", 0.02, "Nominal model when the newest prediction was made for a reference stamped "
+          "further than this from the reference in use", "s", 0.0, 1.0, read_only=False),
     Param("use_model_error", True, "Add the predicted model error ε (eq. 17) to the QP", read_only=False),
     Param("damping_gain", 0.0, "Joint damping of the safe mode (0 = derived from the robot: 10 Nm s/rad scaled by "
           "its mass, standing.safe_damping_gain)", "Nm s/rad", 0.0, 200.0, read_only=False),

@@ -22,10 +22,13 @@ Safety once it has commanded torque (counted on /diagnostics):
 - non-finite or mismatched inputs are dropped by the conversions (never used);
 - a controller error (ControllerInputError) → damping for that step;
 - QP failures → the controller's documented fallback; counted.
-Model error: the newest /model_error/predicted (if younger than `model_error_timeout`)
-gives ε = J'ᵀ Φ̃' − Sᵀ Γ (eq. 17) with the contact-invariant basis at the reference
-configuration; otherwise ε = 0 (nominal model: a model server that is late, restarted or
-absent never stops the controller). All 18 + 12 predicted entries pass the trust law
+Model error: the newest /model_error/predicted (if younger than `model_error_timeout`, and
+made for a reference stamped within `max_prediction_lag` of the reference in use: a model
+server that falls behind answers for another instant of the gait; counted:
+prediction_behind_reference, prediction_lag_p50_ms / _p99_ms) gives ε = J'ᵀ Φ̃' − Sᵀ Γ
+(eq. 17) with the contact-invariant basis at the reference configuration; otherwise ε = 0
+(nominal model: a model server that is late, restarted or absent never stops the controller).
+All 18 + 12 predicted entries pass the trust law
 (ciml_control.trust, the same as the headless closed loop's): an entry whose predictive
 variance exceeds `max_variance_ratio` × its prior variance is not used (counted:
 epsilon_gated, steps with a gated entry), and ε is clipped to the robot's physical bounds
@@ -111,6 +114,7 @@ class IdControllerNode(Node):
         self.reference = None
         self.model_error = None
         self.compute_times: deque = deque(maxlen=1000)
+        self.prediction_lags: deque = deque(maxlen=1000)  # |reference stamp − its prediction's| [s]
         self.pub = self.create_publisher(TorqueCommand, topics.TORQUE_COMMAND, COMMAND_QOS)
         self.effort_pub = (self.create_publisher(Float64MultiArray, p["effort_command_topic"], COMMAND_QOS)
                            if p["effort_command_topic"] else None)
@@ -231,6 +235,12 @@ class IdControllerNode(Node):
         """(ε, the source of the prediction it comes from: NOMINAL_SOURCE for ε = 0)."""
         if not self.use_model_error or not self._fresh(self.model_error, self.model_error_timeout, now):
             return np.zeros(self.robot.nv), NOMINAL_SOURCE
+        # a prediction made for another instant of the gait is the wrong correction for this one
+        lag = abs(self.reference[1] - self.model_error[1]) * 1e-9
+        self.prediction_lags.append(lag)
+        if lag > self.params["max_prediction_lag"]:
+            self.health.counts["prediction_behind_reference"] += 1
+            return np.zeros(self.robot.nv), NOMINAL_SOURCE
         source, phi, gamma, phi_var, gamma_var = self.model_error[2]
         if source in self.watch.rolled_back:  # until the model server has put the model before it back
             self.health.counts["rolled_back_predictions_ignored"] += 1
@@ -344,6 +354,10 @@ class IdControllerNode(Node):
             t = np.array(self.compute_times) * 1e6
             self.health.counts["compute_p50_us"] = int(np.percentile(t, 50))
             self.health.counts["compute_p99_us"] = int(np.percentile(t, 99))
+        if self.prediction_lags:
+            lag = np.array(self.prediction_lags) * 1e3
+            self.health.counts["prediction_lag_p50_ms"] = round(float(np.percentile(lag, 50)), 1)
+            self.health.counts["prediction_lag_p99_ms"] = round(float(np.percentile(lag, 99)), 1)
 
 
 def model_error_with_variance(robot, msg) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -63,6 +63,9 @@ error), not the graph's delivery."""
 
 FALL_HEIGHT = 0.3
 """[m] base height below which HyQ lies on its trunk (standing 0.61 m; ciml_sim.recorder's fall rule)."""
+FALL_RATIO = 0.5
+"""live_online_learning's fall: the base below this fraction of the robot's standing height
+(physical_bounds; HyQ 0.31 m, the learning gate's own rule)."""
 
 
 def feedback_effort(cmd: cv.TorqueCommandArrays, q: np.ndarray, qd: np.ndarray) -> float:
@@ -450,7 +453,7 @@ LEARNING_COUNTERS = {
 
 def online_learning_runs(seeds: tuple[int, ...] = (0, 1, 2, 3, 4), scenarios: tuple[str, ...] = ("default_gap",),
                          duration: float = 600.0, period: float = 60.0, baseline_seeds: tuple[int, ...] | None = None,
-                         startup_timeout: float = 300.0) -> dict:
+                         robot: str = "hyq", startup_timeout: float = 300.0) -> dict:
     """`live_online_learning`: per scenario, one run of the shipped graph with online learning per
     seed of `seeds` and one without per seed of `baseline_seeds` (default: the same; the launch
     file's `seed` is the sensor noise's), `duration` seconds of simulated trot each (lockstep: the
@@ -458,16 +461,22 @@ def online_learning_runs(seeds: tuple[int, ...] = (0, 1, 2, 3, 4), scenarios: tu
     (feedback_effort), the lowest base height and the learning chain's counters
     (LEARNING_COUNTERS); a fall ends a run. Summary (learning_summary): falls, the effort cut per
     period, and per run with learning its cut in its last period and its worst period against the
-    runs without, next to their noise (their spread between seeds)."""
+    runs without, next to their noise (their spread between seeds). `robot`: the launch file's
+    robot argument (a shipped name or a profile); its scenarios must name it."""
+    from .profile import load_profile
+
+    description = load_profile(robot).robot()
     _private_domain()
     baseline_seeds = seeds if baseline_seeds is None else baseline_seeds
-    out: dict = {"seeds": list(seeds), "baseline_seeds": list(baseline_seeds), "scenarios": list(scenarios),
+    out: dict = {"robot": robot, "seeds": list(seeds), "baseline_seeds": list(baseline_seeds),
+                 "scenarios": list(scenarios),
                  "duration_s": duration, "period_s": period, "load_average_start": _load_average(), "runs": []}
     for scenario in scenarios:
         for online, run_seeds in ((False, baseline_seeds), (True, seeds)):
             for seed in run_seeds:
-                args = {"online_learning": "true" if online else "false", "seed": str(seed), "scenario": scenario}
-                run = _effort_run(args, duration, period, startup_timeout)
+                args = {"online_learning": "true" if online else "false", "seed": str(seed), "scenario": scenario,
+                        "robot": robot}
+                run = _effort_run(description, args, duration, period, startup_timeout)
                 out["runs"].append({"scenario": scenario, "seed": seed, "online": online, **run})
                 print(f"[bench] live_online_learning {scenario} seed {seed} online={online}: effort per period "
                       f"{[p['effort_rms_nm'] for p in run['periods']]}, fell {run['fell']}", file=sys.stderr,
@@ -541,10 +550,10 @@ def plot_learning_runs(result: dict, path: str) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
-def _effort_run(arguments: dict[str, str], duration: float, period: float, startup_timeout: float) -> dict:
-    from .robot import load_robot
+def _effort_run(robot, arguments: dict[str, str], duration: float, period: float, startup_timeout: float) -> dict:
+    from .physical_bounds import physical_bounds
 
-    robot = load_robot()
+    fall = FALL_RATIO * physical_bounds(robot).standing_height
     with tempfile.TemporaryDirectory(prefix="ciml_live_") as tmp:
         args = {"model_dir": os.path.join(tmp, "online_model"), **arguments}
         probe = GraphProbe(effort_robot=robot)
@@ -560,9 +569,9 @@ def _effort_run(arguments: dict[str, str], duration: float, period: float, start
             start = 0
             while len(periods) * period < duration and time.monotonic() < deadline:
                 end = (len(periods) + 1) * period
-                probe.wait_for(lambda: probe.sim_time() - t0 >= end or probe.lowest_z() < FALL_HEIGHT,
+                probe.wait_for(lambda: probe.sim_time() - t0 >= end or probe.lowest_z() < fall,
                                deadline - time.monotonic())
-                if probe.sim_time() - t0 < end and probe.lowest_z() >= FALL_HEIGHT:
+                if probe.sim_time() - t0 < end and probe.lowest_z() >= fall:
                     break  # the deadline: the graph stopped advancing
                 time.sleep(1.1)  # the counters of this period (/diagnostics at 1 Hz of wall clock)
                 with probe.lock:
@@ -574,8 +583,8 @@ def _effort_run(arguments: dict[str, str], duration: float, period: float, start
                                 "base_height_min_m": round(min(z), 3) if z else None,
                                 **{f"{node}.{key}": probe.counter(node, key)
                                    for node, keys in LEARNING_COUNTERS.items() for key in keys}})
-                if probe.lowest_z() < FALL_HEIGHT:
-                    fell_at = next(t - t0 for t, v in probe.base_z if v < FALL_HEIGHT)
+                if probe.lowest_z() < fall:
+                    fell_at = next(t - t0 for t, v in probe.base_z if v < fall)
                     break
         finally:
             rc = launcher.stop()

@@ -18,8 +18,8 @@ from ciml_learning.cliargs import Verb
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # docs/ARCHITECTURE.md §4 and the README's command list, in `ciml --help` order
-VERBS = ["record", "extract", "train", "evaluate", "closed-loop", "diagnose", "gap-bench", "play", "bench",
-         "launch", "inspect"]
+VERBS = ["record", "extract", "train", "evaluate", "export-mjcf", "closed-loop", "diagnose", "gap-bench", "play",
+         "bench", "launch", "inspect"]
 BENCHMARKS = {
     "ciml_learning": ["extraction_batching", "extraction_throughput", "lwpr_cross_2d", "lwpr_online_30dims",
                       "online_nodes_per_sample", "train_lwpr_paper_size", "train_sgpr_paper_size"],

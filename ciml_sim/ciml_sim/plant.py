@@ -60,6 +60,7 @@ import pinocchio as pin
 
 from ciml_control.references import standing_configuration
 from ciml_learning.dynamics import quaternion_xyzw
+from ciml_learning.effects.joint_coulomb_friction import FRICTION_SOLIMP, friction_solref
 from ciml_learning.errors import CimlError
 from ciml_learning.robot import RobotDescription
 
@@ -78,12 +79,8 @@ from .scenario import Effect, Scenario
 DT = TIMESTEP
 CONTACT_THRESHOLD = 1.0
 """Normal force [N] above which a foot is reported in contact."""
-FRICTION_SOLREF = (2 * TIMESTEP, 1.0)
-FRICTION_SOLIMP = (0.9999, 0.9999, 0.001, 0.5, 2.0)
-"""MuJoCo's joint-friction constraint made close to ideal Coulomb friction: reference
-acceleration −q̇/Δt (the friction tries to stop the joint within one step) and almost no
-regularisation, so the force is ±value whenever the joint keeps sliding, and smaller only
-in the step in which it sticks."""
+FRICTION_SOLREF = friction_solref(TIMESTEP)
+"""The near-ideal Coulomb friction of the registry's MuJoCo form (FRICTION_SOLIMP, its docstring)."""
 _NOISE_BLOCK = 1000
 _FRICTION_DOF = int(mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF)  # a plain int: comparing arrays to the enum is slow
 

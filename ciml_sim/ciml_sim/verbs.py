@@ -1,5 +1,6 @@
 """The `ciml` verbs of ciml_sim (registered in setup.py, entry point group `ciml.verbs`):
-record, closed-loop and gap-bench simulate, so they live with the simulator."""
+record, closed-loop and gap-bench simulate, and export-mjcf compiles with MuJoCo, so they live with
+the simulator."""
 from __future__ import annotations
 
 import argparse
@@ -58,3 +59,18 @@ GAP_BENCH = Verb(
            "HyQ's, so gap-bench takes no --robot.\n"
            "example: ciml gap-bench --out out/gap_bench --cases 1 2 --jobs 2",
     no_robot="its cases are drawn on HyQ's joints and links (the suite's robot)")
+
+
+def _export_mjcf(s: argparse.ArgumentParser) -> None:
+    s.add_argument("--diagnosis", type=ca.path, required=True, help="a `ciml diagnose` output DIR")
+    s.add_argument("--mjcf", type=ca.path, required=True, help="your MuJoCo model (MJCF .xml)")
+    s.add_argument("--out", type=ca.path, required=True, help="the patched MJCF to write")
+
+
+EXPORT_MJCF = Verb(
+    help="write a diagnosis's effects into your MuJoCo model (MJCF)", arguments=_export_mjcf,
+    run="ciml_sim.export_mjcf:export_mjcf_command", order=45,
+    epilog="Joints, bodies and actuators are matched by name; sensor effects go to sensor_calibration.yaml "
+           "beside --out.\n"
+           "example: ciml export-mjcf --diagnosis diag/ --mjcf robot.xml --out robot_identified.xml",
+    no_robot="the model is the MJCF given")

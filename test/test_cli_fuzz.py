@@ -43,6 +43,8 @@ VERBS: dict[str, tuple[list[str], dict[str, str]]] = {
                      "--seed": "number", "--out": "path", "--report": "path"}),
     "diagnose": (["--bag", "{tmp}/missing_bag", "--out", "{tmp}/diag"],
                  {"--bag": "path", "--heldout": "path", "--out": "path"}),
+    "export-mjcf": (["--diagnosis", "{tmp}/missing_diag", "--mjcf", "{tmp}/missing.xml", "--out", "{tmp}/p.xml"],
+                    {"--diagnosis": "path", "--mjcf": "path", "--out": "path"}),
     "gap-bench": (["--out", "{tmp}/gb", "--cases", "9999", "--jobs", "1", "--scale", "1"],
                   {"--out": "path", "--cases": "number", "--jobs": "number", "--scale": "number"}),
     "play": (["--bag", "{tmp}/missing_bag", "--rate", "1"], {"--bag": "path", "--rate": "number"}),

@@ -35,6 +35,7 @@ setup(
             "record = ciml_sim.verbs:RECORD",
             "closed-loop = ciml_sim.verbs:CLOSED_LOOP",
             "gap-bench = ciml_sim.verbs:GAP_BENCH",
+            "verify = ciml_sim.verbs:VERIFY",
             "export-mjcf = ciml_sim.verbs:EXPORT_MJCF",
         ],
         "ciml.benchmarks": [

@@ -17,8 +17,10 @@ say which frames are the feet."""
 THREAD_PRIORITY = Param(realtime.THREAD_PRIORITY, 50, "SCHED_FIFO priority of the node's process (0 = normal "
                         "scheduling; without the right to, a warning and normal scheduling, as ros2_control)",
                         "", 0, 98)
-"""The control path's (bridge, reference generator, controller) at 50; the state filter's at 10,
-below it (the filtered stream at its sensors' rate, the control path first): ciml_learning.realtime."""
+"""The control path's (bridge, reference generator, controller) at 50; the model server's at 20
+(its predictions feed the controller at the reference's rate; its model loads run normally
+scheduled); the state filter's at 10, below them (the filtered stream at its sensors' rate, the
+control path first): ciml_learning.realtime."""
 
 STATE_PUBLISHER = NodeSchema("ciml_learning", "state_publisher",
                              "/tf, /tf_static and /robot_description from /base_state and /joint_states", (
@@ -50,6 +52,7 @@ MODEL_SERVER = NodeSchema("ciml_learning", "model_server",
                           "/reference → /model_error/predicted (ε of eq. 17) from the served model", (
     Param("model_dir", "", "Model folder served at start ('' = nominal model until a /model_update)"),
     Param("swap_check_period", 0.02, "How often a model loaded in the background is swapped in", "s", 0.001, 1.0),
+    replace(THREAD_PRIORITY, default=20),
     ROBOT,
 ))
 

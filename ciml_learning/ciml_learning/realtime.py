@@ -38,6 +38,15 @@ def set_fifo_priority(priority: int, tids: set[int] | None = None) -> str | None
     return None
 
 
+def normal_scheduling() -> None:
+    """The calling thread back to normal scheduling (SCHED_OTHER), e.g. a worker that does long,
+    non-real-time work inside a real-time process; nothing if it cannot."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # pid 0: this thread (Linux)
+    except OSError:
+        pass
+
+
 def stat_fields(pid: int, tid: int | None = None) -> list[str]:
     """/proc/<pid>/task/<tid>/stat (the process's own without tid) after the command name, which
     may hold spaces: [0] is proc(5)'s field 3 (state), [1] the parent pid, [11]/[12] utime/stime,

@@ -1,5 +1,5 @@
 """The `ciml` verbs of ciml_sim (registered in setup.py, entry point group `ciml.verbs`):
-record, closed-loop and gap-bench simulate, and export-mjcf compiles with MuJoCo, so they live with
+record, closed-loop, verify and gap-bench simulate, and export-mjcf compiles with MuJoCo, so they live with
 the simulator."""
 from __future__ import annotations
 
@@ -40,6 +40,17 @@ def _gap_bench(s: argparse.ArgumentParser) -> None:
     s.add_argument("--scale", type=ca.finite(0.01, 100), default=1.0, help="scale every recording's duration")
 
 
+def _verify(s: argparse.ArgumentParser) -> None:
+    s.add_argument("--real", nargs="+", type=ca.path, required=True, metavar="BAG",
+                   help="the real logs whose motions are re-simulated")
+    s.add_argument("--diagnosis", type=ca.path, required=True, metavar="DIR",
+                   help="a ciml diagnose folder (its identified_scenario.yaml)")
+    s.add_argument("--oracle", type=ca.path, metavar="SCENARIO",
+                   help="the true scenario, when known (benchmarks): the oracle column")
+    s.add_argument("--motion", help="the motion of the bags that name none (no /reference, no recorded motion)")
+    s.add_argument("--out", type=ca.path, required=True, help="folder for verify.json")
+
+
 RECORD = Verb(
     help="simulate a motion headless and write an MCAP bag", arguments=_record,
     run="ciml_sim.commands:record", order=10,
@@ -74,3 +85,10 @@ EXPORT_MJCF = Verb(
            "beside --out.\n"
            "example: ciml export-mjcf --diagnosis diag/ --mjcf robot.xml --out robot_identified.xml",
     no_robot="the model is the MJCF given")
+
+VERIFY = Verb(
+    help="re-simulate the real logs' motions with the identified scenario: the gap before and after",
+    arguments=_verify, run="ciml_sim.commands:verify", order=65,
+    epilog="Re-records each log's motion in the simulator, nominal and with DIR/identified_scenario.yaml (and\n"
+           "--oracle), and compares the extracted model error and the torques with the log's (docs/DIAGNOSIS.md).\n"
+           "example: ciml verify --real bags/real_1 --diagnosis diag/ --out verify/")

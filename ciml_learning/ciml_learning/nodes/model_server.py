@@ -35,7 +35,7 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 from .. import conversions as cv
-from .. import topics
+from .. import realtime, topics
 from ..dynamics import ReferenceState, ReferenceTorque
 from ..errors import CimlError
 from ..node_params import MODEL_SERVER
@@ -61,7 +61,7 @@ class ModelServerNode(Node):
         self.reference_torque = ReferenceTorque(self.robot)  # τ̇_ref of the stream, across model swaps
         self.health = Health(self)
         self.health.set(0, "serving the nominal model")
-        self.loader = LatestOnlyWorker(lambda item: load_served_model(self.robot, *item), name="model-loader")
+        self.loader = LatestOnlyWorker(self._load, name="model-loader")
         self.pub = self.create_publisher(ModelError, topics.MODEL_ERROR_PREDICTED, COMMAND_QOS)
         # the newest reference only: behind, the server skips to it (counted: references_skipped), since
         # a prediction for an older instant of the gait is of no use to the controller
@@ -72,6 +72,11 @@ class ModelServerNode(Node):
         self.create_timer(swap_period, self.swap)
         if model_dir:
             self.loader.submit((model_dir, None))  # not announced: its own checksum is verified
+
+    def _load(self, item: tuple[str, str | None]) -> ServedModel:
+        # a load is ~1 s of CPU: it must not take the real-time priority the predictions have
+        realtime.normal_scheduling()
+        return load_served_model(self.robot, *item)
 
     def on_update(self, msg) -> None:
         self.health.counts["model_updates"] += 1

@@ -18,8 +18,8 @@ from ciml_learning.cliargs import Verb
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # docs/ARCHITECTURE.md §4 and the README's command list, in `ciml --help` order
-VERBS = ["record", "extract", "train", "evaluate", "export-mjcf", "closed-loop", "diagnose", "gap-bench", "play",
-         "bench", "launch", "inspect"]
+VERBS = ["record", "extract", "train", "evaluate", "export-mjcf", "closed-loop", "diagnose", "verify", "gap-bench",
+         "play", "bench", "launch", "inspect"]
 BENCHMARKS = {
     "ciml_learning": ["extraction_batching", "extraction_throughput", "lwpr_cross_2d", "lwpr_online_30dims",
                       "online_nodes_per_sample", "train_lwpr_paper_size", "train_sgpr_paper_size"],
@@ -103,7 +103,7 @@ def test_ciml_learning_installed_alone_runs_its_own_verbs(tmp_path):
     assert help_.returncode == 0, help_.stderr
     listed = [line.split()[0] for line in help_.stdout.split("VERB\n", 1)[1].split("\noptions:")[0].splitlines()
               if line.startswith("    ") and not line.startswith("      ")]
-    assert listed == [v for v in VERBS if v not in ("record", "closed-loop", "gap-bench")]
+    assert listed == [v for v in VERBS if v not in ("record", "export-mjcf", "closed-loop", "verify", "gap-bench")]
     assert "ciml: note" not in help_.stderr
     # a real verb end to end: extract on a shipped bag, with neither upper package importable
     out = tmp_path / "targets.npz"

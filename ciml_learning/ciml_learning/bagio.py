@@ -17,7 +17,7 @@ from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -62,6 +62,23 @@ COMPRESSIONS = ("none", "zstd")
 """MCAP chunk compressions BagWriter writes (`compression=`)."""
 
 
+MOTION_KEY = "ciml.motion"
+"""custom_data key of metadata.yaml naming the motion a simulated log runs (`ciml record` writes it;
+`ciml verify` re-simulates that motion). Stamps of such a log are time since the motion started."""
+
+
+def custom_data(path: str | os.PathLike) -> dict[str, str]:
+    """metadata.yaml's custom_data of a rosbag2 folder ({} for a bag without one, or a ROS 1 bag)."""
+    from .fileio import load_yaml_bounded
+
+    meta = Path(path) / "metadata.yaml"
+    if not meta.is_file():
+        return {}
+    info = load_yaml_bounded(str(meta), "bag metadata")
+    data = (info.get("rosbag2_bagfile_information") or {}).get("custom_data") if isinstance(info, dict) else None
+    return {str(k): str(v) for k, v in data.items()} if isinstance(data, dict) else {}
+
+
 class BagWriter:
     """Write rclpy messages into a new rosbag2 MCAP bag (atomically: temp dir + rename).
 
@@ -73,7 +90,10 @@ class BagWriter:
     repeat in every message). The default writes plain chunks.
     """
 
-    def __init__(self, path: str | os.PathLike, compression: str | None = None) -> None:
+    def __init__(self, path: str | os.PathLike, compression: str | None = None,
+                 custom_data: dict[str, str] | None = None) -> None:
+        """custom_data: metadata.yaml's custom_data (rosbag2's free key → string map), e.g. the
+        recorded motion (MOTION_KEY)."""
         from rosbags.rosbag2 import StoragePlugin, Writer
         from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
@@ -97,6 +117,8 @@ class BagWriter:
         self._writer = Writer(self._tmp, version=9, storage_plugin=StoragePlugin.MCAP)
         if compression == "zstd":
             self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        for key, value in (custom_data or {}).items():
+            self._writer.set_custom_data(key, value)
         self._connections: dict[str, Connection] = {}
         self.counts: dict[str, int] = {}
 
@@ -288,6 +310,22 @@ class SensorLog:
 
     def __len__(self) -> int:
         return len(self.t)
+
+
+def first_message(path: str | os.PathLike, topic: str) -> tuple[int, Any] | None:
+    """(header stamp [ns], message) of the first message of `topic` in log order, or None without one."""
+    reader = _open_reader([path])
+    try:
+        conns = [c for c in reader.connections if c.topic == topic]
+        if not conns:  # rosbags reads every topic for an empty list
+            return None
+        for conn, log_ns, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            header = getattr(msg, "header", None)
+            return (stamp_to_ns(header.stamp) if header is not None else log_ns), msg
+        return None
+    finally:
+        reader.close()
 
 
 def iter_bag_messages(path: str | os.PathLike) -> Iterator[tuple[str, int, bytes, str]]:

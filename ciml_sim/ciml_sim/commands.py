@@ -82,10 +82,9 @@ def scenario_for(args: argparse.Namespace, robot: RobotDescription):
 
 
 def record(args: argparse.Namespace) -> int:
-    from ciml_learning.bagio import BagWriter
     from ciml_learning.cli import robot_from_args
 
-    from .recorder import check_motion, run_headless
+    from .recorder import check_motion, record_bag
 
     _duration(args.duration)
     if os.path.lexists(args.out):  # refused before the simulation, not after
@@ -96,16 +95,13 @@ def record(args: argparse.Namespace) -> int:
     robot = robot_from_args(args)
     scenario = scenario_for(args, robot)
     check_motion(args.motion)
-    # zstd MCAP chunks (~4× smaller: the joint and DoF names repeat in every message)
-    writer = BagWriter(args.out, compression="zstd")
-    with writer:
-        result = run_headless(robot, scenario, args.motion, args.duration, args.seed, writer=writer,
-                              ground_truth=not args.no_ground_truth, progress=True, sensor_rate=args.sensor_rate)
+    result, counts = record_bag(robot, scenario, args.motion, args.duration, args.seed, args.out,
+                                ground_truth=not args.no_ground_truth, sensor_rate=args.sensor_rate)
     metrics = result.metrics()
     summary = {"out": args.out, "motion": args.motion, "duration_s": metrics["duration_s"],
                "sensor_rate_hz": args.sensor_rate,
                "samples": metrics["samples"], "fell": metrics["fell"], "ground_truth": not args.no_ground_truth,
-               "real_time_factor": metrics["real_time_factor"], "messages": sum(writer.counts.values())}
+               "real_time_factor": metrics["real_time_factor"], "messages": sum(counts.values())}
     print(json.dumps(summary))
     if result.fell:
         print(f"ciml record: warning: the robot fell at t = {result.fall_time:.2f} s; the bag stops there",
@@ -183,3 +179,47 @@ def _jsonable(x):
     if isinstance(x, np.bool_):
         return bool(x)
     return x
+
+
+VERIFY_JSON = "verify.json"
+
+
+def verify(args: argparse.Namespace) -> int:
+    """`ciml verify --real BAGS... --diagnosis DIR [--oracle SCENARIO] [--motion NAME] --out DIR`:
+    every input is checked before the first simulation; DIR/verify.json is written whole or not at all."""
+    from ciml_learning.cli import robot_from_args
+    from ciml_learning.diagnosis.files import IDENTIFIED_SCENARIO, read_diagnosis_json
+    from ciml_learning.fileio import atomic_dir, check_out_dir
+
+    from .scenario import load_scenario, resolve_scenario
+    from .verify import check_logs, summary_lines
+    from .verify import verify as run_verify
+
+    def is_verify_dir(d: str) -> bool:
+        return os.path.isfile(os.path.join(d, VERIFY_JSON))
+
+    check_out_dir(args.out, is_verify_dir, "verify")
+    scenario_path = os.path.join(args.diagnosis, IDENTIFIED_SCENARIO)
+    if not os.path.isfile(scenario_path):
+        raise CimlError(f"--diagnosis {args.diagnosis}: no {IDENTIFIED_SCENARIO} (ciml diagnose writes it); "
+                        "verify re-simulates the identified scenario")
+    robot = robot_from_args(args)
+    identified = load_scenario(scenario_path, robot)
+    oracle = resolve_scenario(args.oracle, robot) if args.oracle else None
+    logs = check_logs(args.real, args.motion)
+    try:  # the regression shrink (held-out residual, docs/DIAGNOSIS.md) stays beside the re-simulated one
+        regression = read_diagnosis_json(args.diagnosis).get("shrink")
+    except CimlError:
+        regression = None
+    result = run_verify(robot, logs, identified, oracle)
+    doc = {"format_version": 1, "diagnosis": args.diagnosis, "identified_scenario": scenario_path,
+           "oracle": args.oracle, **result, "regression_shrink": regression}
+    with atomic_dir(args.out, is_verify_dir, "verify") as tmp:
+        from ciml_learning.fileio import json_dumps
+
+        with open(os.path.join(tmp, VERIFY_JSON), "w", encoding="utf-8") as f:
+            f.write(json_dumps(_jsonable(doc)))
+    for line in summary_lines(doc):
+        print(line)
+    print(f"ciml verify: {os.path.join(args.out, VERIFY_JSON)}")
+    return 0

@@ -29,6 +29,13 @@ def dimension_names(robot: RobotDescription) -> list[str]:
     return list(robot.rbd_error_names) + act
 
 
+def dimension_units(robot: RobotDescription) -> list[str]:
+    """The unit of each of dimension_names: Nm for the base torques and the actuators, N otherwise."""
+    n_rbd = len(robot.rbd_error_names)
+    return ["Nm" if (d >= n_rbd or n in ("base_roll", "base_pitch", "base_yaw")) else "N"
+            for d, n in enumerate(dimension_names(robot))]
+
+
 def contact_label(robot: RobotDescription, contacts: np.ndarray) -> str:
     """'lf+lh+rf+rh' style label of the feet in contact ('flight' when none)."""
     on = [leg for leg, c in zip(robot.leg_names, contacts) if c]

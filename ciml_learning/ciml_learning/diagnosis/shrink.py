@@ -23,7 +23,7 @@ import numpy as np
 
 from .features import Rows, predict
 from .identification import Model
-from .localization import dimension_names
+from .localization import dimension_names, dimension_units
 
 V_STICK = 0.05
 """[rad/s] a joint slower than this may be stuck by its Coulomb friction."""
@@ -97,8 +97,7 @@ def shrink(robot, rows: Rows, res: Residuals, sigma: np.ndarray, floor: np.ndarr
     (`ratio_physical_per_dimension`: RMS over dimensions of their physical RMS)."""
     names = dimension_names(robot)
     n_rbd = len(sigma) - rows.y_act.shape[1]
-    units = {n: ("Nm" if (d >= n_rbd or n in ("base_roll", "base_pitch", "base_yaw")) else "N")
-             for d, n in enumerate(names)}
+    units = dict(zip(names, dimension_units(robot)))
     per_dim: dict[str, dict[str, Any]] = {}
     for d, name in enumerate(names):
         if d < n_rbd:

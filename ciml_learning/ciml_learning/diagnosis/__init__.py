@@ -1,7 +1,8 @@
 """The sim-to-real gap diagnosis (docs/ARCHITECTURE.md §6): where the gap lies, which effect causes it, how far
 it shrinks. Pure modules (no rclpy):
 
-- candidates: the effect catalogue (docs/ARCHITECTURE.md §5) as regressors in the eq. (11) coordinates and in Γ;
+- candidates: the registry's effect types (ciml_learning/effects, docs/ARCHITECTURE.md §5) as regressors in the
+  eq. (11) coordinates and in Γ;
 - features: regression rows (observed Φ̃' entries and Γ) and their Gram matrices;
 - bounds: the physical range of every catalogue parameter (an estimate on a bound is "not identified");
 - identification: noise-normalised bounded fits, greedy selection on held-out data, the noise floor;
@@ -9,7 +10,7 @@ it shrinks. Pure modules (no rclpy):
   held-out reproduction, the lag's sampling conversion, misspecification; docs/DIAGNOSIS.md);
 - reference: what distinguishes logs from reference logs of the same robot (`--reference`);
 - localization, shrink, report: the three answers; run: the whole diagnosis; files: the diagnosis
-  directory (diagnosis.json, report.html); commands: `ciml diagnose`;
+  directory (diagnosis.json, report.html, identified.py's identified_scenario.yaml); commands: `ciml diagnose`;
 - effects: the identified effects as a model of ε (for `ciml closed-loop --model DIAG_DIR`).
 """
 from __future__ import annotations

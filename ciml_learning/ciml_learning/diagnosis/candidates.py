@@ -62,7 +62,7 @@ from functools import cached_property
 import numpy as np
 import pinocchio as pin
 
-from ..effects import CATALOGUE, EFFECTS, MEASUREMENT_ONLY, Candidate, Refinement, effect_type
+from ..effects import CATALOGUE, EFFECTS, Candidate, Refinement, effect_type
 from ..effects.base import COULOMB_SMOOTHING
 from ..effects.payload import point_mass_rotational
 from ..filters import filter_offline, lowpass_taps
@@ -76,8 +76,6 @@ MIN_LINK_MASS = 0.05
 
 SENSOR_TYPES = tuple(t for t in CATALOGUE if EFFECTS[t].kind == "sensor")
 """Torque-sensor effects: they act on Φ̃ and Γ through the measured τ (module docstring)."""
-MEASUREMENT_TYPES = tuple(t for t in CATALOGUE if t in MEASUREMENT_ONLY)
-"""Effects that change only what is measured: they exert no force on the robot."""
 JOINT_FEATURE_TYPES = tuple(t for t in CATALOGUE if EFFECTS[t].joint_feature_count)
 """Effect types that add per-joint joint-torque columns of their own (EffectType.joint_features)."""
 UNMODELLED_TYPE = "unmodelled_joint_torque"

@@ -15,6 +15,8 @@ scenario can reach it. The result is scored against the answer:
   (coverage), and whether any estimate outside its physical bounds is reported with confidence;
 - honest shrink: the physical shrink (N, Nm, per dimension), the dimensions made worse, the
   noise floor's share of the nominal residual;
+- the re-simulated shrink (`ciml verify`, in-catalogue cases): the held-out motions recorded again
+  nominal, with the diagnosis' identified_scenario.yaml and with the case's own scenario (the oracle);
 - reference cases (``reference_effects``): the simulator records the same motions twice, with the
   reference scenario A and with A + B, and `ciml diagnose --bag A+B... --reference A...` must name
   B, and only B, as what distinguishes them.
@@ -352,9 +354,31 @@ def run_case(index: int, spec: dict, out_dir: str, scale: float = 1.0) -> dict:
     scored = score_case(spec["effects"], diagnosis, robot.joint_names, spec.get("reference_effects"))
     scored.update({"case": index, "effects_true": spec["effects"], "noise": bool(spec["sensor_noise"]),
                    "record_s": round(t1 - t0, 1), "diagnose_s": round(t2 - t1, 1)})
+    if _resimulated(spec):
+        _ciml("verify", "--real", *bags["heldout"], "--diagnosis", diag_dir, "--oracle", scenario_path,
+              "--out", os.path.join(case, "verify"))
+        scored.update(resimulated_scores(case))
+        scored["verify_s"] = round(time.perf_counter() - t2, 1)
     if "reference_effects" in spec:
         scored["reference_effects"] = spec["reference_effects"]
     return scored
+
+
+def _resimulated(spec: dict) -> bool:
+    """In-catalogue cases without a reference are re-simulated (`ciml verify`)."""
+    return "reference_effects" not in spec and not any(e["type"] in OUT_OF_CATALOGUE for e in spec["effects"])
+
+
+def resimulated_scores(case_dir: str) -> dict:
+    """The re-simulated shrink of a case from its case_NN/verify/verify.json ({} without one)."""
+    path = os.path.join(case_dir, "verify", "verify.json")
+    if not os.path.isfile(path):
+        return {}
+    with open(path, encoding="utf-8") as f:
+        o = json.load(f)["resimulated_shrink"]["overall"]
+    return {"resim_shrink": o["shrink"], "resim_shrink_oracle": o.get("shrink_oracle"),
+            "resim_gap_nominal": o["gap_nominal"], "resim_gap_identified": o["gap_identified"],
+            "resim_gap_oracle": o.get("gap_oracle"), "resim_further_than_nominal": o["further_than_nominal"]}
 
 
 def summarise(cases: list[dict]) -> dict:
@@ -368,6 +392,8 @@ def summarise(cases: list[dict]) -> dict:
     rel = [r["param_rel_error"] for r in rows if r["param_rel_error"] is not None]
     shrink = [c["shrink_ratio"] for c in in_cat if c.get("shrink_ratio") is not None]
     phys = [c["shrink_ratio_physical"] for c in in_cat if c.get("shrink_ratio_physical") is not None]
+    resim = [c for c in ok if c.get("resim_shrink") is not None]
+    of_oracle = [c["resim_shrink"] / c["resim_shrink_oracle"] for c in resim if c.get("resim_shrink_oracle")]
     cov = np.sum([[c["coverage"]["in_95"], c["coverage"]["in_68"], c["coverage"]["params"]]
                   for c in ok if "coverage" in c], axis=0) if ok else np.zeros(3)
     return {
@@ -386,6 +412,13 @@ def summarise(cases: list[dict]) -> dict:
         "min_heldout_shrink": float(np.min(shrink)) if shrink else None,
         "median_heldout_shrink_physical": float(np.median(phys)) if phys else None,
         "cases_with_worsened_dimensions": sum(1 for c in in_cat if c.get("worsened_dimensions")),
+        "resimulated_cases": len(resim),
+        "median_resimulated_shrink": float(np.median([c["resim_shrink"] for c in resim])) if resim else None,
+        "median_resimulated_shrink_oracle": (float(np.median([c["resim_shrink_oracle"] for c in resim
+                                                              if c.get("resim_shrink_oracle") is not None]))
+                                             if of_oracle else None),
+        "median_resimulated_shrink_of_oracle": float(np.median(of_oracle)) if of_oracle else None,
+        "cases_identified_further_than_nominal": sum(1 for c in resim if c["resim_further_than_nominal"]),
         "out_of_catalogue_unexplained_and_localised": sum(
             1 for c in ooc if c["out_of_catalogue"]["unexplained_large"] and c["out_of_catalogue"]["localised_right"]
             and not c["out_of_catalogue"]["named_wrong_with_confidence"]),
@@ -397,6 +430,8 @@ def summarise(cases: list[dict]) -> dict:
         "targets": {"named_right_fraction": ">= 0.95", "spurious share": "<= 0.05", "median_param_rel_error": "<= 0.15",
                     "coverage_95": ">= 0.90", "confident_outside_bounds": "0",
                     "median_heldout_shrink": ">= 0.70",
+                    "median_resimulated_shrink_of_oracle": ">= 0.90",
+                    "cases_identified_further_than_nominal": "0",
                     "out_of_catalogue_unexplained_and_localised": ">= 3 of 4, no catalogue effect above 30 % share",
                     "reference_cases_named_only_the_difference": "all"},
     }
@@ -405,8 +440,9 @@ def summarise(cases: list[dict]) -> dict:
 def table(cases: list[dict]) -> str:
     """Markdown summary table, one row per case."""
     lines = ["| case | true effects | named right | param rel. err | in 95 % / 68 % interval | spurious | shrink "
-             "(normalised / physical) | made worse | noise floor | unexplained | diagnose [s] |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "(normalised / physical) | made worse | noise floor | unexplained | re-simulated shrink / oracle's "
+             "| diagnose [s] |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for c in cases:
         ref = {json.dumps(e, sort_keys=True) for e in c.get("reference_effects", [])}
 
@@ -416,7 +452,7 @@ def table(cases: list[dict]) -> str:
 
         true = "; ".join(name(e) for e in c.get("effects_true", []))
         if "error" in c:
-            lines.append(f"| {c['case']} | {true} | error: {c['error']} | | | | | | | | |")
+            lines.append(f"| {c['case']} | {true} | error: {c['error']} | | | | | | | | | |")
             continue
         if "out_of_catalogue" in c:
             o = c["out_of_catalogue"]
@@ -434,12 +470,14 @@ def table(cases: list[dict]) -> str:
             return "" if x is None else f"{x:.2f}"
 
         cv = c.get("coverage", {})
+        resim = f"{fmt(c.get('resim_shrink'))} / {fmt(c.get('resim_shrink_oracle'))}" if "resim_shrink" in c else ""
         cov = f"{cv['in_95']}/{cv['params']} / {cv['in_68']}/{cv['params']}" if cv.get("params") else ""
         lines.append(f"| {c['case']} | {true} | {named} | {fmt(max(rel) if rel else None)} | {cov} "
                      f"| {len(c.get('spurious', []))} "
                      f"| {fmt(c.get('shrink_ratio'))} / {fmt(c.get('shrink_ratio_physical'))} "
                      f"| {', '.join(c.get('worsened_dimensions', []))} | {fmt(c.get('noise_floor_share'))} "
-                     f"| {fmt(c.get('unexplained_share'))} | {c.get('diagnose_s', '')} |")
+                     f"| {fmt(c.get('unexplained_share'))} "
+                     f"| {resim} | {c.get('diagnose_s', '')} |")
     return "\n".join(lines)
 
 
@@ -472,6 +510,7 @@ def rescore(out_dir: str) -> dict:
         scored = score_case(spec["effects"], diagnosis, robot.joint_names, spec.get("reference_effects"))
         scored.update({k: c[k] for k in ("case", "effects_true", "noise", "record_s", "diagnose_s") if k in c})
         scored.setdefault("diagnose_s", diagnosis.get("time_s"))
+        scored.update(resimulated_scores(os.path.join(out_dir, f"case_{i:02d}")))
         if "reference_effects" in spec:
             scored["reference_effects"] = spec["reference_effects"]
         results.append(scored)

@@ -112,3 +112,27 @@ def test_coverage_bounds_and_reference_scoring():
         {"type": "joint_coulomb_friction", "where": "rf_kfe_joint", "status": "differs", "params_real": {"value": 7.0}})
     s = gapbench.score_case([a, b], comp, JOINTS, [a])
     assert not s["reference"]["named_only_the_difference"] and len(s["spurious"]) == 1
+
+
+def test_resimulated_shrink_is_read_and_summarised(tmp_path):
+    """verify.json's overall numbers reach the case and the summary's targets (median of the re-simulated
+    shrink over the oracle's, cases where the identified simulator is further than the nominal one)."""
+    import json
+
+    from ciml_sim.gapbench import resimulated_scores, summarise
+
+    cases = []
+    for i, (gaps, further) in enumerate((((10.0, 1.0, 0.0), False), ((4.0, 5.0, 1.0), True))):
+        case = tmp_path / f"case_{i:02d}"
+        (case / "verify").mkdir(parents=True)
+        nom, ide, ora = gaps
+        overall = {"gap_nominal": nom, "gap_identified": ide, "gap_oracle": ora, "shrink": 1 - ide / nom,
+                   "shrink_oracle": 1 - ora / nom, "further_than_nominal": further}
+        (case / "verify" / "verify.json").write_text(json.dumps({"resimulated_shrink": {"overall": overall}}))
+        cases.append({"case": i, "diagnose_s": 1.0, "effects": [], "coverage": {"in_95": 0, "in_68": 0, "params": 0},
+                      **resimulated_scores(str(case))})
+    assert cases[0]["resim_shrink"] == 0.9 and cases[0]["resim_shrink_oracle"] == 1.0
+    assert resimulated_scores(str(tmp_path / "no_case")) == {}
+    s = summarise(cases)
+    assert s["resimulated_cases"] == 2 and s["cases_identified_further_than_nominal"] == 1
+    assert abs(s["median_resimulated_shrink_of_oracle"] - (0.9 + (-0.25 / 0.75)) / 2) < 1e-12

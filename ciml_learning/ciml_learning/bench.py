@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import signal
 import sys
 import time
 from importlib.metadata import EntryPoint, entry_points
@@ -43,6 +44,10 @@ def _machine() -> dict:
             "platform": platform.platform(), "commit": commit}
 
 
+def _interrupt(signum, _frame) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
 def run(names: list[str] | None, out: str, options: dict[str, str] | None = None) -> dict:
     """Run the selected benchmarks (all by default); `options` (NAME -> VALUE, strings) go to each
     selected benchmark whose function takes a parameter of that name."""
@@ -63,6 +68,9 @@ def run(names: list[str] | None, out: str, options: dict[str, str] | None = None
         valid = sorted(set().union(*taken.values()))
         raise CimlError(f"option(s) {unused} taken by none of {selected}; valid: {valid or 'none'}")
     result: dict[str, Any] = {"machine": _machine(), "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "benchmarks": {}}
+    # SIGTERM ends a run like Ctrl-C: the benchmarks' `finally` stops the graphs they started (by
+    # default Python dies at once and leaves them running, on the DDS domain of the next run)
+    signal.signal(signal.SIGTERM, _interrupt)
     for name in selected:
         print(f"[bench] {name} ...", file=sys.stderr, flush=True)
         t0 = time.perf_counter()

@@ -564,6 +564,7 @@ def _effort_run(robot, arguments: dict[str, str], duration: float, period: float
         try:
             if not probe.wait_for(lambda: probe.first_torque_stamp is not None, startup_timeout):
                 raise CimlError(f"the graph sent no torque command within {startup_timeout:g} s")
+            assert probe.first_torque_stamp is not None
             t0 = probe.first_torque_stamp * 1e-9
             deadline = time.monotonic() + duration * 10 + 60  # lockstep on a loaded machine: sim time runs slower
             start = 0

@@ -156,18 +156,6 @@ def test_launch_refuses_a_robot_its_file_cannot_take(tmp_path, monkeypatch, caps
     assert "declares no launch argument 'robot'" in msg and "declared: motion" in msg
 
 
-@pytest.mark.parametrize("verb", [["record", "--duration", "1"], ["closed-loop", "--model", "nominal"]])
-def test_a_scenario_of_another_robot_names_the_robot_to_give(verb, tmp_path, capsys):
-    """go1_gap names go1's joints: on the default robot (HyQ) the error says which --robot fits."""
-    pytest.importorskip("ciml_sim")
-    out = str(tmp_path / "out")
-    assert main([*verb, "--scenario", "go1_gap", "--motion", "trot_35", "--out", out]) == 1
-    msg = _one_line_error(capsys)
-    assert "unknown joint 'FL_calf_joint'" in msg and msg.endswith("add --robot go1")
-    assert main(["--robot", "go1", *verb, "--scenario", "default_gap", "--motion", "trot_35", "--out", out]) == 1
-    assert _one_line_error(capsys).endswith("is for robot hyq: add --robot hyq")
-
-
 def test_version_names_the_package_version_and_the_commit(capsys):
     import subprocess
 

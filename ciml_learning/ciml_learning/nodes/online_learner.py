@@ -97,6 +97,7 @@ class OnlineLearnerNode(Node):
                                      validation=validation)
         self.get_logger().info(f"learner code ready in {warm_up(self.robot, ms.learner):.2f} s")
         self.pairer = StampPairer(int(max_age * 1e9))
+        self._items_recent = self._unmatched_recent = 0  # for the unmatched share (_sync_counts)
         self.waiting = AwaitReference(int(gate.max_reference_age * 1e9), int(max_age * 1e9))
         self.lost_states = LostSamples()
         self.writer = SnapshotWriter(model_dir or DEFAULT_MODEL_DIR, keep, validation)
@@ -206,14 +207,29 @@ class OnlineLearnerNode(Node):
     def _pause_text(self) -> str:
         return f"learning paused: {self.gate.reason}"
 
+    UNMATCHED_WARN = 0.1
+    """WARN when more than this share of the last ~1,000 states and errors found no partner: a few at
+    start (the extractor's first errors follow the filter's first states) or after a restart are
+    expected and only counted; a steady share means a stream is lost or a stamp rewritten."""
+
     def _sync_counts(self, counts) -> None:
-        """Mirror the pairer's counters on /diagnostics (warning on new unmatched items)."""
+        """Mirror the pairer's counters on /diagnostics; WARN on a steady share of unmatched items."""
         for key, value in counts.items():
             delta = value - self.health.counts[key]
-            if delta > 0:
+            if delta <= 0:
+                continue
+            if key == "duplicate_stamps":
                 self.health.counts[key] += delta - 1
-                self.health.count(key, "duplicate stamp dropped" if key == "duplicate_stamps"
-                                  else "state or error without a partner of the same stamp")
+                self.health.count(key, "duplicate stamp dropped")
+            else:
+                self.health.counts[key] += delta
+                self._unmatched_recent += delta
+        self._items_recent += 1
+        if self._items_recent >= 1000:
+            share = self._unmatched_recent / self._items_recent
+            self.health.condition("unmatched", share > self.UNMATCHED_WARN, WARN,
+                                  f"{100 * share:.0f} % of states and errors without a partner of the same stamp")
+            self._items_recent = self._unmatched_recent = 0
 
     # --- snapshots ---------------------------------------------------------------------
     def snapshot(self) -> None:

@@ -98,6 +98,7 @@ class OnlineLearnerNode(Node):
         self.get_logger().info(f"learner code ready in {warm_up(self.robot, ms.learner):.2f} s")
         self.pairer = StampPairer(int(max_age * 1e9))
         self._items_recent = self._unmatched_recent = 0  # for the unmatched share (_sync_counts)
+        self._loss_mark = (0, 0)  # (states received + lost, lost) at the last loss check
         self.waiting = AwaitReference(int(gate.max_reference_age * 1e9), int(max_age * 1e9))
         self.lost_states = LostSamples()
         self.writer = SnapshotWriter(model_dir or DEFAULT_MODEL_DIR, keep, validation)
@@ -132,6 +133,7 @@ class OnlineLearnerNode(Node):
         c = self.health.counts
         c["states_received"] += 1
         c["states_lost"] = self.lost_states.lost
+        self._watch_losses(c["states_received"], c["states_lost"])
         self._pair(STATE, stamp, StateSample(q, v, a, tau, tau_dot, valid))
 
     def on_reference(self, msg) -> None:
@@ -206,6 +208,20 @@ class OnlineLearnerNode(Node):
 
     def _pause_text(self) -> str:
         return f"learning paused: {self.gate.reason}"
+
+    LOST_WARN = 0.2
+    """WARN when more than this share of /filtered_state was lost over the last ~1,000 states: the
+    learner (niced below every other job) does not get the CPU to keep up, and learns little."""
+
+    def _watch_losses(self, received: int, lost: int) -> None:
+        seen = received + lost
+        if seen - self._loss_mark[0] < 1000:
+            return
+        share = (lost - self._loss_mark[1]) / (seen - self._loss_mark[0])
+        self.health.condition("starved", share > self.LOST_WARN, WARN,
+                              f"learning starved: {100 * share:.0f} % of /filtered_state lost (the learner falls "
+                              "behind: the machine is too loaded)")
+        self._loss_mark = (seen, lost)
 
     UNMATCHED_WARN = 0.1
     """WARN when more than this share of the last ~1,000 states and errors found no partner: a few at

@@ -36,12 +36,13 @@ import numpy as np
 import yaml
 
 from ciml_learning.diagnosis.shrink import WORSE_TOLERANCE
+from ciml_learning.effects.draws import REALISTIC_NOISE
+from ciml_learning.effects.scenario import TOP_LEVEL
 from ciml_learning.fileio import atomic_write_json, atomic_write_text
 
 from .scenario import OUT_OF_CATALOGUE_TYPES
 
-NOISE = {"q": 0.0005, "qd": 0.01, "tau": 0.5, "base_orientation": 0.001}
-"""The realistic sensor noise of docs/ARCHITECTURE.md §5 (standard deviations)."""
+NOISE = REALISTIC_NOISE
 
 OUT_OF_CATALOGUE = OUT_OF_CATALOGUE_TYPES
 
@@ -61,8 +62,9 @@ def _case(effects: list[dict], seed: int, noise: bool = False, reference: list[d
 
 
 def scenario_of(spec: dict, reference: bool = False) -> dict:
-    """The scenario mapping (the simulator's input) of a suite case: its real or its reference logs."""
-    out = {k: v for k, v in spec.items() if k != "reference_effects"}
+    """The scenario mapping (the simulator's input) of a suite case: its real or its reference logs
+    (a random case's motions and kind are not the simulator's)."""
+    out = {k: v for k, v in spec.items() if k in TOP_LEVEL}
     if reference:
         out["effects"] = spec["reference_effects"]
     return out
@@ -160,11 +162,13 @@ def _leg_of(name: str) -> str:
 Z95, Z68 = 1.959964, 0.994458
 
 
-def _coverage(truth: dict, found: dict) -> tuple[int, int, int]:
-    """(inside 95 %, inside 68 %, count) over the true parameters' scalar components that the found
-    effect reports with a standard deviation (value ± z·std)."""
+def _coverage(truth: dict, found: dict) -> tuple[int, int, int, list[float | None]]:
+    """(inside 95 %, inside 68 %, count, |error|/std of each) over the true parameters' scalar components
+    that the found effect reports with a standard deviation (value ± z·std); the ratios give the
+    coverage at any level (the random bench's calibration curve)."""
     params, std = found.get("params", {}), found.get("std", {})
     n95 = n68 = n = 0
+    ratios: list[float | None] = []
     for k, v in truth.items():
         if k not in params or k not in std:
             continue
@@ -175,7 +179,8 @@ def _coverage(truth: dict, found: dict) -> tuple[int, int, int]:
         n95 += int(np.sum(err <= Z95 * sd))
         n68 += int(np.sum(err <= Z68 * sd))
         n += t.size
-    return n95, n68, n
+        ratios += [float(e / s) if s > 0 else (0.0 if e == 0 else None) for e, s in zip(err, sd)]
+    return n95, n68, n, ratios
 
 
 def confident_outside_bounds(diagnosis: dict) -> list[str]:
@@ -252,11 +257,11 @@ def score_case(truth_effects: Sequence[dict], diagnosis: dict, all_joints: Seque
             rel = float(np.median(errs)) if errs else None
             exact = [i for i in loc_hits if _location(found[i]) == t_loc] or loc_hits[:1]
             row_cov = _coverage(truth_p, found[exact[0]])
-            cov += np.asarray(row_cov)
+            cov += np.asarray(row_cov[:3])
         rows.append({"type": t["type"], "location": sorted(t_loc), "type_right": type_ok,
                      "location_right": bool(loc_hits), "param_rel_error": rel,
                      "coverage": None if row_cov is None else {"in_95": row_cov[0], "in_68": row_cov[1],
-                                                                "params": row_cov[2]}})
+                                                                "params": row_cov[2], "error_over_std": row_cov[3]}})
     spurious = [f for i, f in enumerate(found) if i not in used and float(f.get("share", 0.0)) > SPURIOUS_SHARE]
     shr = diagnosis.get("shrink", {})
     out = {"effects": rows, "spurious": [{"type": f.get("type"), "location": sorted(_location(f)),
@@ -308,11 +313,14 @@ def _ciml(*args: str) -> None:
         raise RuntimeError(f"{' '.join(cmd[1:3])} failed: {tail[0]}")
 
 
-def _record_motions(case: str, scenario_path: str, seed: int, scale: float, prefix: str = "") -> dict[str, list[str]]:
+def _record_motions(case: str, scenario_path: str, spec: dict, scale: float, prefix: str = "") -> dict[str, list[str]]:
     """Record the training and held-out motions of one scenario into case/<prefix><role>_<k> (no ground
-    truth); the seeds depend on the case and the motion only (a reference records the same motions)."""
+    truth); the seeds depend on the case and the motion only (a reference records the same motions).
+    A random case names its own motions (train_motions, heldout_motions: [name, seconds])."""
     bags: dict[str, list[str]] = {"train": [], "heldout": []}
-    for role, motions in (("train", TRAIN_MOTIONS), ("heldout", HELDOUT_MOTIONS)):
+    seed = spec["seed"]
+    for role, motions in (("train", spec.get("train_motions", TRAIN_MOTIONS)),
+                          ("heldout", spec.get("heldout_motions", HELDOUT_MOTIONS))):
         for k, (motion, duration) in enumerate(motions):
             bag = os.path.join(case, f"{prefix}{role}_{k}")
             if not os.path.isdir(bag):
@@ -337,13 +345,13 @@ def run_case(index: int, spec: dict, out_dir: str, scale: float = 1.0) -> dict:
     atomic_write_text(scenario_path,
                       yaml.safe_dump({"name": f"case_{index:02d}", **scenario_of(spec)}, sort_keys=False))
     t0 = time.perf_counter()
-    bags = _record_motions(case, scenario_path, spec["seed"], scale)
+    bags = _record_motions(case, scenario_path, spec, scale)
     reference = []
     if "reference_effects" in spec:
         ref_path = os.path.join(answer_dir, f"case_{index:02d}_reference.yaml")
         atomic_write_text(ref_path, yaml.safe_dump({"name": f"case_{index:02d}_reference",
                                                     **scenario_of(spec, reference=True)}, sort_keys=False))
-        ref_bags = _record_motions(case, ref_path, spec["seed"], scale, prefix="reference_")
+        ref_bags = _record_motions(case, ref_path, spec, scale, prefix="reference_")
         reference = ["--reference", *ref_bags["train"], *ref_bags["heldout"]]
     t1 = time.perf_counter()
     diag_dir = os.path.join(case, "diagnosis")
@@ -526,32 +534,35 @@ def _write(out_dir: str, results: list[dict]) -> dict:
     return doc
 
 
+def suite_case(job: tuple[int, str, float]) -> dict:
+    """Run suite case (number, out_dir, scale) here (a joblib or a Dask worker)."""
+    i, out_dir, scale = job
+    try:
+        return run_case(i, SUITE[i - 1], out_dir, scale)
+    except Exception as err:  # a failed case is scored as failed, the bench goes on
+        return {"case": i, "effects_true": SUITE[i - 1]["effects"], "error": str(err)}
+
+
 def gap_bench(out_dir: str, cases: Sequence[int] | None = None, jobs: int = 1, scale: float = 1.0,
-              progress: bool = True) -> dict:
-    """Run the suite (or the given case numbers), write DIR/gap_bench.json and DIR/gap_bench.md."""
-    from joblib import Parallel, delayed
+              progress: bool = True, cluster: str | None = None) -> dict:
+    """Run the suite (or the given case numbers) with joblib or on a Dask `cluster`
+    (ciml_learning.cluster), write DIR/gap_bench.json and DIR/gap_bench.md."""
+    from ciml_learning.cluster import run_all
 
     os.makedirs(out_dir, exist_ok=True)
-    selected = [i for i in range(1, len(SUITE) + 1) if cases is None or i in cases]
-
-    def one(i: int) -> dict:
-        try:
-            return run_case(i, SUITE[i - 1], out_dir, scale)
-        except Exception as err:  # a failed case is scored as failed, the bench goes on
-            return {"case": i, "effects_true": SUITE[i - 1]["effects"], "error": str(err)}
-
-    iterator = selected
-    if progress and jobs == 1:
+    selected = [(i, os.path.abspath(out_dir), scale) for i in range(1, len(SUITE) + 1) if cases is None or i in cases]
+    iterator: Sequence = selected
+    if progress and jobs == 1 and cluster is None:
         from tqdm import tqdm
 
         iterator = tqdm(selected, desc="gap-bench", unit="case")
-    results = Parallel(n_jobs=jobs)(delayed(one)(i) for i in iterator)
+    results = run_all(suite_case, iterator, jobs, cluster, module="ciml_sim.gapbench")
     results.sort(key=lambda c: c["case"])
     return _write(out_dir, results)
 
 
 def gap_bench_command(args) -> int:
-    """`ciml gap-bench --out DIR [--cases N...] [--jobs J] [--scale S]`."""
+    """`ciml gap-bench --out DIR [--cases N... | --random N --seed S] [--jobs J | --cluster ADDRESS] [--scale S]`."""
     from ciml_learning.cliargs import cap_jobs
     from ciml_learning.errors import CimlError
     from ciml_learning.fileio import check_out_dir
@@ -560,9 +571,13 @@ def gap_bench_command(args) -> int:
         return any(n in ("gap_bench.json", "answers") or n.startswith("case_") for n in os.listdir(d))
 
     check_out_dir(args.out, is_gap_bench_dir, "gap-bench output")
+    if args.random is not None:
+        from .gaprandom import random_bench_command
+
+        return random_bench_command(args)
     if args.cases and any(not 1 <= c <= len(SUITE) for c in args.cases):
         raise CimlError(f"--cases: case numbers are 1 to {len(SUITE)}, got {args.cases}")
-    doc = gap_bench(args.out, args.cases, cap_jobs(args.jobs), args.scale)
+    doc = gap_bench(args.out, args.cases, cap_jobs(args.jobs), args.scale, cluster=args.cluster)
     print(table(doc["cases"]))
     print(json.dumps(doc["summary"], indent=1))
     print(f"gap-bench: results in {os.path.join(args.out, 'gap_bench.json')} and gap_bench.md")

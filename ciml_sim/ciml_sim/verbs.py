@@ -7,6 +7,7 @@ import argparse
 
 from ciml_learning import cliargs as ca
 from ciml_learning.cliargs import Verb
+from ciml_learning.cluster import parse_cluster
 
 
 def _record(s: argparse.ArgumentParser) -> None:
@@ -38,6 +39,12 @@ def _gap_bench(s: argparse.ArgumentParser) -> None:
     s.add_argument("--jobs", type=ca.jobs, default=1,
                    help="cases run in parallel (joblib; at most the cores available)")
     s.add_argument("--scale", type=ca.finite(0.01, 100), default=1.0, help="scale every recording's duration")
+    s.add_argument("--random", type=ca.integer(1, 100_000), metavar="N",
+                   help="N cases drawn at random from the effect registry's ranges instead of the suite")
+    s.add_argument("--seed", type=ca.integer(0, 2**32 - 1), default=0, help="master seed of --random's draw")
+    s.add_argument("--cluster", type=parse_cluster, metavar="ADDRESS",
+                   help="run the cases on a Dask scheduler (tcp://HOST:8786) or on local:N, a LocalCluster of N "
+                        "worker processes on 127.0.0.1, instead of --jobs")
 
 
 def _verify(s: argparse.ArgumentParser) -> None:
@@ -68,7 +75,8 @@ GAP_BENCH = Verb(
     run="ciml_sim.gapbench:gap_bench_command", order=70,
     epilog="Simulates scenarios with withheld effects and scores the diagnosis on them; its cases are "
            "HyQ's, so gap-bench takes no --robot.\n"
-           "example: ciml gap-bench --out out/gap_bench --cases 1 2 --jobs 2",
+           "example: ciml gap-bench --out out/gap_bench --cases 1 2 --jobs 2\n"
+           "         ciml gap-bench --out out/gap_random --random 20 --seed 1 --cluster local:2",
     no_robot="its cases are drawn on HyQ's joints and links (the suite's robot)")
 
 

@@ -1,0 +1,132 @@
+"""`ciml gap-bench --random N --seed S [--cluster ADDRESS]`: the gap-bench on randomly drawn hidden cases.
+
+The cases come from the effect registry's generator (ciml_learning.effects.draws: 0–3 effects, a noise
+level, motions and a seed per case; some nominal, some outside the catalogue). Each case runs as a
+suite case does (gapbench.run_case: record without ground truth, `ciml diagnose` in its own process on
+the bag paths alone, `ciml verify`), then the scorer adds what the statistics need: each true effect's
+size and what was named in its place (the confusion matrix). The draw is written with the results
+(DIR/draws.json before any case runs, and in gap_bench.json), so `--random N --seed S` is the bench.
+
+Cases are independent: locally they run on joblib's processes (--jobs), on a cluster as Dask tasks
+(--cluster, ciml_learning.cluster); both call random_case() and give the same scores.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+
+from ciml_learning.fileio import atomic_write_json, atomic_write_text
+
+from . import gapbench, gapstats
+
+CASE_FIELDS = ("seed", "kind", "noise_scale", "sensor_noise", "effects", "train_motions", "heldout_motions")
+
+
+def draw(n: int, seed: int) -> list[dict]:
+    """The N cases of a master seed, on the suite robot's (HyQ's) joints, leg links and motions."""
+    from ciml_control.references import MOTIONS
+    from ciml_learning.diagnosis.candidates import link_inertias
+    from ciml_learning.effects.draws import draw_cases
+    from ciml_learning.robot import load_robot
+
+    robot = load_robot()
+    # the leg links the diagnosis has a candidate for; the root (joint 1) would duplicate a payload
+    links = [link.name for link in link_inertias(robot) if link.joint > 1]
+    return draw_cases(n, seed, robot.joint_names, links, MOTIONS)
+
+
+def score_random_case(spec: dict, scored: dict, diagnosis: dict) -> dict:
+    """Add to a scored case (gapbench.score_case) the kind, each true effect's size and the confusion
+    entries ([true, named] pairs) of its truth against its diagnosis."""
+    from ciml_learning.effects.draws import effect_size, size_unit
+
+    found = diagnosis.get("effects", [])
+    unexplained = float(diagnosis.get("unexplained_share") or 0.0)
+    floor = bool(diagnosis.get("gap_at_noise_floor", False))
+    out = dict(scored, kind=spec["kind"])
+    in_cat = [e for e in spec["effects"] if e["type"] not in gapbench.OUT_OF_CATALOGUE]
+    for row, truth in zip(out["effects"], in_cat):
+        row["size"] = effect_size(truth)
+        row["size_unit"] = size_unit(truth["type"])
+    pairs = [[r["type"], gapstats.named_in_catalogue(r, found, out["spurious"], unexplained)] for r in out["effects"]]
+    if spec["kind"] == "nominal":
+        out["named"] = gapstats.named_without_catalogue(found, unexplained, floor, gapbench.SPURIOUS_SHARE)
+        pairs.append([gapstats.NOMINAL_ROW, out["named"]])
+    elif spec["kind"] == "out_of_catalogue":
+        true = [e["type"] for e in spec["effects"] if e["type"] in gapbench.OUT_OF_CATALOGUE][0]
+        pairs.append([true, gapstats.named_without_catalogue(found, unexplained, floor, gapstats.CONFIDENT_SHARE)])
+    out["confusion"] = pairs
+    return out
+
+
+def random_case(job: tuple[int, dict, str, float]) -> dict:
+    """Run and score case (index, spec, out_dir, scale) on this machine (a joblib or a Dask worker);
+    a failing case is a scored failure, the bench goes on."""
+    index, spec, out_dir, scale = job
+    try:
+        scored = gapbench.run_case(index, spec, out_dir, scale)
+        path = os.path.join(out_dir, f"case_{index:02d}", "diagnosis", "diagnosis.json")
+        with open(path, encoding="utf-8") as f:
+            diagnosis = json.load(f)
+        return score_random_case(spec, scored, diagnosis)
+    except Exception as err:  # recorded in the case's row and counted in failed_cases
+        return {"case": index, "kind": spec["kind"], "effects_true": spec["effects"], "error": str(err)}
+
+
+def write(out_dir: str, n: int, seed: int, specs: list[dict], results: list[dict | None], meta: dict) -> dict:
+    """DIR/gap_bench.json (draw, summary, cases; "partial": true when some cases never returned),
+    gap_bench.md, the plots and report.html — each written whole (atomic)."""
+    from .gapplots import write_report
+
+    done = [r for r in results if r is not None]
+    summary = gapstats.summarise_random(done)
+    doc = {"random": {"n": n, "seed": seed, "cases": specs}, "partial": len(done) < n, **meta,
+           "summary": summary, "cases": done}
+    atomic_write_json(os.path.join(out_dir, "gap_bench.json"), doc)
+    md = ("# gap-bench (random)\n\n" + (f"**partial: {len(done)} of {n} cases**\n\n" if doc["partial"] else "")
+          + gapbench.table(done) + "\n\n```json\n" + json.dumps(summary, indent=1) + "\n```\n")
+    atomic_write_text(os.path.join(out_dir, "gap_bench.md"), md)
+    write_report(out_dir, doc)
+    return doc
+
+
+def random_bench(out_dir: str, n: int, seed: int, jobs: int = 1, scale: float = 1.0,
+                 cluster: str | None = None) -> dict:
+    """Draw N cases from SEED, run them (joblib with `jobs`, or the Dask `cluster`), write the results."""
+    from ciml_learning.cluster import PartialResults, run_all
+
+    os.makedirs(out_dir, exist_ok=True)
+    specs = draw(n, seed)
+    atomic_write_json(os.path.join(out_dir, "draws.json"), {"n": n, "seed": seed, "cases": specs})
+    jobs_list = [(i, spec, os.path.abspath(out_dir), scale) for i, spec in enumerate(specs, start=1)]
+    t0 = time.time()
+    meta = {"scale": scale, "engine": cluster or f"joblib:{jobs}"}
+    try:
+        results = run_all(random_case, jobs_list, jobs, cluster, module="ciml_sim.gaprandom")
+    except PartialResults as err:
+        write(out_dir, n, seed, specs, err.results, {**meta, "wall_s": round(time.time() - t0, 1)})
+        raise
+    return write(out_dir, n, seed, specs, results, {**meta, "wall_s": round(time.time() - t0, 1)})
+
+
+def random_bench_command(args) -> int:
+    """`ciml gap-bench --random N --seed S --out DIR [--jobs J | --cluster ADDRESS] [--scale S]`."""
+    from ciml_learning.cliargs import cap_jobs
+    from ciml_learning.cluster import LOCAL_PREFIX
+    from ciml_learning.errors import CimlError
+
+    from .gapplots import overall_table, per_type_table
+
+    if args.cases:
+        raise CimlError("--cases selects suite cases; with --random the draw is the bench (drop --cases)")
+    cluster = args.cluster
+    if cluster and cluster.startswith(LOCAL_PREFIX):  # a LocalCluster's processes share this machine's cores
+        cluster = f"{LOCAL_PREFIX}{cap_jobs(int(cluster[len(LOCAL_PREFIX):]), '--cluster local:N')}"
+    doc = random_bench(args.out, args.random, args.seed, cap_jobs(args.jobs), args.scale, cluster)
+    print(gapbench.table(doc["cases"]))
+    print(overall_table(doc["summary"]))
+    print(per_type_table(doc["summary"]))
+    print(f"gap-bench: {args.random} random cases (seed {args.seed}) in {doc['wall_s']} s; results in "
+          f"{os.path.join(args.out, 'gap_bench.json')}, report.html")
+    return 0

@@ -33,13 +33,8 @@ pytest.importorskip("ciml_sim")
 sys.path.insert(0, os.path.dirname(__file__))
 import foreign_layouts as fl  # noqa: E402
 
-try:  # the reading path of the robot profile (loginputs) and the diagnosis taking a profile
-    from ciml_learning.loginputs import load_log
-    from ciml_learning.profile import load_profile, profile_from_dict  # noqa: F401
-    HAVE_PROFILES = True
-except ImportError:  # pragma: no cover - only before the profile reader exists
-    HAVE_PROFILES = False
-needs_profiles = pytest.mark.skipif(not HAVE_PROFILES, reason="ciml_learning.profile/loginputs not available")
+from ciml_learning.loginputs import load_log  # noqa: E402
+from ciml_learning.profile import load_profile, profile_from_dict  # noqa: E402,F401
 
 GO1_FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
 SCENARIO = os.path.join(os.path.dirname(__file__), "..", "ciml_sim", "config", "scenarios", "go1_gap.yaml")
@@ -136,7 +131,6 @@ def _diagnose_layout(go1_native, layout: str, storage: str = "mcap", command: bo
 
 def _diagnose(robot, bags, heldout, profile: dict) -> dict:
     from ciml_learning.diagnosis.run import diagnose
-    from ciml_learning.profile import profile_from_dict
 
     return diagnose(robot, bags, heldout, None, progress=False, report=False, profile=profile_from_dict(profile))
 
@@ -189,7 +183,6 @@ def native_diagnosis(go1_native):
 
 
 @pytest.mark.slow
-@needs_profiles
 @pytest.mark.parametrize("storage", fl.STORAGES)
 def test_unitree_layout_reads_like_the_native_log(go1_native, storage):
     """Unitree-like log (MCAP, db3, ROS 1): read through its profile, the joint torques and
@@ -197,7 +190,6 @@ def test_unitree_layout_reads_like_the_native_log(go1_native, storage):
     agree ≥ 98 %, the base velocity estimated from IMU + legs is within 0.03 m/s RMS of the
     recorded odometry's, and the measured rate is 500 Hz; all three containers give the same
     arrays."""
-    from ciml_learning.profile import profile_from_dict
 
     robot = go1_native["robot"]
     bags, prof = _write(go1_native, "unitree", storage)
@@ -226,7 +218,6 @@ def unitree_diagnosis(go1_native):
 
 
 @pytest.mark.slow
-@needs_profiles
 def test_unitree_layout_diagnosis_matches_native(native_diagnosis, unitree_diagnosis):
     """Every effect named as on the native log, parameters within 10 %; the actuator lag's
     value is compared by the next test."""
@@ -234,7 +225,6 @@ def test_unitree_layout_diagnosis_matches_native(native_diagnosis, unitree_diagn
 
 
 @pytest.mark.slow
-@needs_profiles
 def test_unitree_layout_lag_matches_native(native_diagnosis, unitree_diagnosis):
     """The actuator lag within 10 % of the native log's, although a quarter of the native 1 kHz
     log's samples sit on the 250 Hz command instants and none of the 500 Hz Unitree log's (the
@@ -246,13 +236,11 @@ def test_unitree_layout_lag_matches_native(native_diagnosis, unitree_diagnosis):
 
 
 @pytest.mark.slow
-@needs_profiles
 def test_ros2_control_layout_diagnosis_matches_native(go1_native, native_diagnosis):
     _compare(native_diagnosis, _diagnose_layout(go1_native, "ros2_control", "sqlite3"), "ros2_control 1 kHz db3")
 
 
 @pytest.mark.slow
-@needs_profiles
 def test_without_command_only_the_rigid_body_effects(go1_native, native_diagnosis):
     """No command topic: the diagnosis names the rigid-body effects (payload, friction) as on
     the native log, names no actuator effect, and says the actuation error is unobservable."""

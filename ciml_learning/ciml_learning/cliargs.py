@@ -95,6 +95,25 @@ def path(text: str) -> str:
     return text
 
 
+class RegistryNames:
+    """argparse `choices` read from a registry (a dict of names) when first needed, so that
+    building the parser imports none of the library (the learners' registry imports numba)."""
+
+    def __init__(self, module: str, attribute: str) -> None:
+        self.module, self.attribute = module, attribute
+
+    def _names(self) -> list[str]:
+        import importlib
+
+        return sorted(getattr(importlib.import_module(self.module), self.attribute))
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._names()
+
+    def __iter__(self):
+        return iter(self._names())
+
+
 def assignment(text: str) -> tuple[str, str]:
     """NAME=VALUE (a benchmark option): (name, value)."""
     name, sep, value = text.partition("=")

@@ -26,7 +26,8 @@ def _extract(s: argparse.ArgumentParser) -> None:
 
 def _train(s: argparse.ArgumentParser) -> None:
     s.add_argument("--bag", type=ca.path, nargs="+", required=True)
-    s.add_argument("--learner", choices=("lwpr", "sgpr"), required=True)
+    s.add_argument("--learner", choices=ca.RegistryNames("ciml_learning.learners", "LEARNERS"), required=True,
+                   metavar="LEARNER", help="one of %(choices)s")
     s.add_argument("--out", type=ca.path, required=True, help="model directory")
     s.add_argument("--jobs", type=ca.jobs, default=-1,
                    help="parallel jobs (joblib; -1: all cores; at most the cores available)")

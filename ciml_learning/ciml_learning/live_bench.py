@@ -10,11 +10,10 @@ from a probe node in this process, on a private DDS domain (loopback only):
   id_controller's /diagnostics counters and the fraction of MODE_DAMPING commands; the
   resident memory (VmRSS of /proc/<pid>/status) of every node at the start and the end
   of the window; the lowest measured base height (/base_state).
-- `live_online_learning`: the feedback effort of the paper's Tables I–II,
-  ‖K_p(qᵈ − q) + K_d(q̇ᵈ − q̇) + u_fb,lin‖ per command (feedback_effort: the law of
-  `ciml closed-loop`, the PD part on the joint sample the command was computed for),
-  RMS over the first and the last 10 s of a trot, with the nominal model and with
-  online learning.
+- `live_online_learning` (online_learning_runs): the feedback effort of the paper's Tables
+  I–II, ‖K_p(qᵈ − q) + K_d(q̇ᵈ − q̇) + u_fb,lin‖ per command (rollback.feedback_effort, the PD
+  part on the joint sample the command was computed for), RMS per period of many seeded runs
+  with and without online learning, falls and the learning chain's counters per period.
 The probe itself costs CPU on the same machine: rates measured here are a lower bound.
 """
 from __future__ import annotations

@@ -531,13 +531,13 @@ def plot_learning_runs(result: dict, path: str) -> None:
         for r in result["runs"]:
             if r["scenario"] != scenario:
                 continue
-            t = [p["t_end_s"] / 60.0 for p in r["periods"]]
+            t = [p["t_end_s"] for p in r["periods"]]
             e = [p["effort_rms_nm"] for p in r["periods"]]
             ax.plot(t, e, "o-" if r["online"] else "s--", color="tab:blue" if r["online"] else "0.6", lw=1, ms=3)
             if r["fell"]:
                 ax.plot(t[-1:], e[-1:], "rx", ms=10)
         ax.set_title(f"{scenario}: blue with online learning, grey without")
-        ax.set_xlabel("simulated time [min] (end of period)")
+        ax.set_xlabel("simulated time [s] (end of period)")
         ax.set_ylabel("RMS feedback effort per period [Nm]")
         ax.grid(alpha=0.3)
     fig.tight_layout()

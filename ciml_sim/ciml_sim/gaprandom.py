@@ -74,6 +74,34 @@ def random_case(job: tuple[int, dict, str, float]) -> dict:
         return {"case": index, "kind": spec["kind"], "effects_true": spec["effects"], "error": str(err)}
 
 
+def rescore(out_dir: str) -> dict:
+    """Score the diagnoses of a random bench in DIR again (after a change of the scoring), from its
+    draws.json and case folders, without recording or diagnosing; keeps the timings and the engine."""
+    from ciml_learning.fileio import load_json_bounded
+    from ciml_learning.robot import load_robot
+
+    gapbench._LINKS.update(load_robot().link_names)
+    drawn = load_json_bounded(os.path.join(out_dir, "draws.json"), "draws.json")
+    old_path = os.path.join(out_dir, "gap_bench.json")
+    old = load_json_bounded(old_path, "gap_bench.json") if os.path.isfile(old_path) else {}
+    timing = {c["case"]: c for c in old.get("cases", [])}
+    results: list[dict | None] = []
+    for i, spec in enumerate(drawn["cases"], start=1):
+        case = os.path.join(out_dir, f"case_{i:02d}")
+        path = os.path.join(case, "diagnosis", "diagnosis.json")
+        if not os.path.isfile(path):  # never diagnosed: a failure stays one, a missing case stays missing
+            results.append(timing.get(i))
+            continue
+        diagnosis = load_json_bounded(path, "diagnosis.json")
+        scored = gapbench.score_case(spec["effects"], diagnosis, load_robot().joint_names)
+        scored.update({k: v for k, v in timing.get(i, {}).items() if k.endswith("_s")})
+        scored.update({"case": i, "effects_true": spec["effects"], "noise": bool(spec["sensor_noise"]),
+                       **gapbench.resimulated_scores(case)})
+        results.append(score_random_case(spec, scored, diagnosis))
+    meta = {k: old[k] for k in ("scale", "engine", "wall_s") if k in old}
+    return write(out_dir, drawn["n"], drawn["seed"], drawn["cases"], results, meta)
+
+
 def write(out_dir: str, n: int, seed: int, specs: list[dict], results: list[dict | None], meta: dict) -> dict:
     """DIR/gap_bench.json (draw, summary, cases; "partial": true when some cases never returned),
     gap_bench.md, the plots and report.html — each written whole (atomic)."""

@@ -179,3 +179,20 @@ def test_random_bench_on_a_local_cluster_equals_the_local_run(tmp_path):
     assert remote["random"] == local["random"] and remote["engine"] == "local:2"
     assert _without_times(remote["cases"]) == _without_times(local["cases"])
     assert not remote["partial"] and remote["summary"]["failed_cases"] == 0
+
+
+def test_rescore_reads_the_draw_and_marks_a_missing_case_partial(tmp_path):
+    specs = gaprandom.draw(2, 5)
+    (tmp_path / "draws.json").write_text(json.dumps({"n": 2, "seed": 5, "cases": specs}))
+    truth = specs[0]["effects"]
+    found = [{"type": e["type"], **{k: e[k] for k in ("joint", "joints", "link") if k in e},
+              "params": {k: v for k, v in e.items() if k not in ("type", "joint", "joints", "link")},
+              "std": {}, "share": 1.0 / len(truth)} for e in truth]
+    (tmp_path / "case_01" / "diagnosis").mkdir(parents=True)
+    (tmp_path / "case_01" / "diagnosis" / "diagnosis.json").write_text(
+        json.dumps({"effects": found, "unexplained_share": 0.0, "shrink": {}, "localization": []}))
+    doc = gaprandom.rescore(str(tmp_path))
+    assert doc["partial"] and [c["case"] for c in doc["cases"]] == [1]
+    assert doc["random"]["cases"] == specs
+    assert all(r["type_right"] and r["location_right"] for r in doc["cases"][0]["effects"])
+    assert json.loads((tmp_path / "gap_bench.json").read_text())["partial"] is True

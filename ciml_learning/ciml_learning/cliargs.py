@@ -95,6 +95,14 @@ def path(text: str) -> str:
     return text
 
 
+def cluster_address(text: str) -> str:
+    """A --cluster value (cluster.parse_cluster: local:N or a Dask scheduler's HOST:PORT), imported when
+    first parsed so that building the parser imports none of the engine."""
+    from .cluster import parse_cluster
+
+    return parse_cluster(text)
+
+
 class RegistryNames:
     """argparse `choices` read from a registry (a dict of names) when first needed, so that
     building the parser imports none of the library (the learners' registry imports numba)."""

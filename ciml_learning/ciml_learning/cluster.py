@@ -97,7 +97,8 @@ def dask_client(address: str, module: str = "ciml_learning") -> Iterator[Any]:
     try:
         if address.startswith(LOCAL_PREFIX):
             cluster = LocalCluster(n_workers=int(address[len(LOCAL_PREFIX):]), threads_per_worker=1, processes=True,
-                                   host=LOOPBACK, dashboard_address=None)
+                                   host=LOOPBACK,
+                                   dashboard_address=f"{LOOPBACK}:0")  # its HTTP port: loopback, any free one
             client = Client(cluster)
         else:
             client = Client(address, timeout=CONNECT_TIMEOUT)
@@ -113,6 +114,16 @@ def dask_client(address: str, module: str = "ciml_learning") -> Iterator[Any]:
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+@contextmanager
+def joblib_on(address: str) -> Iterator[None]:
+    """joblib's Parallel runs on the Dask cluster `address` inside this block (its backend switch:
+    code that calls joblib, like the per-dimension fits of parallel.fit_dimensions, runs unchanged)."""
+    from joblib import parallel_backend
+
+    with dask_client(address), parallel_backend("dask"):
+        yield
 
 
 def run_all(fn: Callable[[Any], Any], items: Sequence[Any], jobs: int = 1, cluster: str | None = None,

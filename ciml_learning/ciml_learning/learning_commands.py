@@ -9,9 +9,12 @@ from .errors import CimlError
 
 
 def train(args: argparse.Namespace) -> int:
-    """`ciml train --bag BAG... --learner lwpr|sgpr --out MODEL_DIR [--jobs N]`."""
+    """`ciml train --bag BAG... --learner lwpr|sgpr --out MODEL_DIR [--jobs N | --cluster ADDRESS]`."""
+    from contextlib import nullcontext
+
     from .cli import profile_from_args, robot_from_args
     from .cliargs import cap_jobs
+    from .cluster import joblib_on
     from .fileio import check_out_dir
     from .models import is_model_dir
     from .training import train_from_bags
@@ -22,8 +25,10 @@ def train(args: argparse.Namespace) -> int:
     check_out_dir(args.out, is_model_dir, "model")  # refused before the training, not after
     robot = robot_from_args(args)
     t0 = time.perf_counter()
-    model_set = train_from_bags(robot, args.bag, args.learner, n_jobs=args.jobs, progress=True,
-                                profile=profile_from_args(args))
+    # on a cluster, every dimension's fit is a Dask task (n_jobs −1: as many as the cluster takes)
+    with joblib_on(args.cluster) if args.cluster else nullcontext():
+        model_set = train_from_bags(robot, args.bag, args.learner, n_jobs=-1 if args.cluster else args.jobs,
+                                    progress=True, profile=profile_from_args(args))
     meta = model_set.save(args.out)
     learned = [d["name"] for d in meta["dimensions"] if d["learned"]]
     print(json.dumps({"out": args.out, "learner": args.learner, "samples": meta["training"]["samples"],

@@ -31,6 +31,9 @@ def _train(s: argparse.ArgumentParser) -> None:
     s.add_argument("--out", type=ca.path, required=True, help="model directory")
     s.add_argument("--jobs", type=ca.jobs, default=-1,
                    help="parallel jobs (joblib; -1: all cores; at most the cores available)")
+    s.add_argument("--cluster", type=ca.cluster_address, metavar="ADDRESS",
+                   help="fit the dimensions on a Dask scheduler (tcp://HOST:8786) or on local:N, a LocalCluster "
+                        "of N processes on 127.0.0.1, instead of --jobs (README: running on a Dask cluster)")
 
 
 def _evaluate(s: argparse.ArgumentParser) -> None:

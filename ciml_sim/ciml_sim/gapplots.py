@@ -85,7 +85,7 @@ def detection_figure(cases: list[dict], summary: dict):
         lim = summary["per_type"][t]["detection_limit"]
         if lim.get("limit") is not None:
             ax.axvline(lim["limit"], color="k", ls="--", lw=1)
-        shown = "—" if lim.get("limit") is None else f"{lim['limit']:.3g}"
+        shown = f"— ({lim['why'].split(':')[0].split(' (')[0]})" if lim.get("limit") is None else f"{lim['limit']:.3g}"
         ax.set_title(f"{t}: limit {shown}", fontsize=8)
         ax.set_xlabel(summary["per_type"][t]["size"], fontsize=7)
         ax.set_yticks([0, 1], ["missed", "named"], fontsize=7)

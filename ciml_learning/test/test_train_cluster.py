@@ -1,0 +1,35 @@
+"""`ciml train --cluster local:2`: the per-dimension fits on a Dask LocalCluster (127.0.0.1) give the
+model that the local run gives (issue 31 item 4)."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+from synthetic import write_synthetic_bag
+
+from ciml_learning.cli import main
+from ciml_learning.models import ModelSet
+from ciml_learning.robot import load_robot
+
+ROBOT = load_robot()
+
+
+@pytest.mark.slow
+def test_train_on_a_local_cluster_equals_the_local_run(tmp_path, capsys):
+    bag = str(tmp_path / "synthetic")
+    write_synthetic_bag(ROBOT, bag, seconds=3.0, seed=4)
+    local, remote = str(tmp_path / "local"), str(tmp_path / "dask")
+    assert main(["train", "--bag", bag, "--learner", "lwpr", "--out", local, "--jobs", "1"]) == 0
+    assert main(["train", "--bag", bag, "--learner", "lwpr", "--out", remote, "--cluster", "local:2"]) == 0
+    assert ModelSet.load(remote, ROBOT).is_fitted()
+    arrays = sorted(n for n in os.listdir(local) if n.endswith(".npz"))
+    assert arrays and arrays == sorted(n for n in os.listdir(remote) if n.endswith(".npz"))
+    for name in arrays:  # every learned array, bit for bit
+        with np.load(os.path.join(local, name)) as x, np.load(os.path.join(remote, name)) as y:
+            assert sorted(x.files) == sorted(y.files)
+            for k in x.files:
+                np.testing.assert_array_equal(x[k], y[k])
+    assert main(["train", "--bag", bag, "--learner", "lwpr", "--out", str(tmp_path / "x"),
+                 "--cluster", "tcp://127.0.0.1:9"]) == 1
+    assert "no Dask scheduler answers" in capsys.readouterr().err

@@ -166,6 +166,13 @@ def test_local_cluster_gives_the_local_results():
     assert json.dumps(remote, sort_keys=True) == json.dumps(local, sort_keys=True)
 
 
+@pytest.mark.slow
+def test_a_worker_without_the_project_is_a_one_line_error():
+    with cluster.dask_client("local:1") as client, pytest.raises(cluster.ClusterError, match="cannot import") as err:
+        cluster.check_workers(client, "ciml_no_such_package")
+    assert "\n" not in str(err.value) and "install the project" in str(err.value)
+
+
 def _without_times(cases: list[dict]) -> str:
     return json.dumps([{k: v for k, v in c.items() if not k.endswith("_s")} for c in cases], sort_keys=True)
 

@@ -137,6 +137,16 @@ def overall_table(summary: dict) -> str:
     return "\n".join(["| score | measured (Wilson 95 % interval) |", "|---|---|"] + [f"| {a} | {b} |" for a, b in rows])
 
 
+def confusion_table(confusion: dict[str, dict[str, int]]) -> str:
+    """Markdown: the confusion matrix, one row per true effect, the named columns that occur."""
+    rows = sorted(r for r in confusion if r != NOMINAL_ROW) + ([NOMINAL_ROW] if NOMINAL_ROW in confusion else [])
+    cols = sorted({n for r in confusion.values() for n in r} - {WRONG_PLACE, UNEXPLAINED, NOTHING})
+    cols += [c for c in (WRONG_PLACE, UNEXPLAINED, NOTHING) if any(c in r for r in confusion.values())]
+    lines = ["| true ↓ / named → | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    lines += [f"| {r} | " + " | ".join(str(confusion[r].get(c, "")) for c in cols) + " |" for r in rows]
+    return "\n".join(lines)
+
+
 def write_report(out_dir: str, doc: dict) -> None:
     """DIR/calibration.png, confusion.png, detection.png and report.html (tables, plots, the summary JSON)."""
     import matplotlib

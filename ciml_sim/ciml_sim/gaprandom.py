@@ -105,7 +105,7 @@ def rescore(out_dir: str) -> dict:
 def write(out_dir: str, n: int, seed: int, specs: list[dict], results: list[dict | None], meta: dict) -> dict:
     """DIR/gap_bench.json (draw, summary, cases; "partial": true when some cases never returned),
     gap_bench.md, the plots and report.html — each written whole (atomic)."""
-    from .gapplots import write_report
+    from .gapplots import confusion_table, overall_table, per_type_table, write_report
 
     done = [r for r in results if r is not None]
     summary = gapstats.summarise_random(done)
@@ -113,7 +113,9 @@ def write(out_dir: str, n: int, seed: int, specs: list[dict], results: list[dict
            "summary": summary, "cases": done}
     atomic_write_json(os.path.join(out_dir, "gap_bench.json"), doc)
     md = ("# gap-bench (random)\n\n" + (f"**partial: {len(done)} of {n} cases**\n\n" if doc["partial"] else "")
-          + gapbench.table(done) + "\n\n```json\n" + json.dumps(summary, indent=1) + "\n```\n")
+          + overall_table(summary) + "\n\n" + per_type_table(summary) + "\n\nConfusion (counts):\n\n"
+          + confusion_table(summary["confusion"]) + "\n\n" + gapbench.table(done)
+          + "\n\n```json\n" + json.dumps(summary, indent=1) + "\n```\n")
     atomic_write_text(os.path.join(out_dir, "gap_bench.md"), md)
     write_report(out_dir, doc)
     return doc

@@ -452,7 +452,8 @@ LEARNING_COUNTERS = {
 
 def online_learning_runs(seeds: tuple[int, ...] = (0, 1, 2, 3, 4), scenarios: tuple[str, ...] = ("default_gap",),
                          duration: float = 600.0, period: float = 60.0, baseline_seeds: tuple[int, ...] | None = None,
-                         robot: str = "hyq", startup_timeout: float = 300.0) -> dict:
+                         robot: str = "hyq", launch: dict[str, str] | None = None,
+                         startup_timeout: float = 300.0) -> dict:
     """`live_online_learning`: per scenario, one run of the shipped graph with online learning per
     seed of `seeds` and one without per seed of `baseline_seeds` (default: the same; the launch
     file's `seed` is the sensor noise's), `duration` seconds of simulated trot each (lockstep: the
@@ -461,20 +462,21 @@ def online_learning_runs(seeds: tuple[int, ...] = (0, 1, 2, 3, 4), scenarios: tu
     (LEARNING_COUNTERS); a fall ends a run. Summary (learning_summary): falls, the effort cut per
     period, and per run with learning its cut in its last period and its worst period against the
     runs without, next to their noise (their spread between seeds). `robot`: the launch file's
-    robot argument (a shipped name or a profile); its scenarios must name it."""
+    robot argument (a shipped name or a profile); its scenarios must name it. `launch`: more
+    launch arguments for every run (e.g. learner_nice)."""
     from .profile import load_profile
 
     description = load_profile(robot).robot()
     _private_domain()
     baseline_seeds = seeds if baseline_seeds is None else baseline_seeds
-    out: dict = {"robot": robot, "seeds": list(seeds), "baseline_seeds": list(baseline_seeds),
-                 "scenarios": list(scenarios),
-                 "duration_s": duration, "period_s": period, "load_average_start": _load_average(), "runs": []}
+    out: dict = {"robot": robot, "launch": dict(launch or {}), "seeds": list(seeds),
+                 "baseline_seeds": list(baseline_seeds), "scenarios": list(scenarios), "duration_s": duration,
+                 "period_s": period, "load_average_start": _load_average(), "runs": []}
     for scenario in scenarios:
         for online, run_seeds in ((False, baseline_seeds), (True, seeds)):
             for seed in run_seeds:
-                args = {"online_learning": "true" if online else "false", "seed": str(seed), "scenario": scenario,
-                        "robot": robot}
+                args = {**(launch or {}), "online_learning": "true" if online else "false", "seed": str(seed),
+                        "scenario": scenario, "robot": robot}
                 run = _effort_run(description, args, duration, period, startup_timeout)
                 out["runs"].append({"scenario": scenario, "seed": seed, "online": online, **run})
                 print(f"[bench] live_online_learning {scenario} seed {seed} online={online}: effort per period "

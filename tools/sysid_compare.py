@@ -36,12 +36,22 @@ records them, without ground truth, into DIR/case_NN/{train,heldout}_K), per cas
    ``damping``, a 3-vector in mujoco 4's spec: its first entry), torque gain (the actuator's
    gain and bias scaled by g, force range ±g τ_max).
 
+3. **Each tool's updated model, re-simulated** (issue 29 item 6): the same question for both, "how
+   far is the simulator with what the tool found from the logs": ``ciml verify --real HELDOUT...
+   --diagnosis D --oracle BENCH/answers/case_NN.yaml`` re-records the held-out bags' motions nominal,
+   with D/identified_scenario.yaml and with the truth, and reports the gap metric of
+   docs/DIAGNOSIS.md. CIML's D is its diagnosis; mujoco.sysid's is OUT/case_NN_sysid, whose
+   identified_scenario.yaml the user would write by hand and this script writes for it
+   (sysid_scenario: the told family's effect with the fitted values), so both answers run in the
+   same simulator with the same motions, seeds and metric (CIML's verify.json is gap-bench's own
+   when it verified the same identified scenario: run_verify). ``--no-resim`` skips this.
+
 ``--check`` also rolls the windows out with the TRUE parameter (from the gap-bench suite) and
 with the nominal model, to show the reconstruction reproduces the logs (the truth's residual
 must be far below the nominal one).
 
     nice -n 10 .venv/bin/python tools/sysid_compare.py --bench out/gap_bench --cases 1 2 4 6 \\
-        --out out/sysid_compare [--window 0.3 --windows 6 --max-iters 30 --check]
+        --out out/sysid_compare [--window 0.3 --windows 6 --max-iters 30 --check --no-resim]
 
 Writes OUT/sysid_compare.json (every number of results/SYSID_COMPARISON.md) and prints a table.
 The truth comes from ciml_sim.gapbench.SUITE and is used only to score (and for --check);
@@ -253,6 +263,65 @@ def run_ciml(case_dir: str, out_dir: str) -> tuple[dict, float, float]:
         return json.load(f), wall, cpu
 
 
+def sysid_scenario(effect: dict, fam: Family, value: list[float]) -> dict:
+    """mujoco.sysid's answer as a ciml_sim scenario (what its user would write to run it in CIML's
+    simulator): the effect of the family it was told (the truth's type and place) with the fitted
+    values in the family's units, which are the scenario's (payload: mass, com; else the one field)."""
+    from ciml_learning.effects.scenario import outside_range
+
+    params = ({"mass": value[0], "com": list(value[1:4])} if fam.kind == "payload"
+              else {fam.names[0]: value[0]})
+    entry = {**effect, **params}
+    problem = outside_range(entry)
+    if problem:
+        raise SystemExit(f"mujoco.sysid's {problem}: the simulator cannot run it")
+    return {"name": "sysid", "seed": 0, "sensor_noise": {}, "effects": [entry],
+            "description": "written by tools/sysid_compare.py: mujoco.sysid's fitted family"}
+
+
+def run_verify(case_dir: str, diagnosis_dir: str, oracle: str, out_dir: str) -> dict:
+    """`ciml verify` of the case's held-out bags with diagnosis_dir/identified_scenario.yaml and the
+    truth as the oracle: the overall re-simulated gaps (model error and joint torques) and its wall time.
+    When gap-bench already verified the same identified scenario (case_dir/verify/verify.json of a
+    case_dir/diagnosis/identified_scenario.yaml with the same effects, numbers within 1e-9 relative:
+    the diagnosis is deterministic but for the last digits of its sums), its verify.json is read
+    instead (the re-simulation is deterministic too), with `reused` set."""
+    import yaml
+
+    from ciml_learning.diagnosis.files import IDENTIFIED_SCENARIO
+
+    def effects(path: str) -> list:
+        if not os.path.isfile(path):
+            return []
+        with open(path, encoding="utf-8") as f:
+            return yaml.safe_load(f)["effects"]
+
+    def same(a: object, b: object) -> bool:
+        if isinstance(a, dict) and isinstance(b, dict):
+            return a.keys() == b.keys() and all(same(a[k], b[k]) for k in a)
+        if isinstance(a, list) and isinstance(b, list):
+            return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b))
+        if isinstance(a, float) or isinstance(b, float):
+            return bool(np.isclose(a, b, rtol=1e-9, atol=0.0))
+        return a == b
+
+    bench_verify = os.path.join(case_dir, "verify", "verify.json")
+    ours = effects(os.path.join(diagnosis_dir, IDENTIFIED_SCENARIO))
+    reused = (os.path.isfile(bench_verify) and bool(ours)
+              and same(ours, effects(os.path.join(case_dir, "diagnosis", IDENTIFIED_SCENARIO))))
+    held = sorted(os.path.join(case_dir, d) for d in os.listdir(case_dir) if d.startswith("heldout_"))
+    t0 = time.perf_counter()
+    if not reused:
+        subprocess.run([CIML, "verify", "--real", *held, "--diagnosis", diagnosis_dir, "--oracle", oracle,
+                        "--out", out_dir], check=True, capture_output=True, text=True)
+    with open(bench_verify if reused else os.path.join(out_dir, "verify.json"), encoding="utf-8") as f:
+        doc = json.load(f)
+    return {"model_error": doc["resimulated_shrink"]["overall"], "torque": doc["torque"]["overall"],
+            "worsened_dimensions": doc["resimulated_shrink"]["worsened_dimensions"],
+            "fell": [b["fell"] for b in doc["bags"]], "reused": bench_verify if reused else None,
+            "verify_wall_s": None if reused else round(time.perf_counter() - t0, 1)}
+
+
 def _children_cpu() -> float:
     import resource
 
@@ -371,6 +440,7 @@ def main() -> int:
                         "at its start: the rollouts of CoM 0 and 1e-8 m are bit-identical)")
     p.add_argument("--check", action="store_true", help="also the residual of the nominal and true parameters")
     p.add_argument("--no-ciml", action="store_true", help="skip the CIML diagnosis (sysid only)")
+    p.add_argument("--no-resim", action="store_true", help="skip re-simulating each tool's answer (ciml verify)")
     p.add_argument("--probe", action="store_true", help="try sysid.body_inertia_param(InertiaType.Mass) and exit")
     args = p.parse_args()
 
@@ -426,14 +496,31 @@ def main() -> int:
                   flush=True)
         row["sysid"]["covers_95"] = covers(row["sysid"]["interval_95"], fam.truth)
         row["sysid"]["covers_68"] = covers(row["sysid"]["interval_68"], fam.truth)
+        if not args.no_resim:
+            import yaml
+
+            from ciml_learning.diagnosis.files import IDENTIFIED_SCENARIO
+
+            oracle = os.path.join(args.bench, "answers", f"case_{case:02d}.yaml")
+            sysid_dir = os.path.join(args.out, f"case_{case:02d}_sysid")
+            os.makedirs(sysid_dir, exist_ok=True)
+            with open(os.path.join(sysid_dir, IDENTIFIED_SCENARIO), "w", encoding="utf-8") as f:
+                yaml.safe_dump(sysid_scenario(effect, fam, row["sysid"]["value"]), f, sort_keys=False)
+            row["sysid"]["resim"] = run_verify(case_dir, sysid_dir, oracle, os.path.join(sysid_dir, "verify"))
+            if not args.no_ciml:
+                ciml_dir = os.path.join(args.out, f"case_{case:02d}_ciml")
+                row["ciml"]["resim"] = run_verify(case_dir, ciml_dir, oracle, os.path.join(args.out,
+                                                                                          f"case_{case:02d}_ciml_verify"))
         row["load_after"] = os.getloadavg()[0]
         doc["cases"][str(case)] = row
         with open(path, "w", encoding="utf-8") as f:
             json.dump(doc, f, indent=1)
+        keys = ("value", "interval_95", "wall_s", "cpu_s")
         print(json.dumps({"case": case, "truth": row["truth"],
-                          "ciml": {k: row.get("ciml", {}).get(k) for k in ("value", "interval_95", "wall_s", "cpu_s")},
-                          "sysid": {k: row["sysid"][k] for k in ("value", "interval_95", "wall_s", "cpu_s")}}),
-              flush=True)
+                          "ciml": {k: row.get("ciml", {}).get(k) for k in keys},
+                          "sysid": {k: row["sysid"][k] for k in keys},
+                          "resim_gap": {tool: row.get(tool, {}).get("resim", {}).get("model_error")
+                                        for tool in ("ciml", "sysid")}}), flush=True)
     print(f"sysid_compare: {path}")
     return 0
 

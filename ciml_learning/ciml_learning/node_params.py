@@ -92,6 +92,9 @@ ONLINE_LEARNER = NodeSchema("ciml_learning", "online_learner",
           "a log replayed without /reference is learned without the tracking check)"),
     Param("input_timeout", 2.0, "No state or error this long after the first: WARN on /diagnostics", "s", 0.1,
           3600.0),
+    Param("validate_snapshots", True, "Hold samples back and announce a snapshot only where it beats the nominal "
+          "model on them (false: learn every sample and announce every snapshot whole, e.g. to compare with an "
+          "offline fit of a replayed log; never beside a controller)"),
     Param("hold_back_block", _VALIDATION.block, "Length of a block of stamps; one block in hold_back_every is held "
           "back (not learned) to validate snapshots on", "s", 0.01, 60.0),
     Param("hold_back_every", _VALIDATION.every, "One block of stamps in this many is held back", "", 2, 100),

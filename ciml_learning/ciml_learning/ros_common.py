@@ -54,9 +54,9 @@ SENSOR_STREAM_QOS = QoSProfile(depth=STREAM_DEPTH, reliability=ReliabilityPolicy
 """The state filter's sensor subscriptions: best effort like SENSOR_QOS (matches any driver),
 but deep, so samples are not dropped while the filter waits for the CPU."""
 LATEST_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-"""Subscriptions that use only the newest message (the controller's reference and prediction, the
-model server's reference): a process that falls behind skips to it instead of converting a queue
-of outdated ones."""
+"""Subscriptions that use only the newest message (the controller's reference and prediction): a
+process that falls behind skips to it instead of converting a queue of outdated ones. (The model
+server keeps COMMAND_QOS: every reference is answered; it runs SCHED_FIFO 20 so that it keeps up.)"""
 LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 """Published once, kept for late joiners (/robot_description, /tf_static, /gap_diagnosis)."""

@@ -1,8 +1,7 @@
 """`model_server`: /reference + /model_update → /model_error/predicted (mean and variance).
 
 Thin adapter around ciml_learning.serving (load_served_model, predict_at_reference) and
-ciml_learning.workers (LatestOnlyWorker). For the newest /reference (a server that falls behind
-skips to it: counted references_skipped) (qᵈ, q̇ᵈ, q̈ᵈ, contacts) it
+ciml_learning.workers (LatestOnlyWorker). For every /reference (qᵈ, q̇ᵈ, q̈ᵈ, contacts) it
 publishes a ciml_msgs/ModelError stamped like the reference: Φ̃' (18) and Γ (n_j) predicted
 at the reference's state and the torque it asks for (τ_ref and its rate over the reference
 stream, dynamics.ReferenceTorque) with their predictive variances (the set learns Φ̃ = J'ᵀΦ̃'; Φ̃' = J'⁻ᵀΦ̃ with
@@ -39,9 +38,8 @@ from .. import realtime, topics
 from ..dynamics import ReferenceState, ReferenceTorque
 from ..errors import CimlError
 from ..node_params import MODEL_SERVER
-from ..online import LostSamples
 from ..profile import load_profile
-from ..ros_common import COMMAND_QOS, LATEST_QOS, Health, declare_schema, run_node
+from ..ros_common import COMMAND_QOS, Health, declare_schema, run_node
 from ..serving import ServedModel, load_served_model, predict_at_reference
 from ..workers import LatestOnlyWorker
 
@@ -63,10 +61,7 @@ class ModelServerNode(Node):
         self.health.set(0, "serving the nominal model")
         self.loader = LatestOnlyWorker(self._load, name="model-loader")
         self.pub = self.create_publisher(ModelError, topics.MODEL_ERROR_PREDICTED, COMMAND_QOS)
-        # the newest reference only: behind, the server skips to it (counted: references_skipped), since
-        # a prediction for an older instant of the gait is of no use to the controller
-        self.create_subscription(RobotReference, topics.REFERENCE, self.on_reference, LATEST_QOS)
-        self.skipped = LostSamples()
+        self.create_subscription(RobotReference, topics.REFERENCE, self.on_reference, COMMAND_QOS)
         self.create_subscription(ModelUpdate, topics.MODEL_UPDATE, self.on_update, COMMAND_QOS)
         self.create_subscription(String, topics.MODEL_ROLLBACK, self.on_rollback, COMMAND_QOS)
         self.create_timer(swap_period, self.swap)
@@ -123,8 +118,6 @@ class ModelServerNode(Node):
             self.health.count("rejected_references", f"reference rejected: {err}")
             return
         stamp = cv.stamp_to_ns(msg.header.stamp)
-        self.skipped.add(stamp)
-        self.health.counts["references_skipped"] = self.skipped.lost
         ref = ReferenceState(stamp * 1e-9, q, v, a, contacts)
         pred = predict_at_reference(self.robot, self.served, ref, self.reference_torque)
         if pred.fallback == "no_model":

@@ -85,7 +85,8 @@ class OnlineLearnerNode(Node):
         gate = GateConfig(**{f.name: p[f.name] for f in dataclasses.fields(GateConfig)})
         validation = ValidationConfig(block=p["hold_back_block"], every=p["hold_back_every"],
                                       window=p["validation_window"], min_learned=p["min_learned"],
-                                      min_heldout=p["min_heldout"], margin=p["validation_margin"])
+                                      min_heldout=p["min_heldout"], margin=p["validation_margin"]
+                                      ) if p["validate_snapshots"] else None
         self.robot = load_profile(p["robot"]).robot()
         self.gate = LearningGate(self.robot, gate)
         if initial:

@@ -286,6 +286,7 @@ ROSDEP_KEYS = {
     # keys of ros/rosdistro rosdep/python.yaml
     "numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml", "matplotlib": "python3-matplotlib",
     "joblib": "python3-joblib", "numba": "python3-numba", "tqdm": "python3-tqdm", "pytest": "python3-pytest",
+    "dask": "python3-dask",  # dask.distributed: Debian's python3-distributed, rosdep's python3-dask key
     # ROS packages of the distribution (Jazzy releases pinocchio and proxsuite)
     "pinocchio": "pinocchio", "proxsuite": "proxsuite",
     # no key found in rosdep/python.yaml: the conventional pip key python3-<name>-pip (installed here by

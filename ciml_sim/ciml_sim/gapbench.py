@@ -561,20 +561,19 @@ def gap_bench(out_dir: str, cases: Sequence[int] | None = None, jobs: int = 1, s
     return _write(out_dir, results)
 
 
+def is_gap_bench_dir(d: str) -> bool:
+    """A finished or an interrupted gap-bench (the suite's or a random one): ours to replace."""
+    return any(n in ("gap_bench.json", "answers") or n.startswith("case_") for n in os.listdir(d))
+
+
 def gap_bench_command(args) -> int:
-    """`ciml gap-bench --out DIR [--cases N... | --random N --seed S] [--jobs J | --cluster ADDRESS] [--scale S]`."""
+    """`ciml gap-bench --out DIR [--cases N...] [--jobs J | --cluster ADDRESS] [--scale S]` (the suite;
+    gaprandom.command sends --random here or to the random bench)."""
     from ciml_learning.cliargs import cap_jobs
     from ciml_learning.errors import CimlError
     from ciml_learning.fileio import check_out_dir
 
-    def is_gap_bench_dir(d: str) -> bool:  # a finished or an interrupted gap-bench
-        return any(n in ("gap_bench.json", "answers") or n.startswith("case_") for n in os.listdir(d))
-
     check_out_dir(args.out, is_gap_bench_dir, "gap-bench output")
-    if args.random is not None:
-        from .gaprandom import random_bench_command
-
-        return random_bench_command(args)
     if args.cases and any(not 1 <= c <= len(SUITE) for c in args.cases):
         raise CimlError(f"--cases: case numbers are 1 to {len(SUITE)}, got {args.cases}")
     doc = gap_bench(args.out, args.cases, cap_jobs(args.jobs), args.scale, cluster=args.cluster)

@@ -140,14 +140,19 @@ def random_bench(out_dir: str, n: int, seed: int, jobs: int = 1, scale: float = 
     return write(out_dir, n, seed, specs, results, {**meta, "wall_s": round(time.time() - t0, 1)})
 
 
-def random_bench_command(args) -> int:
-    """`ciml gap-bench --random N --seed S --out DIR [--jobs J | --cluster ADDRESS] [--scale S]`."""
+def command(args) -> int:
+    """`ciml gap-bench`: the suite (gapbench.gap_bench_command), or with --random N --seed S the random
+    bench (`--out DIR [--jobs J | --cluster ADDRESS] [--scale S]`)."""
     from ciml_learning.cliargs import cap_jobs
     from ciml_learning.cluster import LOCAL_PREFIX
     from ciml_learning.errors import CimlError
+    from ciml_learning.fileio import check_out_dir
 
     from .gapplots import overall_table, per_type_table
 
+    if args.random is None:
+        return gapbench.gap_bench_command(args)
+    check_out_dir(args.out, gapbench.is_gap_bench_dir, "gap-bench output")
     if args.cases:
         raise CimlError("--cases selects suite cases; with --random the draw is the bench (drop --cases)")
     cluster = args.cluster

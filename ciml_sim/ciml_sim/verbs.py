@@ -71,7 +71,7 @@ CLOSED_LOOP = Verb(
 
 GAP_BENCH = Verb(
     help="score the diagnosis on scenarios with withheld effects", arguments=_gap_bench,
-    run="ciml_sim.gapbench:gap_bench_command", order=70,
+    run="ciml_sim.gaprandom:command", order=70,
     epilog="Simulates scenarios with withheld effects and scores the diagnosis on them; its cases are "
            "HyQ's, so gap-bench takes no --robot.\n"
            "example: ciml gap-bench --out out/gap_bench --cases 1 2 --jobs 2\n"

@@ -29,7 +29,7 @@ def _diagnose(tmp_path, effect: dict, seed: int) -> dict:
     return diagnose(ROBOT, [bag], None, None, progress=False)
 
 
-@pytest.mark.xfail(strict=False, reason="open defect (issue 29): on the simulator's logs the Stribeck candidate "
+@pytest.mark.xfail(strict=True, reason="open defect (issue 29): on the simulator's logs the Stribeck candidate "
                    "loses to Coulomb friction on held-out data (named Coulomb 4.3 Nm, share 0.74): the stick phases "
                    "(|q̇| < 0.05 rad/s in 42 % of the samples), where MuJoCo's friction is whatever holds the joint, "
                    "dominate the fit; on rows that follow the Stribeck law it is named "

@@ -198,7 +198,7 @@ def is_ros1_bag(path: Path) -> bool:
         return False
 
 
-def _open_reader(paths: Sequence[str | os.PathLike]):
+def open_reader(paths: Sequence[str | os.PathLike]):
     import shutil
     import tempfile
 
@@ -244,7 +244,7 @@ def _open_reader(paths: Sequence[str | os.PathLike]):
 
 def list_topics(path: str | os.PathLike) -> dict[str, str]:
     """Topic → message type of one bag."""
-    reader = _open_reader([path])
+    reader = open_reader([path])
     try:
         return {c.topic: c.msgtype for c in reader.connections}
     finally:
@@ -259,7 +259,7 @@ def read_messages(path: str | os.PathLike, wanted: Iterable[str]) -> dict[str, l
     from rosbags.highlevel import AnyReaderError
 
     wanted = set(wanted)
-    reader = _open_reader([path])
+    reader = open_reader([path])
     out: dict[str, list[tuple[int, object]]] = {t: [] for t in wanted}
     try:
         conns = [c for c in reader.connections if c.topic in wanted]
@@ -314,7 +314,7 @@ class SensorLog:
 
 def first_message(path: str | os.PathLike, topic: str) -> tuple[int, Any] | None:
     """(header stamp [ns], message) of the first message of `topic` in log order, or None without one."""
-    reader = _open_reader([path])
+    reader = open_reader([path])
     try:
         conns = [c for c in reader.connections if c.topic == topic]
         if not conns:  # rosbags reads every topic for an empty list
@@ -330,7 +330,7 @@ def first_message(path: str | os.PathLike, topic: str) -> tuple[int, Any] | None
 
 def iter_bag_messages(path: str | os.PathLike) -> Iterator[tuple[str, int, bytes, str]]:
     """All messages of a bag as (topic, log time [ns], raw CDR, type), in log-time order (for replay)."""
-    reader = _open_reader([path])
+    reader = open_reader([path])
     try:
         for conn, log_ns, raw in reader.messages():
             yield conn.topic, log_ns, bytes(raw), conn.msgtype

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .loginputs import _stamp_ns
+from .loginputs import message_stamp_ns
 from .profile import CONTACT_STATE, IMU, JOINT_STATE, ODOMETRY, TORQUE_COMMAND, WRENCH
 from .stamps import measure_rate
 
@@ -46,9 +46,9 @@ def _read(path: str) -> tuple[list[dict], dict[str, list]]:
     """Per topic: {topic, type, count} and the first MAX_MESSAGES (stamp ns, msg)."""
     from rosbags.highlevel import AnyReaderError
 
-    from .bagio import BagError, _open_reader
+    from .bagio import BagError, open_reader
 
-    reader = _open_reader([path])
+    reader = open_reader([path])
     msgs: dict[str, list] = {}
     try:
         topics: dict[str, dict[str, Any]] = {}
@@ -59,7 +59,7 @@ def _read(path: str) -> tuple[list[dict], dict[str, list]]:
             lst = msgs.setdefault(conn.topic, [])
             if len(lst) < MAX_MESSAGES:
                 msg = reader.deserialize(raw, conn.msgtype)
-                lst.append((_stamp_ns(msg, log_ns, "header"), log_ns, msg))
+                lst.append((message_stamp_ns(msg, log_ns, "header"), log_ns, msg))
     except (AnyReaderError, EOFError, ValueError, KeyError) as err:
         raise BagError(f"bag {path} is truncated or corrupt ({type(err).__name__}: {err})") from err
     finally:

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from .bagio import BagError, SensorLog, _open_reader
+from .bagio import BagError, SensorLog, open_reader
 from .filters import derivative_taps, filter_offline
 from .pairing import age_limit_ns, is_strict, partner_indices
 from .profile import CONTACT_STATE, JOINT_STATE, ODOMETRY, TORQUE_COMMAND, RobotProfile, load_profile
@@ -112,7 +112,7 @@ class _Topic:
         return len(self.t)
 
 
-def _stamp_ns(msg, log_ns: int, source: str) -> int:
+def message_stamp_ns(msg, log_ns: int, source: str) -> int:
     if source == "log":
         return log_ns
     header = getattr(msg, "header", None)
@@ -130,7 +130,7 @@ def read_topics(path: str | os.PathLike, wanted: dict[str, tuple[str, str, str]]
     from rosbags.highlevel import AnyReaderError
 
     rej = rej if rej is not None else _Rejections()
-    reader = _open_reader([path])
+    reader = open_reader([path])
     raw: dict[str, list] = {t: [] for t in wanted}
     try:
         bag_types = {c.topic: c.msgtype for c in reader.connections}
@@ -146,7 +146,7 @@ def read_topics(path: str | os.PathLike, wanted: dict[str, tuple[str, str, str]]
         conns = [c for c in reader.connections if c.topic in wanted]
         for conn, log_ns, data in reader.messages(connections=conns):
             msg = reader.deserialize(data, conn.msgtype)
-            raw[conn.topic].append((_stamp_ns(msg, log_ns, wanted[conn.topic][2]), msg))
+            raw[conn.topic].append((message_stamp_ns(msg, log_ns, wanted[conn.topic][2]), msg))
     except (AnyReaderError, EOFError, ValueError, KeyError) as err:
         raise BagError(f"bag {path} is truncated or corrupt ({type(err).__name__}: {err}); "
                          "try 'mcap recover' (MCAP) or 'ros2 bag reindex' (db3)") from err

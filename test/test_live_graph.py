@@ -199,7 +199,8 @@ def test_start_orders_end_standing_then_walking(graph, order):
         assert probe.wait_for(lambda: diagnosing(probe, "model_server"), STARTUP)
     dx, zmin, seen = walks(probe, 8.0, 120.0)
     assert seen >= 8.0, f"{order}: only {seen:.1f} s simulated"
-    assert zmin > STANDING_Z - 0.1, f"{order}: the robot fell (lowest base height {zmin:.2f} m)"
+    assert zmin > STANDING_Z - 0.1, (f"{order}: the robot fell (lowest base height {zmin:.2f} m); controller: "
+                                     f"{next((v for k, v in probe.diagnostics.items() if 'id_controller' in k), {})}")
     assert dx > 0.35 * 8.0 * 0.5, f"{order}: the base advanced only {dx:.2f} m in 8 s of trot_35"
 
 

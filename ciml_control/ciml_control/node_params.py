@@ -32,6 +32,9 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
           "with a simulator)", "s", 0.002, 2.0, read_only=False),
     Param("reference_timeout", 0.1, "A /reference older than this is stale: its last pose is held (zero velocity "
           "and acceleration)", "s", 0.004, 5.0, read_only=False),
+    Param("wait_for_reference", False, "With a simulator in lockstep: a joint sample whose /reference is older than "
+          "reference_timeout is answered once a fresh one arrives (the simulation waits for the reference node as it "
+          "waits for this one) instead of holding the last pose", read_only=False),
     Param("reference_hold", 0.5, "Damping when /reference is older than this (≤ reference_timeout: at once)", "s",
           0.0, 10.0, read_only=False),
     Param("model_error_timeout", 0.1, "Nominal model (ε = 0) when the newest prediction is older than this", "s",

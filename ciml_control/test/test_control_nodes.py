@@ -281,6 +281,47 @@ def _feed_standing(node, robot, ns: int, qj=None, model_error=None) -> None:
 
 
 @pytest.mark.ros
+@pytest.mark.parametrize("wait", [False, True])
+def test_a_late_reference_is_waited_for_in_lockstep_and_held_otherwise(wait):
+    """A joint sample whose /reference is 0.2 s old (reference_timeout 0.1 s): with
+    wait_for_reference (a lockstep simulator) no command until a fresh reference arrives, then one
+    for that same joint sample at the new reference (counted reference_waits); without it, at once,
+    the last pose held (counted reference_held)."""
+    import rclpy
+    from ciml_msgs.msg import TorqueCommand
+
+    from ciml_control.nodes.id_controller import IdControllerNode
+
+    node, ctx = _in_process(IdControllerNode, wait_for_reference=wait)
+    try:
+        clock = [1.0]
+        node._now = lambda: clock[0]  # the node clock under the test's control
+        commands = []
+        node.pub.publish = commands.append
+        _feed_standing(node, ROBOT, 10**9)
+        assert len(commands) == 1 and commands[0].mode == TorqueCommand.MODE_TORQUE
+        clock[0], ns = 1.2, 12 * 10**8
+        q_stand = standing_configuration(ROBOT, 0.002)
+        node.on_base(cv.odometry_msg(ns, q_stand[:3], q_stand[3:7], np.zeros(3), np.zeros(3)))
+        node.on_contacts(cv.contact_state_msg(ROBOT, ns, np.ones(ROBOT.n_feet, bool)))
+        node.on_joints(cv.joint_state_msg(ROBOT, ns, q_stand[7:], np.zeros(12), np.zeros(12)))
+        if wait:
+            assert len(commands) == 1 and node.health.counts["reference_waits"] == 1
+            ref = make_reference(ROBOT, "base_only", q_stand).sample(1.2)
+            node.on_reference(reference_msg(ROBOT, ns, ref))
+            target = ref.q[7:]
+        else:
+            target = make_reference(ROBOT, "stand", q_stand).sample(0.0).q[7:]
+            assert node.health.counts["reference_held"] == 1
+        assert len(commands) == 2 and cv.stamp_to_ns(commands[1].header.stamp) == ns
+        assert commands[1].mode == TorqueCommand.MODE_TORQUE
+        assert np.allclose(cv.torque_command_arrays(ROBOT, commands[1]).position_target, target)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+@pytest.mark.ros
 def test_id_controller_publishes_a_ros2_control_effort_array_in_the_profiles_joint_order(tmp_path):
     """effort_command_topic: each command also as std_msgs/Float64MultiArray, the joint-loop law's
     torque at the sample (clipped to the limits) in the order of the profile's effort-array

@@ -18,7 +18,12 @@ Safety once it has commanded torque (counted on /diagnostics):
 - /reference older than `reference_timeout` but not `reference_hold`: the last reference
   pose is held (its velocity and acceleration zero; counted: reference_held, with a warning),
   as a trajectory controller holds its last setpoint: a reference node that stalls for a
-  few hundred milliseconds (measured in the live graph) must not drop the robot;
+  few hundred milliseconds (measured in the live graph) must not drop the robot. With
+  `wait_for_reference` (a simulator in lockstep: the launch file's `lockstep`) the joint sample
+  is answered only when a fresh reference arrives (counted: reference_waits): the simulation
+  waits for a stalled reference node as it waits for this one, since holding a trot's pose
+  with two feet in the air for ~0.35 s dropped the robot (one process per node, a reference
+  node that stalled at the motion's start);
 - non-finite or mismatched inputs are dropped by the conversions (never used);
 - a controller error (ControllerInputError) → damping for that step;
 - QP failures → the controller's documented fallback; counted.
@@ -104,6 +109,7 @@ class IdControllerNode(Node):
         self.trust = TrustLaw(self.robot, ratio)
         self.commanding = False  # a MODE_TORQUE command has been published (then stale inputs → damping)
         self._damped = False     # the last command was MODE_DAMPING
+        self._awaiting_reference = False  # the newest joint sample waits for a fresh /reference
         self.controller = self._build_controller(p)
         self._warm_up()
         self.health = Health(self)
@@ -194,6 +200,9 @@ class IdControllerNode(Node):
 
     def on_reference(self, msg) -> None:
         self.reference = self._convert("reference", lambda m: reference_point(self.robot, m), msg) or self.reference
+        if self._awaiting_reference:  # the joint sample that waited for it (wait_for_reference)
+            self._awaiting_reference = False
+            self.control()
 
     def on_model_error(self, msg) -> None:
         self.model_error = self._convert("model_error", lambda m: (str(m.source),
@@ -269,6 +278,11 @@ class IdControllerNode(Node):
         if not self._fresh(self.reference, self.reference_timeout, now):
             if not self._fresh(self.reference, self.reference_hold, now):
                 self.publish_damping("stale_reference", "no fresh /reference: damping", stamp)
+                return
+            if self.params["wait_for_reference"]:
+                # in lockstep the simulation waits for this answer: wait for the reference instead
+                self._awaiting_reference = True
+                self.health.counts["reference_waits"] += 1
                 return
             # a late reference (its node stalled, or restarts) is not a dead one: hold its last pose,
             # as a trajectory controller holds its last setpoint, instead of dropping the robot

@@ -1,4 +1,5 @@
-"""ciml_msgs/RobotReference and ModelError ↔ numpy for the controller, by joint/foot name.
+"""ciml_msgs/RobotReference ↔ numpy for the controller, by joint/foot name (ModelError:
+ciml_learning.conversions.model_error_arrays).
 
 Like ciml_learning.conversions: readers accept rclpy and rosbags messages, reject
 wrong names and non-finite values with a ConversionError; writers build rclpy messages.
@@ -7,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ciml_learning.conversions import ConversionError, _finite, _vector, header_msg, robot_reference_arrays, stamp_to_ns
+from ciml_learning.conversions import check_finite, header_msg, robot_reference_arrays, stamp_to_ns
 from ciml_learning.profile import ProfileError, RobotProfile
 from ciml_learning.robot import RobotDescription
 
@@ -44,27 +45,9 @@ def reference_msg(robot: RobotDescription, stamp_ns: int, ref: ReferencePoint):
 def reference_point(robot: RobotDescription, msg) -> ReferencePoint:
     """RobotReference → ReferencePoint in the robot's joint and foot order (t = header stamp [s])."""
     q, v, a, contacts = robot_reference_arrays(robot, msg)
-    _finite("reference.phase", np.array([msg.phase], float))
+    check_finite("reference.phase", np.array([msg.phase], float))
     return ReferencePoint(t=stamp_to_ns(msg.header.stamp) * 1e-9, q=q, v=v, a=a, contacts=contacts,
                           phase=float(msg.phase), motion=str(msg.motion))
-
-
-def model_error_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, np.ndarray]:
-    """(Φ̃' (18, robot.rbd_error_names order), Γ (n_j, joint order)) of a ModelError.
-
-    Entries are matched by name; a name the robot does not know, a missing name or a
-    non-finite value is a ConversionError.
-    """
-    names = list(msg.rbd_names)
-    expected = list(robot.rbd_error_names)
-    if sorted(names) != sorted(expected):
-        raise ConversionError(f"model_error: rbd names {names} do not match {expected}")
-    index = {nm: i for i, nm in enumerate(names)}
-    phi = _vector(msg.rbd_error, len(names), "model_error.rbd_error")[[index[nm] for nm in expected]]
-    perm = robot.joint_permutation(list(msg.actuation_names))
-    gamma = _vector(msg.actuation_error, len(msg.actuation_names), "model_error.actuation_error")[perm]
-    _finite("model_error", phi, gamma)
-    return phi, gamma
 
 
 # --- commands for a robot's own controllers -------------------------------------------------

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from ciml_control.conversions import model_error_arrays, reference_msg, reference_point
+from ciml_control.conversions import reference_msg, reference_point
 from ciml_control.references import make_reference, standing_configuration
 from ciml_learning import conversions as cv
 from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
@@ -40,7 +40,8 @@ def test_model_error_to_epsilon():
     perm = rng.permutation(18)
     msg.rbd_names = [msg.rbd_names[i] for i in perm]
     msg.rbd_error = [msg.rbd_error[i] for i in perm]
-    phi_back, gamma_back = model_error_arrays(ROBOT, msg)
+    back = cv.model_error_arrays(ROBOT, msg)
+    phi_back, gamma_back = back.rbd_error, back.actuation_error
     assert np.allclose(phi_back, phi) and np.allclose(gamma_back, gamma)
     q = standing_configuration(ROBOT)
     basis = contact_invariant_basis(RigidBodyDynamics(ROBOT).foot_jacobians(q), ROBOT.leg_joints)
@@ -48,5 +49,5 @@ def test_model_error_to_epsilon():
     eps = combined_error(basis, phi_back, gamma_back, S)
     assert np.allclose(eps, basis.T @ phi - S.T @ gamma)  # eq. (17)
     msg.rbd_names = msg.rbd_names[:-1] + ["foot_xx_z"]
-    with pytest.raises(CimlError):
-        model_error_arrays(ROBOT, msg)
+    with pytest.raises(cv.ConversionError, match="names"):
+        cv.model_error_arrays(ROBOT, msg)

@@ -35,7 +35,8 @@ def header_msg(ns: int, frame_id: str = ""):
     return Header(stamp=stamp_msg(ns), frame_id=frame_id)
 
 
-def _finite(name: str, *arrays: np.ndarray) -> None:
+def check_finite(name: str, *arrays: np.ndarray) -> None:
+    """ConversionError "<name>: non-finite value" unless every entry of every array is finite."""
     for a in arrays:
         if a.size and not np.all(np.isfinite(a)):
             raise ConversionError(f"{name}: non-finite value")
@@ -105,7 +106,7 @@ def joint_state_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, np.nda
     q = _vector(msg.position, n, "joint_states.position")[perm]
     qd = _vector(msg.velocity, n, "joint_states.velocity")[perm]
     tau = _vector(msg.effort, n, "joint_states.effort")[perm]
-    _finite("joint_states", q, qd, tau)
+    check_finite("joint_states", q, qd, tau)
     return q, qd, tau
 
 
@@ -141,7 +142,7 @@ def odometry_arrays(msg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     pos = np.array([p.x, p.y, p.z], dtype=float)
     quat = np.array([o.x, o.y, o.z, o.w], dtype=float)
     twist = np.array([t.linear.x, t.linear.y, t.linear.z, t.angular.x, t.angular.y, t.angular.z], dtype=float)
-    _finite("base_state", pos, quat, twist)
+    check_finite("base_state", pos, quat, twist)
     norm = np.linalg.norm(quat)
     if not 0.9 < norm < 1.1:
         raise ConversionError(f"base_state: orientation quaternion has norm {norm:.3f}, expected 1")
@@ -209,7 +210,7 @@ def torque_command_arrays(robot: RobotDescription, msg) -> TorqueCommandArrays:
     fields = {}
     for f in ("feedforward", "feedback_linearization", "position_target", "velocity_target", "stiffness", "damping"):
         fields[f] = _vector(getattr(msg, f), n, f"torque_command.{f}")[perm]
-    _finite("torque_command", *fields.values())
+    check_finite("torque_command", *fields.values())
     if np.any(fields["stiffness"] < 0) or np.any(fields["damping"] < 0):
         raise ConversionError("torque_command: negative stiffness or damping")
     return TorqueCommandArrays(mode=int(msg.mode), **fields)
@@ -244,6 +245,73 @@ def model_error_msg(
         actuation_observed=[bool(b) for b in actuation_observed],
         actuation_variance=(np.zeros(na) if actuation_variance is None
                             else np.asarray(actuation_variance, float)).tolist(),
+    )
+
+
+def _by_name(names, expected, what: str) -> np.ndarray:
+    """Index array p with values_in_expected_order = values[p] for values ordered by `names`.
+
+    `names` must hold each of `expected` exactly once and nothing else (ConversionError)."""
+    names, expected = list(names), list(expected)
+    index = {n: i for i, n in enumerate(names)}
+    missing = [n for n in expected if n not in index]
+    unknown = [n for n in names if n not in expected]
+    if missing or unknown or len(index) != len(names):
+        repeated = sorted({n for n in names if names.count(n) > 1})
+        raise ConversionError(f"{what} names {names} do not match the robot's {expected}: missing {missing}, "
+                              f"unknown {unknown}, repeated {repeated}")
+    return np.array([index[n] for n in expected], dtype=int)
+
+
+@dataclass
+class ModelErrorArrays:
+    """ModelError content in the robot's orders: Φ̃' (eq. 11) in robot.rbd_error_names order,
+    Γ (eq. 14) in robot.joint_names order, each with its observed mask and variance."""
+
+    source: str
+    rbd_error: np.ndarray
+    rbd_observed: np.ndarray
+    rbd_variance: np.ndarray
+    actuation_error: np.ndarray
+    actuation_observed: np.ndarray
+    actuation_variance: np.ndarray
+
+
+def _variance(values, perm: np.ndarray, what: str) -> np.ndarray:
+    n = len(perm)
+    if len(values) == 0:  # not sent: nothing known about the confidence
+        return np.full(n, np.inf)
+    v = np.asarray(values, dtype=float)
+    if v.shape != (n,) or not np.all(np.isfinite(v)) or np.any(v < 0):
+        raise ConversionError(f"model_error: {what} must be {n} finite values ≥ 0")
+    return v[perm]
+
+
+def model_error_arrays(robot: RobotDescription, msg) -> ModelErrorArrays:
+    """A ciml_msgs/ModelError in the robot's orders: the one decoder of the message.
+
+    Entries are matched by name (each of robot.rbd_error_names and robot.joint_names
+    exactly once). Wrong, missing or repeated names, wrong sizes of values or observed
+    masks, non-finite errors and non-finite or negative variances raise ConversionError.
+    An empty variance array (not sent) decodes as infinite: nothing is known about the
+    confidence (the controller's trust gate then rejects the prediction).
+    """
+    perm_r = _by_name(msg.rbd_names, robot.rbd_error_names, "model_error: rbd")
+    perm_a = _by_name(msg.actuation_names, robot.joint_names, "model_error: joint")
+    nr, nj = len(perm_r), len(perm_a)
+    phi = _vector(msg.rbd_error, nr, "model_error.rbd_error")[perm_r]
+    gamma = _vector(msg.actuation_error, nj, "model_error.actuation_error")[perm_a]
+    obs_r = np.asarray(msg.rbd_observed, dtype=bool)
+    obs_a = np.asarray(msg.actuation_observed, dtype=bool)
+    if obs_r.shape != (nr,) or obs_a.shape != (nj,):
+        raise ConversionError(f"model_error: observed masks have {obs_r.size} and {obs_a.size} entries, "
+                              f"expected {nr} and {nj}")
+    check_finite("model_error", phi, gamma)
+    return ModelErrorArrays(
+        source=str(msg.source),
+        rbd_error=phi, rbd_observed=obs_r[perm_r], rbd_variance=_variance(msg.rbd_variance, perm_r, "rbd_variance"),
+        actuation_error=gamma, actuation_observed=obs_a[perm_a],
+        actuation_variance=_variance(msg.actuation_variance, perm_a, "actuation_variance"),
     )
 
 
@@ -295,7 +363,7 @@ def robot_state_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, np.nda
     tau = _vector(msg.effort_measured, n, "effort_measured")[perm]
     tau_dot = _vector(msg.effort_rate, n, "effort_rate")[perm]
     u = _vector(msg.effort_commanded, n, "effort_commanded")[perm]
-    _finite("filtered_state", q, v, a, tau, tau_dot, u)
+    check_finite("filtered_state", q, v, a, tau, tau_dot, u)
     flags = np.asarray(msg.in_contact, dtype=bool)
     if flags.shape != (len(msg.foot_names),):
         raise ConversionError("filtered_state: foot names and contact flags differ in length")
@@ -320,7 +388,7 @@ def robot_reference_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, np
     q = np.concatenate([[p.x, p.y, p.z], quat, _vector(msg.position, n, "reference.position")[perm]])
     v = np.concatenate([_six(msg.base_twist), _vector(msg.velocity, n, "reference.velocity")[perm]])
     a = np.concatenate([_six(msg.base_acceleration), _vector(msg.acceleration, n, "reference.acceleration")[perm]])
-    _finite("reference", q, v, a)
+    check_finite("reference", q, v, a)
     norm = np.linalg.norm(quat)
     if not 0.9 < norm < 1.1:
         raise ConversionError(f"reference: orientation quaternion has norm {norm:.3f}, expected 1")

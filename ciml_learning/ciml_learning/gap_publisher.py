@@ -18,7 +18,7 @@ def _num(x: Any) -> float:
 
 def gap_diagnosis_fields(result: dict) -> dict[str, Any]:
     """The GapDiagnosis fields of a diagnosis result (ciml_learning.diagnosis.run.diagnose)."""
-    from .diagnosis.report import _where
+    from .diagnosis.report import effect_location
 
     loc = result["localization"]
     effects = result["effects"]
@@ -28,7 +28,7 @@ def gap_diagnosis_fields(result: dict) -> dict[str, Any]:
         "dimension_rms_error": [_num(d["rms_error"]) for d in loc],
         "dimension_share": [_num(d["share"]) for d in loc],
         "effect_types": [str(e["type"]) for e in effects],
-        "effect_locations": [str(_where(e)) for e in effects],
+        "effect_locations": [str(effect_location(e)) for e in effects],
         "effect_share": [_num(e["share"]) for e in effects],
         "unexplained_share": _num(result["unexplained_share"]),
         "heldout_rms_nominal": _num(shrink.get("heldout_rms_nominal")),

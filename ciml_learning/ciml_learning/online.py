@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from .conversions import ConversionError, _finite, _vector
+from .conversions import model_error_arrays
 from .dynamics import RigidBodyDynamics
 from .extraction import learning_inputs
 from .learners import learner_class
@@ -66,33 +66,11 @@ class ErrorSample:
     actuation_observed: np.ndarray
 
 
-def _by_name(names, expected, what: str) -> np.ndarray:
-    names = list(names)
-    expected = list(expected)
-    if len(names) != len(set(names)) or set(names) != set(expected):
-        raise ConversionError(f"{what} names {names} do not match the robot's {expected}")
-    index = {n: i for i, n in enumerate(names)}
-    return np.array([index[n] for n in expected], dtype=int)
-
-
 def model_error_sample(robot: RobotDescription, msg) -> ErrorSample:
-    """A ciml_msgs/ModelError as arrays in robot.rbd_error_names / robot.joint_names order.
-
-    Entries are matched by name; wrong or missing names, wrong sizes and non-finite
-    values raise ConversionError (rclpy and rosbags messages alike).
-    """
-    nr, nj = len(msg.rbd_names), len(msg.actuation_names)
-    perm_r = _by_name(msg.rbd_names, robot.rbd_error_names, "model_error rbd")
-    perm_a = robot.joint_permutation(list(msg.actuation_names))
-    phi = _vector(msg.rbd_error, nr, "model_error.rbd_error")[perm_r]
-    gamma = _vector(msg.actuation_error, nj, "model_error.actuation_error")[perm_a]
-    obs_r = np.asarray(msg.rbd_observed, dtype=bool)
-    obs_a = np.asarray(msg.actuation_observed, dtype=bool)
-    if obs_r.shape != (nr,) or obs_a.shape != (nj,):
-        raise ConversionError(f"model_error: observed masks have {obs_r.size} and {obs_a.size} entries, "
-                              f"expected {nr} and {nj}")
-    _finite("model_error", phi, gamma)
-    return ErrorSample(phi, obs_r[perm_r], gamma, obs_a[perm_a])
+    """A ciml_msgs/ModelError as the learner's ErrorSample (robot.rbd_error_names / robot.joint_names
+    order): conversions.model_error_arrays decodes and checks it (ConversionError)."""
+    e = model_error_arrays(robot, msg)
+    return ErrorSample(e.rbd_error, e.rbd_observed, e.actuation_error, e.actuation_observed)
 
 
 # ---------------------------------------------------------------------- pairing by stamp

@@ -143,7 +143,7 @@ def test_model_error_sample_matches_by_name_and_rejects_bad_messages():
         model_error_sample(ROBOT, bad)
     bad = cv.model_error_msg(ROBOT, 5, "measured", phi, obs, gamma, np.ones(12, bool))
     bad.actuation_names = list(bad.actuation_names[:-1]) + ["lf_haa_joint"]
-    with pytest.raises(Exception, match="joint names"):
+    with pytest.raises(ConversionError, match="joint names"):
         model_error_sample(ROBOT, bad)
     bad = cv.model_error_msg(ROBOT, 5, "measured", phi, obs, gamma, np.ones(12, bool))
     bad.actuation_observed = [True] * 11

@@ -77,7 +77,7 @@ from ciml_learning.rollback import NOMINAL_SOURCE, EffortWatch, RollbackConfig, 
 from ciml_learning.ros_common import COMMAND_QOS, LATEST_QOS, OK, WARN, Health, PublishPeriods, declare_schema, run_node
 
 from ..controller import IdController
-from ..conversions import effort_array_msg, effort_joint_order, feedforward_msg, model_error_arrays, reference_point
+from ..conversions import effort_array_msg, effort_joint_order, feedforward_msg, reference_point
 from ..feedback import FeedbackGains
 from ..node_params import ID_CONTROLLER
 from ..standing import safe_damping_gain
@@ -205,9 +205,8 @@ class IdControllerNode(Node):
             self.control()
 
     def on_model_error(self, msg) -> None:
-        self.model_error = self._convert("model_error", lambda m: (str(m.source),
-                                                                    *model_error_with_variance(self.robot, m)),
-                                         msg) or self.model_error
+        self.model_error = (self._convert("model_error", lambda m: cv.model_error_arrays(self.robot, m), msg)
+                            or self.model_error)
 
     def on_joints(self, msg) -> None:
         joints = self._convert("joint_states", lambda m: cv.joint_state_arrays(self.robot, m), msg)
@@ -250,14 +249,16 @@ class IdControllerNode(Node):
         if lag > self.params["max_prediction_lag"]:
             self.health.counts["prediction_behind_reference"] += 1
             return np.zeros(self.robot.nv), NOMINAL_SOURCE
-        source, phi, gamma, phi_var, gamma_var = self.model_error[2]
+        prediction: cv.ModelErrorArrays = self.model_error[2]
+        source = prediction.source
         if source in self.watch.rolled_back:  # until the model server has put the model before it back
             self.health.counts["rolled_back_predictions_ignored"] += 1
             return np.zeros(self.robot.nv), NOMINAL_SOURCE
         # the foot Jacobians at qᵈ come from the controller's own Pinocchio pass at the reference
         basis = contact_invariant_basis(self.controller.desired_terms(ref)[2], self.robot.leg_joints)
         self.health.counts["model_error_used"] += 1
-        trusted = self.trust.apply(phi, phi_var, gamma, gamma_var, basis)
+        trusted = self.trust.apply(prediction.rbd_error, prediction.rbd_variance, prediction.actuation_error,
+                                   prediction.actuation_variance, basis)
         if trusted.gated.any():
             self.health.counts["epsilon_gated"] += 1
         if trusted.clipped.any():
@@ -372,27 +373,6 @@ class IdControllerNode(Node):
             lag = np.array(self.prediction_lags) * 1e3
             self.health.counts["prediction_lag_p50_ms"] = round(float(np.percentile(lag, 50)), 1)
             self.health.counts["prediction_lag_p99_ms"] = round(float(np.percentile(lag, 99)), 1)
-
-
-def model_error_with_variance(robot, msg) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(Φ̃', Γ, var Φ̃', var Γ) of a ciml_msgs/ModelError in the robot's orders (by name).
-    Variances must be finite and ≥ 0 (ConversionError otherwise); missing variances (an empty
-    array, e.g. a measurement) are infinite: nothing known about the confidence → gated."""
-    phi, gamma = model_error_arrays(robot, msg)
-    rbd_index = {n: i for i, n in enumerate(msg.rbd_names)}
-    perm_r = [rbd_index[n] for n in robot.rbd_error_names]
-    perm_a = robot.joint_permutation(list(msg.actuation_names))
-
-    def variance(values, perm, n: int, what: str) -> np.ndarray:
-        if len(values) == 0:
-            return np.full(n, np.inf)
-        v = np.asarray(values, dtype=float)
-        if v.shape != (n,) or not np.all(np.isfinite(v)) or np.any(v < 0):
-            raise cv.ConversionError(f"model_error: {what} must be {n} finite values ≥ 0")
-        return v[perm]
-
-    return (phi, gamma, variance(msg.rbd_variance, perm_r, len(perm_r), "rbd_variance"),
-            variance(msg.actuation_variance, perm_a, len(perm_a), "actuation_variance"))
 
 
 def main(args=None) -> None:

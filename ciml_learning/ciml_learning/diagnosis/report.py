@@ -44,7 +44,8 @@ def unit_of(item: dict) -> str:
     return "N"
 
 
-def _where(e: dict) -> str:
+def effect_location(e: dict) -> str:
+    """Where an effect of the diagnosis acts: its joint or link, "all joints" or "base"."""
     return e.get("joint") or e.get("link") or ("all joints" if e.get("joints") == "all" else "base")
 
 
@@ -63,13 +64,13 @@ def answers(result: dict) -> list[str]:
         where += "; by part: " + ", ".join(f"{k} {v:.0%}" for k, v in legs[:3] if v > 0)
     eff = result["effects"]
     if eff:
-        which = "Which: " + "; ".join(f"{e['type']} at {_where(e)} ({_fmt_params(e['params'], e['std'])}), "
+        which = "Which: " + "; ".join(f"{e['type']} at {effect_location(e)} ({_fmt_params(e['params'], e['std'])}), "
                                       f"{e['share']:.0%} of the gap" for e in eff)
     else:
         which = "Which: no catalogue effect explains the gap"
     if eff:
         which = which.replace(" of the gap", " of the gap above noise")
-        which += " [confidence: " + ", ".join(f"{_where(e)} {e.get('confidence')}" for e in eff) + "]"
+        which += " [confidence: " + ", ".join(f"{effect_location(e)} {e.get('confidence')}" for e in eff) + "]"
     which += f"; unexplained: {result['unexplained_share']:.0%}"
     floor = result.get("noise_floor", {})
     if result.get("gap_at_noise_floor"):
@@ -83,7 +84,7 @@ def answers(result: dict) -> list[str]:
             f"stiffness {u['stiffness']:.3g} Nm/rad{', in the torque reading' if u.get('level') == 'sensor' else ''})"
             for u in outside)
     for e in result.get("not_identified", []):
-        which += f"; {e['type']} at {_where(e)}: at bound — not identified ({_fmt_params(e['params'], {})})"
+        which += f"; {e['type']} at {effect_location(e)}: at bound — not identified ({_fmt_params(e['params'], {})})"
     s = result["shrink"]
     far = (f"How far: on held-out data the gap shrinks by {s['ratio']:.0%} "
            f"(noise-normalised RMS {s['heldout_rms_nominal']:.3g} → {s['heldout_rms_with_effects']:.3g})")
@@ -215,7 +216,7 @@ def render_report(robot, result: dict, series: dict, rows_ho, selection) -> str:
     # 2. which: shares
     eff = result["effects"]
     fig, ax = plt.subplots(figsize=(9, 0.5 * (len(eff) + 2) + 1))
-    labels = [f"{e['type']} @ {_where(e)}" for e in eff] + ["unexplained"]
+    labels = [f"{e['type']} @ {effect_location(e)}" for e in eff] + ["unexplained"]
     shares = [e["share"] for e in eff] + [result["unexplained_share"]]
     colors = ["tab:blue"] * len(eff) + ["tab:gray"]
     ax.barh(np.arange(len(labels)), shares, color=colors)
@@ -257,7 +258,7 @@ def render_report(robot, result: dict, series: dict, rows_ho, selection) -> str:
     a = answers(result)
     e = html.escape
     rows = "".join(
-        f"<tr><td>{e(x['type'])}<br><small>{e(_wording(x['type']))}</small></td><td>{e(_where(x))}</td>"
+        f"<tr><td>{e(x['type'])}<br><small>{e(_wording(x['type']))}</small></td><td>{e(effect_location(x))}</td>"
         f"<td>{e(_fmt_params(x['params'], x['std']))}</td>"
         f"<td>{x['share']:.1%}</td>"
         f"<td>{e(x.get('confidence', ''))} (spread {x.get('consistency_spread', 0):.0%})</td></tr>"

@@ -113,7 +113,9 @@ def test_every_node_reads_the_robot_parameter(tmp_path):
     try:
         for module, name in classes.items():
             cls = getattr(importlib.import_module(module), name)
-            extra = [Parameter("model_dir", value=str(tmp_path / "m"))] if name == "OnlineLearnerNode" else []
+            extra = {"OnlineLearnerNode": [Parameter("model_dir", value=str(tmp_path / "m"))],
+                     # go1's own layout needs unitree_go's messages; the simulator's graph reads CIML's topics
+                     "StateFilterNode": [Parameter("inputs", value="ciml")]}.get(name, [])
             node = cls(context=ctx, parameter_overrides=[Parameter("robot", value="go1"), *extra])
             assert node.robot.joint_names == go1.joint_names and node.robot.foot_frames == go1.foot_frames, name
             node.destroy_node()

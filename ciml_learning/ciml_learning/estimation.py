@@ -84,6 +84,22 @@ def _check_rows(name: str, x: np.ndarray, n: int, cols: int) -> np.ndarray:
     return x
 
 
+class Hysteresis:
+    """threshold_contacts one sample at a time (the state carries over), so a node and the log
+    reader run the same law: step(force row) → flags."""
+
+    def __init__(self, threshold: float, hysteresis: float, n_feet: int) -> None:
+        if not (np.isfinite(threshold) and np.isfinite(hysteresis) and hysteresis >= 0):
+            raise EstimationError(f"threshold {threshold} and hysteresis {hysteresis} must be finite, hysteresis ≥ 0")
+        self.on_level, self.off_level = float(threshold), float(threshold) - float(hysteresis)
+        self.state = np.zeros(n_feet, dtype=bool)
+
+    def step(self, force: np.ndarray) -> np.ndarray:
+        f = np.asarray(force, dtype=float)  # NaN compares False both ways: the state is kept
+        self.state = np.where(f >= self.on_level, True, np.where(f < self.off_level, False, self.state))
+        return self.state.copy()
+
+
 def threshold_contacts(force: np.ndarray, threshold: float, hysteresis: float = 0.0) -> np.ndarray:
     """Contact flags from per-foot forces (or pressures) with a hysteresis band.
 
@@ -100,16 +116,8 @@ def threshold_contacts(force: np.ndarray, threshold: float, hysteresis: float = 
         f = f[:, None]
     if f.ndim != 2:
         raise EstimationError(f"force: expected (N × n_feet), got shape {np.shape(force)}")
-    if not (np.isfinite(threshold) and np.isfinite(hysteresis) and hysteresis >= 0):
-        raise EstimationError(f"threshold {threshold} and hysteresis {hysteresis} must be finite, hysteresis ≥ 0")
-    on = f >= threshold
-    off = f < threshold - hysteresis
-    out = np.zeros(f.shape, dtype=bool)
-    state = np.zeros(f.shape[1], dtype=bool)
-    for k in range(f.shape[0]):  # a recursion (the state carries over); N × 4 booleans
-        state = np.where(on[k], True, np.where(off[k], False, state))
-        out[k] = state
-    return out
+    band = Hysteresis(threshold, hysteresis, f.shape[1])
+    return np.array([band.step(row) for row in f], dtype=bool).reshape(f.shape)
 
 
 def contact_agreement(a: np.ndarray, b: np.ndarray, feet: Sequence[str] | None = None) -> dict:
@@ -194,26 +202,64 @@ class AttitudeFilter:
         return self.R
 
 
+class OrientationEstimator:
+    """AttitudeFilter on a stream of IMU samples, started as estimate_orientation starts it: the
+    samples of the first ATTITUDE_INIT_S are held until the initial tilt (their mean accelerometer
+    reading) is known, then every sample comes out in order with its orientation.
+
+    push(t [s], gyro [rad/s], accel [m/s²]) → [(t, quaternion x y z w), ...] (empty while held).
+    Each step integrates the mean of its two gyro readings.
+    """
+
+    def __init__(self, kp: float = ATTITUDE_KP, ki: float = ATTITUDE_KI) -> None:
+        self.kp, self.ki = kp, ki
+        self.filter: AttitudeFilter | None = None
+        self._held: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self._last: tuple[float, np.ndarray] | None = None  # (t, gyro) of the previous sample
+
+    def push(self, t: float, gyro: np.ndarray, accel: np.ndarray) -> list[tuple[float, np.ndarray]]:
+        sample = (float(t), np.asarray(gyro, dtype=float), np.asarray(accel, dtype=float))
+        if not (np.isfinite(sample[0]) and np.all(np.isfinite(sample[1])) and np.all(np.isfinite(sample[2]))):
+            raise EstimationError("non-finite IMU or time sample")
+        if self.filter is None:
+            if not self._held or sample[0] <= self._held[0][0] + ATTITUDE_INIT_S:
+                self._held.append(sample)
+                return []
+            held, self._held = self._held, []
+            self.filter = AttitudeFilter(np.mean([a for _, _, a in held], axis=0), self.kp, self.ki)
+            return [self._step(*s) for s in (*held, sample)]
+        return [self._step(*sample)]
+
+    def flush(self) -> list[tuple[float, np.ndarray]]:
+        """The held samples of a stream shorter than ATTITUDE_INIT_S (a whole log read at once)."""
+        if self.filter is not None or not self._held:
+            return []
+        held, self._held = self._held, []
+        self.filter = AttitudeFilter(np.mean([a for _, _, a in held], axis=0), self.kp, self.ki)
+        return [self._step(*s) for s in held]
+
+    def _step(self, t: float, gyro: np.ndarray, accel: np.ndarray) -> tuple[float, np.ndarray]:
+        assert self.filter is not None
+        if self._last is not None:
+            self.filter.update(t - self._last[0], 0.5 * (self._last[1] + gyro), accel)
+        self._last = (t, gyro)
+        return t, quaternion_xyzw(self.filter.R)
+
+
 def estimate_orientation(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, kp: float = ATTITUDE_KP,
                          ki: float = ATTITUDE_KI) -> np.ndarray:
     """The IMU's orientation (N × 4, x y z w; world z up, yaw 0 at the start) from its gyro
     (N × 3) [rad/s] and accelerometer (N × 3) [m/s², gravity included] at stamps t (N) [s]
-    (AttitudeFilter; the initial tilt from the first ATTITUDE_INIT_S of accelerometer readings).
-    Each step integrates the mean of its two gyro readings."""
+    (OrientationEstimator: the initial tilt from the first ATTITUDE_INIT_S of accelerometer readings)."""
     t = np.asarray(t, dtype=float)
     n = len(t)
     gyro = _check_rows("gyro", gyro, n, 3)
     accel = _check_rows("accel", accel, n, 3)
     if n == 0:
         raise EstimationError("no IMU samples")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(gyro)) and np.all(np.isfinite(accel))):
-        raise EstimationError("non-finite IMU or time samples")
-    filt = AttitudeFilter(accel[t <= t[0] + ATTITUDE_INIT_S].mean(axis=0), kp, ki)
-    out = np.empty((n, 4))
-    out[0] = quaternion_xyzw(filt.R)
-    for k in range(1, n):
-        out[k] = quaternion_xyzw(filt.update(t[k] - t[k - 1], 0.5 * (gyro[k - 1] + gyro[k]), accel[k]))
-    return out
+    est = OrientationEstimator(kp, ki)
+    out = [q for k in range(n) for _, q in est.push(t[k], gyro[k], accel[k])] + [q for _, q in est.flush()]
+    return np.array(out)
 
 
 def estimate_base(
@@ -254,35 +300,15 @@ def estimate_base(
     if not (np.all(np.isfinite(qj)) and np.all(np.isfinite(qdj)) and np.all(np.isfinite(gyro))
             and np.all(np.isfinite(t))):
         raise EstimationError("non-finite joint, gyro or time samples")
-    R_bi = _frame_rotation(robot, imu_frame)
-    # base orientation R_wb = R_wi R_ib; angular velocity in the base frame ω_b = R_bi ω_i
-    quat_b = np.empty((n, 4))
-    for k in range(n):
-        R_wb = pin.Quaternion(quat[k]).matrix() @ R_bi.T
-        quat_b[k] = quaternion_xyzw(R_wb)
-    omega = gyro @ R_bi.T
-    model, data = robot.model, robot.model.createData()
-    q = pin.neutral(model)   # base at the origin, level: positions and velocities come out in the base frame
-    v = np.zeros(model.nv)
+    legs = LegOdometry(robot, imu_frame)
+    quat_b = np.array([legs.base_quat(q) for q in quat])
+    omega = gyro @ legs.R_bi.T
     lin = np.full((n, 3), np.nan)
     height = np.full(n, np.nan)
     for k in range(n):
-        stance = np.flatnonzero(contacts[k])
-        if len(stance) == 0:
-            continue
-        q[7:] = qj[k]
-        v[3:6], v[6:] = omega[k], qdj[k]
-        pin.forwardKinematics(model, data, q, v)
-        pin.updateFramePlacements(model, data)
-        R_wb = pin.Quaternion(quat_b[k]).matrix()
-        vel, z = np.zeros(3), 0.0
-        for i in stance:
-            fid = robot.foot_frame_ids[i]
-            # foot velocity with the base at rest linearly: ω × r_f + J_f q̇_j (base frame)
-            vel -= pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED).linear
-            z -= (R_wb @ data.oMf[fid].translation)[2]
-        lin[k] = vel / len(stance)
-        height[k] = z / len(stance)
+        found = legs.stance(qj[k], qdj[k], quat_b[k], omega[k], contacts[k])
+        if found is not None:
+            lin[k], height[k] = found
     valid = np.flatnonzero(np.isfinite(lin[:, 0]))
     if len(valid) == 0:
         raise EstimationError("no sample has a stance foot: the base velocity cannot be estimated from the legs")
@@ -298,6 +324,68 @@ def estimate_base(
         pos[1:, :2] = np.cumsum(0.5 * (v_world[1:, :2] + v_world[:-1, :2]) * dt, axis=0)
     pos[:, 2] = height
     return pos, quat_b, np.hstack([lin, omega])
+
+
+class LegOdometry:
+    """The base from an IMU and the stance legs (estimate_base's law), one sample at a time.
+
+    base_quat / stance are the per-sample law estimate_base applies to a whole log; step() is its
+    causal form for a node: a sample without a stance foot holds the previous linear velocity and
+    height (None before the first stance: a stream cannot back-fill), and x, y integrate the
+    world-frame velocity trapezoidally from the first sample out.
+    """
+
+    def __init__(self, robot: RobotDescription, imu_frame: str | None = None) -> None:
+        self.robot = robot
+        self.R_bi = _frame_rotation(robot, imu_frame)
+        self._data = robot.model.createData()
+        self._q = pin.neutral(robot.model)  # base at the origin, level: kinematics in the base frame
+        self._v = np.zeros(robot.model.nv)
+        self._last: tuple[float, np.ndarray, np.ndarray] | None = None  # t, world velocity, x y of the last step
+        self._held: tuple[np.ndarray, float] = (np.zeros(3), 0.0)  # the last stance estimate
+
+    def base_quat(self, imu_quat_xyzw: np.ndarray) -> np.ndarray:
+        """The base orientation R_wb = R_wi R_ib (x y z w) of the IMU's."""
+        return quaternion_xyzw(pin.Quaternion(np.asarray(imu_quat_xyzw, dtype=float)).matrix() @ self.R_bi.T)
+
+    def stance(self, qj: np.ndarray, qdj: np.ndarray, quat_b: np.ndarray, omega_b: np.ndarray,
+               contacts: np.ndarray) -> tuple[np.ndarray, float] | None:
+        """(linear velocity [m/s] in the base frame, height [m]) from the stance feet (module
+        docstring), None without a stance foot."""
+        stance = np.flatnonzero(contacts)
+        if len(stance) == 0:
+            return None
+        model, data, q, v = self.robot.model, self._data, self._q, self._v
+        q[7:] = qj
+        v[3:6], v[6:] = omega_b, qdj
+        pin.forwardKinematics(model, data, q, v)
+        pin.updateFramePlacements(model, data)
+        R_wb = pin.Quaternion(quat_b).matrix()
+        vel, z = np.zeros(3), 0.0
+        for i in stance:
+            fid = self.robot.foot_frame_ids[i]
+            # foot velocity with the base at rest linearly: ω × r_f + J_f q̇_j (base frame)
+            vel -= pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED).linear
+            z -= (R_wb @ data.oMf[fid].translation)[2]
+        return vel / len(stance), z / len(stance)
+
+    def step(self, t: float, qj: np.ndarray, qdj: np.ndarray, imu_quat_xyzw: np.ndarray, imu_gyro: np.ndarray,
+             contacts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(base position (3), quaternion x y z w (4), twist in the base frame (6)) at t [s], or
+        None before the first stance sample."""
+        quat_b = self.base_quat(imu_quat_xyzw)
+        omega = self.R_bi @ np.asarray(imu_gyro, dtype=float)
+        found = self.stance(qj, qdj, quat_b, omega, contacts)
+        if found is None:
+            if self._last is None:
+                return None
+            found = self._held  # flight: the last stance estimate, as estimate_base holds it
+        lin, height = found
+        v_world = pin.Quaternion(quat_b).matrix() @ lin
+        xy = np.zeros(2) if self._last is None else (
+            self._last[2] + 0.5 * (v_world[:2] + self._last[1][:2]) * (t - self._last[0]))
+        self._last, self._held = (float(t), v_world, xy), found
+        return np.r_[xy, height], quat_b, np.r_[lin, omega]
 
 
 def _rotations(quat_xyzw: np.ndarray) -> np.ndarray:

@@ -21,13 +21,16 @@ Bags are read with rosbags' AnyReader: rosbag2 MCAP and sqlite3 (db3), ROS 1 .ba
 types come from the bag's own embedded definitions, so types CIML does not know (a Unitree
 LowCmd) are readable by field path. The rate is measured from the joint-state stamps
 (stamps.measure_rate) and the stamp problems are reported. Every rejection names the role,
-its topic, the field and why, in one line. Pure module: no rclpy.
+its topic, the field and why, in one line. Each role's message is read by one per-message
+reader (JointReader, contact_reader, imu_reading, odometry_reading, CommandReader), which the
+live graph's state_filter calls too (live_inputs). Pure module: no rclpy.
 """
 from __future__ import annotations
 
+import array
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -92,7 +95,7 @@ def field_values(msg: Any, path: str | list) -> np.ndarray:
             items = nxt
     flat: list[float] = []
     for it in items:
-        if isinstance(it, (np.ndarray, list, tuple)):
+        if isinstance(it, (np.ndarray, list, tuple, array.array)):  # rclpy holds numeric arrays as array.array
             flat.extend(np.asarray(it, dtype=float).ravel().tolist())
         else:
             flat.append(float(it))
@@ -229,8 +232,9 @@ def _rotate_to_body(quat_xyzw: np.ndarray, vec: np.ndarray) -> np.ndarray:
 # --- roles ----------------------------------------------------------------------------
 
 
-class _JointReader:
-    """sensor_msgs/JointState → (q, q̇, τ) in URDF order, by name through joint_map."""
+class JointReader:
+    """sensor_msgs/JointState → (q, q̇, τ) in URDF order, by name through joint_map (a bag's or a
+    live topic's message)."""
 
     def __init__(self, robot: RobotDescription, profile: RobotProfile, topic: str, need_effort: bool) -> None:
         self.robot, self.profile, self.topic, self.need_effort = robot, profile, topic, need_effort
@@ -308,46 +312,11 @@ def _read_contacts(robot, spec, tops, rej, joint_top) -> tuple[np.ndarray, np.nd
         desc = f"per-foot topics {spec['topics']} ({spec['type']}, field {spec['field']})"
     else:
         top = tops[spec["topic"]] if spec["topic"] in tops else joint_top
+        read = contact_reader(robot, spec)
+        t, rows = _convert(top, rej, read)
         if spec["type"] == CONTACT_STATE:
-            def conv(m):
-                flags = np.asarray(m.in_contact, dtype=bool)
-                if flags.shape != (len(m.foot_names),):
-                    raise ValueError(f"{len(m.foot_names)} foot_names but {flags.size} in_contact flags")
-                try:
-                    return flags[robot.foot_permutation(list(m.foot_names))]
-                except Exception as err:
-                    raise BagError(f"contacts ({top.topic}): {err}") from err
-            t, rows = _convert(top, rej, conv)
             return t, np.asarray(rows, dtype=bool), f"topic {top.topic} ({CONTACT_STATE})"
-        if spec["type"] == JOINT_STATE:
-            names = list(spec["names"])
-
-            def conv(m):
-                index = {n: i for i, n in enumerate(m.name)}
-                missing = [n for n in names if n not in index]
-                if missing:
-                    raise ValueError(f"name[] lacks the foot entries {missing}")
-                vals = np.asarray(getattr(m, spec["field"]), dtype=float)
-                if vals.size != len(m.name):
-                    raise ValueError(f"{spec['field']} has {vals.size} values for {len(m.name)} names")
-                return vals[[index[n] for n in names]]
-            perm = robot.foot_permutation(names)
-        else:
-            perm = None
-
-            def conv(m):
-                return field_values(m, spec["field"])
-        t, rows = _convert(top, rej, conv)
-        lens = {len(r) for r in rows}
-        if len(lens) != 1:
-            raise BagError(f"contacts ({top.topic}): field {spec['field']} changes length {sorted(lens)}")
         vals = np.asarray(rows, dtype=float)
-        if perm is None:
-            try:
-                perm = _foot_order(robot, spec.get("order"), vals.shape[1])
-            except Exception as err:
-                raise BagError(f"contacts ({top.topic}): field {spec['field']}: {err}") from err
-        vals = vals[:, perm]
         desc = f"topic {top.topic} ({spec['type']}, field {spec.get('field')})"
     finite = np.all(np.isfinite(vals), axis=1)
     t, vals = t[finite], vals[finite]
@@ -356,25 +325,69 @@ def _read_contacts(robot, spec, tops, rej, joint_top) -> tuple[np.ndarray, np.nd
     return t, vals != 0, desc + " (non-zero = contact)"
 
 
+def contact_reader(robot: RobotDescription, spec: dict) -> Callable[[Any], np.ndarray]:
+    """One message of a single-topic contacts input → per-foot values in the robot's foot order:
+    flags (ContactState, by foot name) or the field's values (forces, pressures or flags) — the
+    one reading of such a message, for a bag (load_log) and a live topic (live_inputs).
+    A message that cannot be read raises ValueError; a ContactState naming other feet, BagError."""
+    if spec["type"] == CONTACT_STATE:
+        def read_flags(m) -> np.ndarray:
+            flags = np.asarray(m.in_contact, dtype=bool)
+            if flags.shape != (len(m.foot_names),):
+                raise ValueError(f"{len(m.foot_names)} foot_names but {flags.size} in_contact flags")
+            try:
+                return flags[robot.foot_permutation(list(m.foot_names))]
+            except Exception as err:
+                raise BagError(f"contacts ({spec['topic']}): {err}") from err
+        return read_flags
+    if spec["type"] == JOINT_STATE:
+        names = list(spec["names"])
+        perm = robot.foot_permutation(names)
+
+        def read_entries(m) -> np.ndarray:
+            index = {n: i for i, n in enumerate(m.name)}
+            missing = [n for n in names if n not in index]
+            if missing:
+                raise ValueError(f"name[] lacks the foot entries {missing}")
+            vals = np.asarray(getattr(m, spec["field"]), dtype=float)
+            if vals.size != len(m.name):
+                raise ValueError(f"{spec['field']} has {vals.size} values for {len(m.name)} names")
+            return vals[[index[n] for n in names]][perm]
+        return read_entries
+
+    def read_field(m) -> np.ndarray:
+        vals = field_values(m, spec["field"])
+        return vals[_foot_order(robot, spec.get("order"), vals.size)]
+    return read_field
+
+
 def _scalar(v: np.ndarray, path: str) -> float:
     if v.size != 1:
         raise ValueError(f"field {path} holds {v.size} values, expected one per foot topic")
     return float(v[0])
 
 
+def odometry_reading(m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """nav_msgs/Odometry → (position [m], quaternion x y z w, twist [linear, angular] as logged);
+    the one reading of a base message, for a bag and a live topic. Raises ValueError."""
+    p, tw = m.pose.pose.position, m.twist.twist
+    pos = np.array([p.x, p.y, p.z], dtype=float)
+    quat = _quat(m.pose.pose.orientation, "pose.pose.orientation")
+    twist = np.array([tw.linear.x, tw.linear.y, tw.linear.z, tw.angular.x, tw.angular.y, tw.angular.z], dtype=float)
+    _finite("pose.pose.position / twist.twist", pos, twist)
+    return pos, quat, twist
+
+
+def twist_in_body(quat_xyzw: np.ndarray, twist: np.ndarray) -> np.ndarray:
+    """A world-frame twist ([linear, angular], one or N rows) in the base frame (twist_frame: world)."""
+    return np.hstack([_rotate_to_body(quat_xyzw, twist[..., :3]), _rotate_to_body(quat_xyzw, twist[..., 3:])])
+
+
 def _read_base(spec, tops, rej, warnings: list[str]):
     """(stamps, positions, quaternions, twists in the body frame, description) of a measured base input."""
     if "topic" in spec:
         top = tops[spec["topic"]]
-
-        def conv(m):
-            p, tw = m.pose.pose.position, m.twist.twist
-            pos = np.array([p.x, p.y, p.z], dtype=float)
-            quat = _quat(m.pose.pose.orientation, "pose.pose.orientation")
-            twist = np.array([tw.linear.x, tw.linear.y, tw.linear.z, tw.angular.x, tw.angular.y, tw.angular.z])
-            _finite("pose.pose.position / twist.twist", pos, twist)
-            return pos, quat, twist
-        t, rows = _convert(top, rej, conv)
+        t, rows = _convert(top, rej, odometry_reading)
         pos = np.array([r[0] for r in rows])
         quat = np.array([r[1] for r in rows])
         twist = np.array([r[2] for r in rows])
@@ -410,7 +423,7 @@ def _read_base(spec, tops, rej, warnings: list[str]):
         frames = {ttop.msgs[0].header.frame_id} if hasattr(ttop.msgs[0], "header") else set()
         parents = {ptop.msgs[0].header.frame_id} if hasattr(ptop.msgs[0], "header") else set()
     if spec["twist_frame"] == "world":
-        twist = np.hstack([_rotate_to_body(quat, twist[:, :3]), _rotate_to_body(quat, twist[:, 3:])])
+        twist = twist_in_body(quat, twist)
         desc += ", twist in the world frame rotated into the base frame"
     else:
         desc += f", twist in the base frame (child_frame_id {sorted(frames)})"
@@ -429,21 +442,31 @@ def imu_has_orientation(m) -> bool:
     return not (cov.size and cov[0] == -1.0) and bool(np.linalg.norm([o.x, o.y, o.z, o.w]) >= 1e-6)
 
 
+def _vector3(v, what: str) -> np.ndarray:
+    x = np.array([v.x, v.y, v.z], dtype=float)
+    _finite(what, x)
+    return x
+
+
+def imu_reading(m) -> tuple[np.ndarray | None, np.ndarray, Any]:
+    """sensor_msgs/Imu → (quaternion x y z w, or None when it carries none: imu_has_orientation;
+    gyro [rad/s]; the linear_acceleration field, read by imu_acceleration only where the
+    orientation is estimated) — the one reading of an IMU message, for a bag and a live topic."""
+    q = _quat(m.orientation, "orientation") if imu_has_orientation(m) else None
+    return q, _vector3(m.angular_velocity, "angular_velocity"), m.linear_acceleration
+
+
+def imu_acceleration(field) -> np.ndarray:
+    """The IMU's specific force [m/s²] (REP 145) of imu_reading's third value; ValueError if not finite."""
+    return _vector3(field, "linear_acceleration")
+
+
 def _read_imu(spec, tops, rej) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     """(stamps [ns], orientation (M × 4, x y z w), gyro (M × 3) [rad/s], source description): the
     quaternion as logged, or estimated from gyro and accelerometer (estimation.estimate_orientation)
     when the profile says `orientation: estimate` or, with `auto`, when a message has none."""
     top = tops[spec["topic"]]
-
-    def vec(v, what: str) -> np.ndarray:
-        x = np.array([v.x, v.y, v.z], dtype=float)
-        _finite(what, x)
-        return x
-
-    def conv(m):
-        q = _quat(m.orientation, "orientation") if imu_has_orientation(m) else None
-        return q, vec(m.angular_velocity, "angular_velocity"), m.linear_acceleration
-    t, rows = _convert(top, rej, conv)
+    t, rows = _convert(top, rej, imu_reading)
     gyro = np.array([r[1] for r in rows])
     missing = sum(r[0] is None for r in rows)
     desc = f"topic {spec['topic']} (sensor_msgs/msg/Imu)"
@@ -454,7 +477,7 @@ def _read_imu(spec, tops, rej) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]
     accel: list[np.ndarray | None] = []
     for r in rows:
         try:
-            accel.append(vec(r[2], "linear_acceleration"))
+            accel.append(imu_acceleration(r[2]))
         except ValueError as err:
             rej.add(top.role, top.topic, str(err))
             accel.append(None)
@@ -468,33 +491,37 @@ def _read_imu(spec, tops, rej) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]
                            "complementary filter, estimation.estimate_orientation)")
 
 
-class _Command:
-    """Command input: stamps and a function giving u at a sample (q, q̇, time since the command)."""
+class CommandReader:
+    """The command input's law: read(msg) → a row (one message, as the profile says), and
+    u(row, q, q̇, dt) → the torque it asks for at a sample dt seconds after the command, clipped
+    to the torque limits — the one reading of a command, for a bag (load_log) and a live topic
+    (live_inputs). read raises ValueError for a message it rejects, BagError when the message
+    cannot fit the profile (joint names of another robot)."""
 
-    def __init__(self, robot, profile, spec, tops, rej) -> None:
-        self.robot, self.spec = robot, spec
-        top = tops[spec["topic"]]
-        self.topic = top.topic
+    def __init__(self, robot: RobotDescription, profile: RobotProfile, spec: dict) -> None:
+        self.robot, self.spec, self.topic = robot, spec, spec["topic"]
+        self.read: Callable[[Any], Any]
+        self.u: Callable[[Any, np.ndarray, np.ndarray, float], np.ndarray]
         limits = robot.torque_limits
         if spec["type"] == TORQUE_COMMAND:
             from .conversions import ConversionError, torque_command_arrays
 
-            def conv(m):
+            def read_torque_command(m):
                 try:
                     return torque_command_arrays(robot, m)
                 except ConversionError as err:
                     if "do not match the robot" in str(err):
-                        raise BagError(f"command ({top.topic}): {err}") from err
+                        raise BagError(f"command ({self.topic}): {err}") from err
                     raise ValueError(str(err)) from err
-            self.t, self.rows = _convert(top, rej, conv)
-            self.u = lambda i, q, qd, dt: self.rows[i].total(q, qd, limits, elapsed=dt)
-            self.desc = f"topic {top.topic} ({TORQUE_COMMAND}, the joint loop's law)"
+            self.read = read_torque_command
+            self.u = lambda row, q, qd, dt: row.total(q, qd, limits, elapsed=dt)
+            self.desc = f"topic {self.topic} ({TORQUE_COMMAND}, the joint loop's law)"
         elif "fields" in spec:
             f = spec["fields"]
             perm = self._perm(profile, spec["joints"])
             n = len(spec["joints"])
 
-            def conv(m):
+            def read_pd(m):
                 vals = {}
                 for key, path in f.items():
                     v = field_values(m, path)
@@ -503,22 +530,20 @@ class _Command:
                     vals[key] = v[:n][perm]  # arrays may be longer than the robot (LowCmd has 20 motors)
                     _finite(f"field {path}", vals[key])
                 return vals
-            self.t, self.rows = _convert(top, rej, conv)
             zero = np.zeros(robot.n_joints)
 
-            def pd(i, q, qd, dt):
-                c = self.rows[i]
+            def pd(c, q, qd, dt):
                 u = c.get("tau_ff", zero)
                 if "kp" in c:
                     u = u + c["kp"] * (c["q_des"] - q)
                 if "kd" in c:
                     u = u + c["kd"] * (c.get("dq_des", zero) - qd)
                 return np.clip(u, -limits, limits)
-            self.u = pd
-            self.desc = f"topic {top.topic} ({spec['type']}, low-level PD by field paths)"
+            self.read, self.u = read_pd, pd
+            self.desc = f"topic {self.topic} ({spec['type']}, low-level PD by field paths)"
         else:
             if spec["type"] == JOINT_STATE:
-                def conv(m):
+                def read_efforts(m):
                     names = [profile.to_urdf_name(x) for x in m.name]
                     vals = np.asarray(getattr(m, spec["field"]), dtype=float)
                     if vals.size != len(names):
@@ -530,19 +555,20 @@ class _Command:
                     out = vals[[index[j] for j in robot.joint_names]]
                     _finite(spec["field"], out)
                     return out
+                self.read = read_efforts
             else:
                 perm = self._perm(profile, spec["joints"])
                 n = len(spec["joints"])
 
-                def conv(m):
+                def read_array(m):
                     v = field_values(m, spec["field"])
                     if v.size != n:
                         raise ValueError(f"field {spec['field']} has {v.size} values for {n} joints")
                     _finite(f"field {spec['field']}", v)
                     return v[perm]
-            self.t, self.rows = _convert(top, rej, conv)
-            self.u = lambda i, q, qd, dt: np.clip(self.rows[i], -limits, limits)
-            self.desc = f"topic {top.topic} ({spec['type']}, field {spec['field']}: joint efforts)"
+                self.read = read_array
+            self.u = lambda row, q, qd, dt: np.clip(row, -limits, limits)
+            self.desc = f"topic {self.topic} ({spec['type']}, field {spec['field']}: joint efforts)"
 
     def _perm(self, profile, joints) -> np.ndarray:
         mapped = [profile.to_urdf_name(j) for j in joints]
@@ -552,6 +578,19 @@ class _Command:
             raise BagError(f"command ({self.spec['topic']}): joints lists missing {missing}, unknown {unknown}; "
                            f"expected the URDF's {list(self.robot.joint_names)} in the array's order")
         return np.array([mapped.index(j) for j in self.robot.joint_names], dtype=int)
+
+
+class _Command:
+    """A bag's command input: its stamps [ns], rows and u at a sample (CommandReader's law)."""
+
+    def __init__(self, robot, profile, spec, tops, rej) -> None:
+        reader = CommandReader(robot, profile, spec)
+        self.topic, self.desc = reader.topic, reader.desc
+        self.t, self.rows = _convert(tops[spec["topic"]], rej, reader.read)
+        self.law = reader.u
+
+    def u(self, i: int, q: np.ndarray, qd: np.ndarray, dt: float) -> np.ndarray:
+        return self.law(self.rows[i], q, qd, dt)
 
 
 def _span(t: np.ndarray) -> str:
@@ -605,7 +644,7 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
 
     # joint states (the sample instants)
     jtop = tops[js["topic"]]
-    jr = _JointReader(robot, profile, jtop.topic, need_effort=profile.torque_source != "none")
+    jr = JointReader(robot, profile, jtop.topic, need_effort=profile.torque_source != "none")
     tj, joints = _convert(jtop, rej, jr)
     keep = np.append(tj[1:] != tj[:-1], True)  # duplicated stamps: keep the last one
     if not keep.all():  # every drop is counted

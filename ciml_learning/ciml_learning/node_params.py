@@ -36,6 +36,9 @@ STATE_FILTER = NodeSchema("ciml_learning", "state_filter",
           "first samples)", "Hz", 0.0, 2000.0),
     Param("max_age", 0.02, "Oldest base/contact/command sample paired with a joint sample", "s", 0.001, 1.0,
           read_only=False),
+    Param("inputs", "profile", "Topics read: the robot profile's input map (a robot's own driver or a replay of "
+          "its log) or CIML's own (/joint_states, /base_state, /contact_state, /torque_command, as the simulator "
+          "bridge publishes them for any robot)", choices=("profile", "ciml")),
     replace(THREAD_PRIORITY, default=10),
     ROBOT,
 ))

@@ -9,6 +9,8 @@ Without the right to (root or an rtprio limit, e.g. `@realtime - rtprio 98` in
 """
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import os
 
 THREAD_PRIORITY = "thread_priority"
@@ -59,3 +61,49 @@ def stat_fields(pid: int, tid: int | None = None) -> list[str]:
 def scheduling_policy(pid: int, tid: int | None = None) -> int:
     """The scheduling policy of a thread (os.SCHED_OTHER, os.SCHED_FIFO, ...)."""
     return int(stat_fields(pid, tid)[38])
+
+
+class _SigevThread(ctypes.Structure):
+    _fields_ = [("function", ctypes.c_void_p), ("attribute", ctypes.c_void_p)]
+
+
+class _SigevUnion(ctypes.Union):
+    _fields_ = [("pad", ctypes.c_int * 12), ("thread", _SigevThread)]
+
+
+class _SigEvent(ctypes.Structure):  # struct sigevent (Linux, glibc)
+    _fields_ = [("value", ctypes.c_void_p), ("signo", ctypes.c_int), ("notify", ctypes.c_int),
+                ("un", _SigevUnion)]
+
+
+class _Timespec(ctypes.Structure):
+    _fields_ = [("sec", ctypes.c_long), ("nsec", ctypes.c_long)]
+
+
+class _ITimerspec(ctypes.Structure):
+    _fields_ = [("interval", _Timespec), ("value", _Timespec)]
+
+
+_SIGEV_THREAD, _CLOCK_MONOTONIC = 2, 1
+_exit_timers: list = []  # the timers and their events live as long as the process
+
+
+def exit_after(seconds: float, status: int = 0) -> bool:
+    """_exit(status) from a native timer thread in `seconds`, without Python's GIL: a shutdown that
+    blocks in a C call holding the GIL (rclpy's node destruction did, for > 5 s) cannot run a
+    Python watchdog thread. POSIX timer_create with SIGEV_THREAD calls libc's _exit with the
+    timer's value. False where that is not available (then the caller keeps its own fallback)."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
+        event = _SigEvent(value=status, notify=_SIGEV_THREAD)
+        event.un.thread.function = ctypes.cast(libc._exit, ctypes.c_void_p).value
+        timer = ctypes.c_void_p()
+        if libc.timer_create(_CLOCK_MONOTONIC, ctypes.byref(event), ctypes.byref(timer)) != 0:
+            return False
+        spec = _ITimerspec(value=_Timespec(int(seconds), int((seconds % 1.0) * 1e9)))
+        if libc.timer_settime(timer, 0, ctypes.byref(spec), None) != 0:
+            return False
+    except (OSError, AttributeError, TypeError):
+        return False
+    _exit_timers.append((event, timer))
+    return True

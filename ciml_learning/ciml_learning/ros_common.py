@@ -110,9 +110,12 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
       destructor) and, rarely, left a process that never exited (CI, 2026-11-26: one of ~240
       SIGINTs, the node silent, its Python handler never run).
     - A shutdown still unfinished SHUTDOWN_GRACE after the signal is ended by the process with a
-      warning and every thread's stack on stderr (a watchdog thread; faulthandler's, which needs
-      no interpreter lock, a second later if even that thread cannot run): a stop request always
-      stops the process.
+      warning and every thread's stack on stderr (a watchdog thread), exit status 0: a stop
+      request always stops the process. If even that thread cannot run (rclpy's node
+      destruction blocked in C holding the interpreter lock: 1 in ~20 SIGINT rounds of a loaded
+      2-core machine, docs/LIVE_GRAPH.md), faulthandler dumps the stacks a second later without
+      the lock and a native timer thread (realtime.exit_after) ends the process with status 0
+      half a second after that.
     - A bad parameter (wrong type, out of range, refused by the schema) or a CimlError while
       building a node (bad URDF, scenario, model folder): one logged line, exit status 1.
 
@@ -133,7 +136,9 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
 
     def on_signal(signum: int, _frame) -> None:
         if not signalled:
-            faulthandler.dump_traceback_later(SHUTDOWN_GRACE + 1.0, exit=True)
+            # stacks, then exit 0, even if the shutdown blocks in a C call that holds the GIL
+            native = realtime.exit_after(SHUTDOWN_GRACE + 1.5, 0)
+            faulthandler.dump_traceback_later(SHUTDOWN_GRACE + 1.0, exit=not native)
             threading.Thread(target=watchdog, name="shutdown_watchdog", daemon=True).start()
         signalled.append(signum)
 

@@ -69,3 +69,18 @@ def test_only_the_given_threads_real_time_scheduled_and_children_of_the_others_n
     failed, policies = out.stdout.splitlines()
     assert failed == "None"
     assert policies.split() == [str(os.SCHED_FIFO), str(os.SCHED_OTHER), str(os.SCHED_OTHER)]
+
+
+@pytest.mark.parametrize("status", [0, 3])
+def test_exit_after_ends_a_process_whose_main_thread_holds_the_gil(status):
+    """realtime.exit_after: a native timer thread calls _exit(status) while the main thread is
+    blocked in a C call that holds the interpreter lock (as rclpy's node destruction did), where a
+    Python watchdog thread cannot run; the process ends with that status, not after the call."""
+    import subprocess
+    import sys
+
+    code = ("import ctypes, sys\nfrom ciml_learning import realtime\n"
+            f"assert realtime.exit_after(0.5, {status})\n"
+            "ctypes.PyDLL(None).sleep(30)  # holds the GIL\nsys.exit(9)\n")
+    proc = subprocess.run([sys.executable, "-c", code], timeout=20, capture_output=True)
+    assert proc.returncode == status, proc.stderr[-500:]

@@ -8,7 +8,6 @@ import pytest
 def test_node_measures_the_rate_and_matches_offline():
     import rclpy
 
-    from ciml_learning import conversions as cv
     from ciml_learning.filters import filter_state_log
     from ciml_learning.nodes.state_filter import RATE_SAMPLES, StateFilterNode
 
@@ -23,12 +22,11 @@ def test_node_measures_the_rate_and_matches_offline():
         qj = robot.standing_joints[None, :] + 0.1 * np.sin(2 * np.pi * 1.3 * t[:, None])
         qdj = 0.1 * 2 * np.pi * 1.3 * np.cos(2 * np.pi * 1.3 * t[:, None])
         tau = 10.0 * np.sin(2 * np.pi * 0.9 * t[:, None]) + np.arange(12)
-        zero = np.zeros(12)
-        cmd = cv.TorqueCommandArrays(0, tau[0], zero, zero, zero, zero, zero)  # u = τ_ff, constant
         pos, quat, twist = np.array([0, 0, 0.6]), np.array([0, 0, 0, 1.0]), np.zeros(6)
         contacts = np.ones(4, bool)
-        for k in range(n):
-            node.process(int(round(t[k] * 1e9)), (qj[k], qdj[k], tau[k]), (pos, quat, twist), contacts, cmd)
+        for k in range(n):  # u = τ[0], constant
+            node.process(int(round(t[k] * 1e9)), np.r_[pos, quat, qj[k]], np.r_[twist, qdj[k]], tau[k], tau[0],
+                         contacts)
         assert node.filter is not None and node.filter.fs == pytest.approx(fs, rel=1e-6)
         assert len(sent) == n - 2 * node.filter.delay  # the samples held while measuring are not lost
         q = np.hstack([np.tile(pos, (n, 1)), np.tile(quat, (n, 1)), qj])

@@ -1,39 +1,45 @@
-"""`state_filter`: raw sensor topics → /filtered_state (paper §III-C, online filter).
+"""`state_filter`: a robot's own sensor topics → /filtered_state (paper §III-C, online filter).
 
-Thin adapter around ciml_learning.filters.OnlineStateFilter. Each /joint_states sample
-is paired by ciml_learning.pairing's rule, as a log is read offline: the latest base state
-and contact state at or before it and the latest command strictly before it (the one the
-measured torque was produced under), at most max(max_age, 2.5 of that topic's periods) old;
-stale partners, wrong joint names, non-finite values and out-of-order stamps are rejected
-and counted on /diagnostics. Output is aligned to the filter's delay (≈ 60 ms at any rate).
+Thin adapter around ciml_learning.live_inputs.LiveInputs and filters.OnlineStateFilter. It
+subscribes to the topics of the `robot` profile's input map (docs/ROBOT_PROFILE.md: CIML's own
+/joint_states, /base_state, /contact_state, /torque_command for hyq; a Unitree layout's joint
+states with foot entries, IMU, foot-force array and effort or LowCmd command for go1) and hands
+every message to LiveInputs, which reads it with load_log's readers and pairs each joint sample by
+ciml_learning.pairing's rule, as a log is read offline. Rejected messages and samples are counted
+on /diagnostics; a topic that stays silent while others speak is a WARN there. With
+`inputs: ciml` it reads CIML's own topics for any robot instead (the simulator bridge publishes
+those; the shipped launch file sets it). Output is aligned to the filter's delay (≈ 60 ms at any rate).
 
-The filters are designed for the rate of /joint_states: the `rate` parameter, or (0, the
+The filters are designed for the rate of the joint states: the `rate` parameter, or (0, the
 default) the rate measured from the first RATE_SAMPLES stamps (median period, as the
 offline pipeline measures a whole log); those first samples are held and filtered once
 the rate is known, so nothing is lost and online still equals offline.
 """
 from __future__ import annotations
 
-from collections import deque
+import dataclasses
+import time
 
 import numpy as np
-from ciml_msgs.msg import ContactState, RobotState, TorqueCommand
-from nav_msgs.msg import Odometry
+from ciml_msgs.msg import RobotState
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
 
 from .. import conversions as cv
 from .. import topics
 from ..errors import CimlError
 from ..filters import OnlineStateFilter
+from ..live_inputs import LiveInputs
 from ..node_params import STATE_FILTER
-from ..pairing import is_strict, partner
-from ..profile import load_profile
-from ..ros_common import SENSOR_STREAM_QOS, STREAM_QOS, Health, PublishPeriods, declare_schema, run_node
+from ..profile import TORQUE_COMMAND, load_profile
+from ..replay import message_class
+from ..ros_common import OK, SENSOR_STREAM_QOS, STREAM_QOS, Health, PublishPeriods, declare_schema, run_node
 from ..stamps import measure_rate
 
 RATE_SAMPLES = 32
 """Joint samples whose stamps set the filter's rate when the `rate` parameter is 0."""
+SILENT_AFTER = 2.0
+"""[s] wall clock: an input topic without a message this long while another input speaks is silent."""
 
 
 class StateFilterNode(Node):
@@ -41,96 +47,58 @@ class StateFilterNode(Node):
         super().__init__("state_filter", **kwargs)
         p = declare_schema(self, STATE_FILTER, self._apply_parameters)  # node_params.py: the one schema
         fs, self.max_age = p["rate"], p["max_age"]
-        self.robot = load_profile(p["robot"]).robot()
+        profile = load_profile(p["robot"])
+        self.robot = profile.robot()
+        if p["inputs"] == "ciml":  # the robot on CIML's own topics: the shipped hyq profile's input map
+            profile = dataclasses.replace(profile, inputs=load_profile("hyq").inputs)
         if 0.0 < fs < 50.0:
             raise CimlError(f"rate {fs} Hz is too low for the 10 Hz low-pass (20 Hz stopband); give ≥ 50 Hz or 0")
         self.filter = OnlineStateFilter(fs) if fs > 0 else None
         self.periods: PublishPeriods | None = None  # /filtered_state as published, once the rate is known
         self._rate_samples: list = []  # held while the rate is measured
         self.health = Health(self)
-        self.base: deque = deque(maxlen=16)
-        self.contacts: deque = deque(maxlen=16)
-        self.commands: deque = deque(maxlen=16)
-        self.pending: deque = deque(maxlen=64)
-        self.last_stamp = -1
+        self.inputs = LiveInputs(self.robot, profile, self.max_age, self._reject)
         self.pub = self.create_publisher(RobotState, topics.FILTERED_STATE, STREAM_QOS)
-        self.create_subscription(JointState, topics.JOINT_STATES, self.on_joints, SENSOR_STREAM_QOS)
-        self.create_subscription(Odometry, topics.BASE_STATE, self.on_base, SENSOR_STREAM_QOS)
-        self.create_subscription(ContactState, topics.CONTACT_STATE, self.on_contacts, SENSOR_STREAM_QOS)
-        self.create_subscription(TorqueCommand, topics.TORQUE_COMMAND, self.on_command, STREAM_QOS)
+        self.last_heard: dict[str, float | None] = {}
+        for topic, msgtype, roles in self.inputs.subscriptions():
+            cls = message_class(msgtype)  # a type not installed here: one line at start (BagError)
+            # sensors best effort (matches any driver); CIML's own controller's commands reliable, as published
+            qos = STREAM_QOS if msgtype == TORQUE_COMMAND else SENSOR_STREAM_QOS
+            self.create_subscription(cls, topic, lambda msg, info, t=topic: self.on_message(t, msg, info), qos)
+            self.last_heard[topic] = None
+            self.get_logger().info(f"{'/'.join(roles)}: {topic} ({msgtype})")
+        self.started = time.monotonic()
+        self.create_timer(1.0, self.check_silent, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _apply_parameters(self, changes: dict) -> str | None:
-        self.max_age = changes.get("max_age", self.max_age)  # used by the next pairing
+        self.max_age = changes.get("max_age", self.max_age)
+        self.inputs.max_age_s = self.max_age  # used by the next pairing
         return None
 
-    def _convert(self, what: str, fn, msg):
-        try:
-            return fn(msg)
-        except CimlError as err:
-            self.health.count(f"rejected_{what}", f"{what} rejected: {err}")
-            return None
+    def _reject(self, event: str, reason: str | None) -> None:
+        self.health.count(event, reason)
 
-    def _store(self, history: deque, msg, value) -> None:
-        if value is not None:
-            history.append((cv.stamp_to_ns(msg.header.stamp), value))
-            self.drain()
+    def on_message(self, topic: str, msg, info) -> None:
+        # the publish time places headerless messages among the joint states (live_inputs)
+        self.last_heard[topic] = time.monotonic()
+        for sample in self.inputs.add(topic, msg, info["source_timestamp"]):
+            self.process(*sample)
 
-    def on_base(self, msg) -> None:
-        self._store(self.base, msg, self._convert("base_state", cv.odometry_arrays, msg))
+    def check_silent(self) -> None:
+        """WARN for each input topic silent SILENT_AFTER while another speaks; INFO while all wait."""
+        now = time.monotonic()
+        heard = [t for t in self.last_heard.values() if t is not None]
+        speaking = any(now - t < SILENT_AFTER for t in heard)
+        for topic, last in self.last_heard.items():
+            quiet = now - (last if last is not None else self.started)
+            self.health.condition(f"silent {topic}", speaking and quiet >= SILENT_AFTER,
+                                  message=f"no message on {topic} for {quiet:.1f} s while the other inputs speak")
+        self.health.condition("waiting", not heard, OK, f"waiting for {', '.join(self.last_heard)}")
 
-    def on_contacts(self, msg) -> None:
-        self._store(self.contacts, msg,
-                    self._convert("contact_state", lambda m: cv.contact_state_arrays(self.robot, m), msg))
-
-    def on_command(self, msg) -> None:
-        self._store(self.commands, msg,
-                    self._convert("torque_command", lambda m: cv.torque_command_arrays(self.robot, m), msg))
-
-    def on_joints(self, msg) -> None:
-        stamp = cv.stamp_to_ns(msg.header.stamp)
-        newest = self.pending[-1][0] if self.pending else self.last_stamp
-        if stamp <= newest:
-            self.health.count("out_of_order_stamps", "joint_states stamp did not increase")
-            return
-        self._store(self.pending, msg,
-                    self._convert("joint_states", lambda m: cv.joint_state_arrays(self.robot, m), msg))
-
-    def drain(self) -> None:
-        """Process joint samples in stamp order once their partners are final.
-
-        Topics are not ordered relative to each other over DDS, so a joint sample waits
-        until a base state, a contact state and a command stamped at or after it have
-        arrived (then the command in force before it is known), or until it is older
-        than max_age behind the newest joint sample (then it is dropped as stale).
-        """
-        max_age = int(self.max_age * 1e9)
-        while self.pending:
-            stamp, joints = self.pending[0]
-            complete = all(h and h[-1][0] >= stamp for h in (self.base, self.contacts, self.commands))
-            if not complete:
-                if self.pending[-1][0] - stamp <= max_age:
-                    return
-                self.pending.popleft()
-                self.health.count("stale_or_missing_partner", "no fresh base state, contact state or command")
-                continue
-            self.pending.popleft()
-            base, contacts, command = (partner(history, stamp, self.max_age, is_strict(role)) for role, history in (
-                ("base", self.base), ("contacts", self.contacts), ("command", self.commands)))
-            if any(p is None for p in (base, contacts, command)):
-                self.health.count("stale_or_missing_partner", "no fresh base state, contact state or command")
-                continue
-            self.process(stamp, joints, base[1], contacts[1], command[1], command[0])
-
-    def process(self, stamp: int, joints, base, contacts, command, command_stamp: int | None = None) -> None:
-        """Filter one sample; u is the joint loop's torque at `stamp` under `command`, stamped
-        `command_stamp` [ns] (None: the same instant; TorqueCommand.msg)."""
-        self.last_stamp = stamp
-        qj, qdj, tau = joints
-        pos, quat, twist = base
-        q = np.concatenate([pos, quat, qj])
-        v = np.concatenate([twist, qdj])
-        elapsed = 0.0 if command_stamp is None else (stamp - command_stamp) * 1e-9
-        u = command.total(qj, qdj, self.robot.torque_limits, elapsed=elapsed)
+    def process(self, stamp: int, q: np.ndarray, v: np.ndarray, tau: np.ndarray, u: np.ndarray,
+                contacts: np.ndarray) -> None:
+        """Filter one paired sample stamped `stamp` [ns] (LiveInputs: Pinocchio q, v; τ; the
+        command's torque u at that sample; contact flags)."""
         if self.filter is None:
             self._rate_samples.append((stamp * 1e-9, q, v, tau, u, contacts))
             if len(self._rate_samples) < RATE_SAMPLES:
@@ -140,7 +108,7 @@ class StateFilterNode(Node):
                 self.health.count("rate_out_of_range", f"measured /joint_states rate {fs:.1f} Hz is outside 50–2000 Hz")
                 self._rate_samples.clear()
                 return
-            self.get_logger().info(f"/joint_states rate measured from the stamps: {fs:.2f} Hz")
+            self.get_logger().info(f"joint-state rate measured from the stamps: {fs:.2f} Hz")
             self.filter = OnlineStateFilter(fs)
             held, self._rate_samples = self._rate_samples, []
         else:

@@ -1,10 +1,13 @@
 // The controller's calls into Pinocchio and proxsuite as C functions, for the compiled
-// control step (ciml_control.kernels, numba), which calls them by address: no Python
-// between the two Pinocchio passes, the QP and the algebra of one 250 Hz step.
+// (numba) modules of ciml_control.compiled (control_step, feedforward_qp, leg_ik), which call
+// them by address through ciml_control.native (ccall): no Python between the two Pinocchio
+// passes, the QP and the algebra of one 250 Hz step.
 //
-// Every function takes only pointers (the caller, ciml_control.native, guarantees the
-// sizes): matrices are row-major float64, sizes and results int64. No exception leaves a
-// function: failures are status codes.
+// ciml_control.native is the Python side: it loads this library, wraps the handles
+// (Dynamics, QpSolvers) and lists the ABI of the functions compiled code calls (FUNCTIONS).
+// Every function takes only pointers (the caller guarantees the sizes): matrices are
+// row-major float64, sizes and results int64. No exception leaves a function: failures are
+// status codes.
 #include <cstdint>
 #include <map>
 #include <memory>

@@ -233,9 +233,9 @@ class IdControllerNode(Node):
     def _waiting(self, now: float) -> None:
         """Not ready yet: publish nothing, say what is missing."""
         missing = [name for name, item, timeout in (
-            ("/joint_states", self.joints, self.state_timeout), ("/base_state", self.base, self.state_timeout),
-            ("/contact_state", self.contacts, self.state_timeout),
-            ("/reference", self.reference, self.reference_timeout))
+            (topics.JOINT_STATES, self.joints, self.state_timeout), (topics.BASE_STATE, self.base, self.state_timeout),
+            (topics.CONTACT_STATE, self.contacts, self.state_timeout),
+            (topics.REFERENCE, self.reference, self.reference_timeout))
             if not self._fresh(item, timeout, now)]
         self.health.set(WARN, f"waiting for {', '.join(missing) or 'inputs'} before the first command")
 

@@ -278,7 +278,7 @@ class IdControllerNode(Node):
         ref = self.reference[2]
         if not self._fresh(self.reference, self.reference_timeout, now):
             if not self._fresh(self.reference, self.reference_hold, now):
-                self.publish_damping("stale_reference", "no fresh /reference: damping", stamp)
+                self.publish_damping("stale_reference", f"no fresh {topics.REFERENCE}: damping", stamp)
                 return
             if self.params["wait_for_reference"]:
                 # in lockstep the simulation waits for this answer: wait for the reference instead
@@ -288,7 +288,7 @@ class IdControllerNode(Node):
             # a late reference (its node stalled, or restarts) is not a dead one: hold its last pose,
             # as a trajectory controller holds its last setpoint, instead of dropping the robot
             ref = replace(ref, v=np.zeros_like(ref.v), a=np.zeros_like(ref.a))
-            self.health.count("reference_held", "no fresh /reference: holding its last pose")
+            self.health.count("reference_held", f"no fresh {topics.REFERENCE}: holding its last pose")
         t0 = time.perf_counter()
         qj, qdj, _ = self.joints[2]
         pos, quat, twist = self.base[2]

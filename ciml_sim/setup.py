@@ -45,6 +45,7 @@ setup(
             "live_graph_rates = ciml_sim.benchmarks:live_graph_rates",
             "live_online_learning = ciml_sim.benchmarks:live_online_learning",
             "live_graph_memory = ciml_sim.benchmarks:live_graph_memory",
+            "scaling = ciml_sim.benchmarks:scaling",
         ],
     },
 )

@@ -24,8 +24,8 @@ BENCHMARKS = {
     "ciml_learning": ["extraction_batching", "extraction_throughput", "lwpr_cross_2d", "lwpr_online_30dims",
                       "online_nodes_per_sample", "train_lwpr_paper_size", "train_sgpr_paper_size"],
     "ciml_control": ["id_controller_dds_latency", "id_controller_step"],
-    "ciml_sim": ["diagnosis_50k", "live_graph_memory", "live_graph_rates", "live_online_learning", "sim_bridge_rate",
-                 "sim_headless_speed"],
+    "ciml_sim": ["diagnosis_50k", "live_graph_memory", "live_graph_rates", "live_online_learning", "scaling",
+                 "sim_bridge_rate", "sim_headless_speed"],
 }
 
 

@@ -95,6 +95,22 @@ def speed_benchmark(motion: str = "trot_35", duration: float = 4.0, scenario: st
     return out
 
 
+def scaling(sizes: str = "10000,100000,1000000", stages: str = "extraction,diagnosis,train_lwpr,train_sgpr",
+            motion: str = "trot_35", scenario: str = "default_gap", bag_samples: str = "10000", jobs: str = "1",
+            stage_limit_s: str = "900", bag_dir: str = "") -> dict:
+    """Wall time, CPU time and peak RSS of extraction, diagnosis and training against the log's
+    size N, each (stage, N) in a fresh process, with the fitted exponents b of a·N^b (issue 30
+    item 1; ciml_sim.scaling, whose docstring says how the logs are simulated). Options
+    (ciml bench --set NAME=VALUE): sizes comma-separated; stages, of extraction, diagnosis,
+    train_lwpr, train_sgpr; motion and scenario of the recordings; bag_samples per recorded bag;
+    jobs of training; stage_limit_s: a size whose predicted time exceeds it is skipped; bag_dir:
+    keep the recorded bags there (and reuse them) instead of a temporary folder."""
+    from .scaling import scaling_benchmark
+
+    return scaling_benchmark(sizes, stages, motion, scenario, int(bag_samples), int(jobs), float(stage_limit_s),
+                             bag_dir)
+
+
 def live_graph_rates() -> dict:
     """The launch file's whole graph for 60 s: rates, CPU, exit codes (ciml_learning.live_bench; it
     starts this package's launch file, so the benchmark is registered here)."""

@@ -30,11 +30,14 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
     Param("rate", 250.0, "Watchdog rate (control runs on each /joint_states sample)", "Hz", 10.0, 1000.0),
     Param("state_timeout", 0.05, "Damping when a state topic is older than this (node clock; use_sim_time:=true "
           "with a simulator)", "s", 0.002, 2.0, read_only=False),
-    Param("reference_timeout", 0.1, "A /reference older than this is stale: its last pose is held (zero velocity "
-          "and acceleration)", "s", 0.004, 5.0, read_only=False),
+    Param("reference_timeout", 0.1, "A /reference older than this is stale: safe stop (the swing feet land, then the "
+          "robot stands; ciml_control.safe_stop)", "s", 0.004, 5.0, read_only=False),
+    Param("landing_time", 0.2, "Safe stop: time for the swing feet to reach the ground", "s", 0.02, 2.0),
+    Param("resume_tolerance", 0.02, "Safe stop: a fresh /reference is tracked again only if its base is within this "
+          "of the pose the robot stopped at (else the robot stands until the motion restarts)", "m", 0.0, 1.0),
     Param("wait_for_reference", False, "With a simulator in lockstep: a joint sample whose /reference is older than "
           "reference_timeout is answered once a fresh one arrives (the simulation waits for the reference node as it "
-          "waits for this one) instead of holding the last pose", read_only=False),
+          "waits for this one) instead of the safe stop", read_only=False),
     Param("reference_hold", 0.5, "Damping when /reference is older than this (≤ reference_timeout: at once)", "s",
           0.0, 10.0, read_only=False),
     Param("model_error_timeout", 0.1, "Nominal model (ε = 0) when the newest prediction is older than this", "s",

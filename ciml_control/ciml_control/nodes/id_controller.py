@@ -15,15 +15,17 @@ Safety once it has commanded torque (counted on /diagnostics):
   receipt, on the node clock: run with use_sim_time:=true next to a simulator, so that
   a stalled simulation does not look like a dead robot), or /reference older than
   `reference_hold` → TorqueCommand MODE_DAMPING (no torque, no stiffness, joint damping only);
-- /reference older than `reference_timeout` but not `reference_hold`: the last reference
-  pose is held (its velocity and acceleration zero; counted: reference_held, with a warning),
-  as a trajectory controller holds its last setpoint: a reference node that stalls for a
-  few hundred milliseconds (measured in the live graph) must not drop the robot. With
+- /reference older than `reference_timeout` but not `reference_hold`: safe stop
+  (ciml_control.safe_stop; counted: reference_held, with a warning): the base and stance feet
+  hold the last reference, the swing feet land within `landing_time`, then the robot stands.
+  A reference node that stalls for a few hundred milliseconds (measured in the live graph)
+  must not drop the robot, and holding a trot's pose did (two feet in the air, then a
+  reference that came back ahead of the stopped robot). A fresh reference is tracked again
+  only within `resume_tolerance` of the stop's base; otherwise the robot keeps standing on it
+  (counted: reference_not_resumed, with a warning) until the motion restarts. With
   `wait_for_reference` (a simulator in lockstep: the launch file's `lockstep`) the joint sample
   is answered only when a fresh reference arrives (counted: reference_waits): the simulation
-  waits for a stalled reference node as it waits for this one, since holding a trot's pose
-  with two feet in the air for ~0.35 s dropped the robot (one process per node, a reference
-  node that stalled at the motion's start);
+  waits for a stalled reference node as it waits for this one;
 - non-finite or mismatched inputs are dropped by the conversions (never used);
 - a controller error (ControllerInputError) → damping for that step;
 - QP failures → the controller's documented fallback; counted.
@@ -58,7 +60,6 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import replace
 
 import numpy as np
 from ciml_msgs.msg import ContactState, ModelError, RobotReference, TorqueCommand
@@ -80,6 +81,8 @@ from ..controller import IdController
 from ..conversions import effort_array_msg, effort_joint_order, feedforward_msg, reference_point
 from ..feedback import FeedbackGains
 from ..node_params import ID_CONTROLLER
+from ..references import make_reference, standing_configuration
+from ..safe_stop import LIVE, SafeStop
 from ..standing import safe_damping_gain
 from ..trust import TrustLaw
 
@@ -111,6 +114,8 @@ class IdControllerNode(Node):
         self._damped = False     # the last command was MODE_DAMPING
         self._awaiting_reference = False  # the newest joint sample waits for a fresh /reference
         self.controller = self._build_controller(p)
+        self.safe_stop = SafeStop(self.robot, standing_configuration(self.robot), p["landing_time"],
+                                  p["resume_tolerance"])
         self._warm_up()
         self.health = Health(self)
         self.periods = PublishPeriods(self.health, "torque_command", rate)  # commands as published
@@ -173,8 +178,6 @@ class IdControllerNode(Node):
         """One control step at the standing reference before any input: the first step loads the
         compiled core and fills caches (~0.2 s here), which must not delay the first command
         after the robot driver's standing hold (a late first command drops the robot)."""
-        from ..references import make_reference, standing_configuration
-
         ref = make_reference(self.robot, "stand", standing_configuration(self.robot, 0.002)).sample(0.0)
         t0 = time.perf_counter()
         self.controller.compute(ref.q, ref.v, ref.contacts, ref, np.zeros(self.robot.nv))
@@ -275,8 +278,8 @@ class IdControllerNode(Node):
         if not states_fresh:
             self.publish_damping("stale_state", "base or contact state missing or stale: damping", stamp)
             return
-        ref = self.reference[2]
-        if not self._fresh(self.reference, self.reference_timeout, now):
+        fresh = self._fresh(self.reference, self.reference_timeout, now)
+        if not fresh:
             if not self._fresh(self.reference, self.reference_hold, now):
                 self.publish_damping("stale_reference", f"no fresh {topics.REFERENCE}: damping", stamp)
                 return
@@ -285,10 +288,14 @@ class IdControllerNode(Node):
                 self._awaiting_reference = True
                 self.health.counts["reference_waits"] += 1
                 return
-            # a late reference (its node stalled, or restarts) is not a dead one: hold its last pose,
-            # as a trajectory controller holds its last setpoint, instead of dropping the robot
-            ref = replace(ref, v=np.zeros_like(ref.v), a=np.zeros_like(ref.a))
-            self.health.count("reference_held", f"no fresh {topics.REFERENCE}: holding its last pose")
+        # a late reference (its node stalled, or restarts) is not a dead one: safe stop, not a fall
+        ref, stop = self.safe_stop.track(self.reference[2], fresh, now)
+        if stop != LIVE:
+            if fresh:
+                self.health.count("reference_not_resumed", f"{topics.REFERENCE} came back {self.safe_stop.jump:.3f} m "
+                                  "from where the robot stopped: standing until the motion restarts")
+            else:
+                self.health.count("reference_held", f"no fresh {topics.REFERENCE}: feet down, standing")
         t0 = time.perf_counter()
         qj, qdj, _ = self.joints[2]
         pos, quat, twist = self.base[2]

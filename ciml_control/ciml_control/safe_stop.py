@@ -1,18 +1,21 @@
 """What the controller tracks when its reference is late: feet down, then stand, and
 resume only a reference that is still where the robot is.
 
-Measured headless (HyQ, trot_35, nominal plant; ciml_control/test/test_safe_stop.py): with
-the last pose held, a reference that stalls for 0.35 s does not drop the robot while it is
-stale, but its return does: the motion went on for 0.35 s (12 cm at 0.35 m/s) while the
-robot stood, the base task chases that jump, and the robot falls within ~1.5 s. A stall of
-0.2 s (7 cm) is tracked again without a fall. Hence:
+Measured headless (HyQ, trot_35, nominal plant; ciml_sim/test/test_safe_stop.py): with the
+last pose held, a reference that stalls does not drop the robot while it is stale, but its
+return does: the motion went on while the robot stood, the base task chases that jump, and
+the robot falls within ~1.5 s. After 1 s the return dropped HyQ at 4 of 4 gait phases, after
+0.1 s (about 3.5 cm) at 3 of 4; 0.08 s (2.8 cm) brought the base down to 0.85 of its height.
+Hence:
 - stale: the base and the stance feet hold the last reference; each swing foot goes straight
   down to the ground (leg inverse kinematics, minimum-jerk over `landing_time`), then the
   robot stands on all feet. Moving the swing legs to the standing posture instead put a
   foot that touched down early where the posture's foot is not, and rolled the base;
-- fresh again: resumed only if the reference's base is within `resume_tolerance` of the
-  pose the robot stopped at; otherwise the robot keeps standing (the motion must be
-  restarted), which the node reports.
+- fresh again: resumed only if the reference's base is within `resume_tolerance`
+  (horizontally) of the pose the robot stopped at; otherwise the robot keeps standing until
+  the motion restarts. A fresh reference that leaps by more than that from the one before
+  (live: a reference node stopped for 0.3 s first sent its pre-stall instant, then caught up)
+  stops the robot the same way.
 """
 from __future__ import annotations
 
@@ -26,7 +29,7 @@ from ciml_learning.robot import RobotDescription
 from .references import BaseState, LegIK, ReferencePoint, quintic
 
 LANDING_TIME = 0.2       # [s] swing feet to the ground: about half a trot cycle, a swing's own length
-RESUME_TOLERANCE = 0.02  # [m] base position jump a resumed reference may have (headless: 2.8 cm dropped HyQ)
+RESUME_TOLERANCE = 0.02  # [m] horizontal base jump a resumed reference may have (headless: 2.8 cm dropped HyQ)
 
 LIVE, LANDING, STANDING = "live", "landing", "standing"
 
@@ -47,21 +50,32 @@ class SafeStop:
         self.ground = min(data.oMf[f].translation[2] for f in robot.foot_frame_ids)  # [m] a standing foot's height
         self.landing_time, self.resume_tolerance = landing_time, resume_tolerance
         self.stopped: ReferencePoint | None = None  # the last fresh reference before the stop
+        self.previous: ReferencePoint | None = None  # the newest reference tracked live
         self.since = 0.0                             # [s] when the stop began
         self.jump = 0.0                              # [m] base distance of the newest fresh reference
 
     def track(self, ref: ReferencePoint, fresh: bool, now: float) -> tuple[ReferencePoint, str]:
         if self.stopped is None:
-            if fresh:
+            previous, self.previous = self.previous, ref
+            if not fresh:
+                self._stop(ref, now)
+            elif previous is None or self._distance(ref, previous) <= self.resume_tolerance:
                 return ref, LIVE
-            self._stop(ref, now)
-        elif fresh:
-            self.jump = float(np.linalg.norm(ref.q[:3] - self.stopped.q[:3]))
+            else:  # a leap between two fresh references (e.g. a reference node whose clock caught up)
+                self._stop(previous, now)
+        if fresh:
+            assert self.stopped is not None
+            self.jump = self._distance(ref, self.stopped)
             if self.jump <= self.resume_tolerance:
-                self.stopped = None
+                self.stopped, self.previous = None, ref
                 return ref, LIVE
         elapsed = now - self.since
         return self.landing(elapsed), LANDING if elapsed < self.landing_time else STANDING
+
+    @staticmethod
+    def _distance(a: ReferencePoint, b: ReferencePoint) -> float:
+        """Horizontal distance of two references' bases [m] (a gait keeps its height)."""
+        return float(np.linalg.norm(a.q[:2] - b.q[:2]))
 
     def _stop(self, ref: ReferencePoint, now: float) -> None:
         """Begin a stop at the last fresh reference: where its feet are, and where they land."""

@@ -143,20 +143,19 @@ class ExtractionResult:
     leg_coupling: np.ndarray          # N × 6 × n_j, C of projection.leg_coupling
 
     def save(self, path: str, robot: RobotDescription, extra: dict | None = None) -> None:
-        """Write an .npz (arrays only, loadable with allow_pickle=False), atomically."""
-        import io
+        """Write an .npz (arrays only, loadable with allow_pickle=False), atomically, straight to
+        the file (no copy of the arrays in memory)."""
         import json
 
-        from .fileio import atomic_write_bytes
+        from .fileio import atomic_write_stream
 
-        buf = io.BytesIO()
         meta = {"format_version": 1, "input_names": list(learning_input_names(robot)),
                 "rbd_names": list(robot.rbd_error_names), "actuation_names": list(robot.joint_names),
                 "foot_names": list(robot.foot_frames), **(extra or {})}
-        np.savez(buf, t=self.t, inputs=self.inputs, rbd_error=self.rbd_error, rbd_observed=self.rbd_observed,
-                 actuation_error=self.actuation_error, contacts=self.contacts, valid=self.valid,
-                 metadata=np.array(json.dumps(meta)))
-        atomic_write_bytes(path, buf.getvalue())
+        atomic_write_stream(path, lambda f: np.savez(
+            f, t=self.t, inputs=self.inputs, rbd_error=self.rbd_error, rbd_observed=self.rbd_observed,
+            actuation_error=self.actuation_error, contacts=self.contacts, valid=self.valid,
+            metadata=np.array(json.dumps(meta))))
 
 
 def dynamics_batch(robot: RobotDescription, q: np.ndarray, v: np.ndarray,
@@ -177,6 +176,13 @@ def dynamics_batch(robot: RobotDescription, q: np.ndarray, v: np.ndarray,
     return id_terms, jac
 
 
+EXTRACTION_CHUNK = 4096
+"""Samples extract() solves at once. Its intermediates are per sample and large (foot Jacobians,
+J', the QR of J_cᵀ and the eq. (11) operator blocks: some 7 KB a sample, four times the result),
+so chunks bound them to about 30 MB whatever the log's length; the numbers do not depend on the
+chunk (every sample is solved on its own)."""
+
+
 def extract(
     robot: RobotDescription,
     q: np.ndarray,
@@ -189,30 +195,54 @@ def extract(
     valid: np.ndarray | None = None,
     gamma: float = DEFAULT_GAMMA,
     tau_dot: np.ndarray | None = None,
+    chunk: int = EXTRACTION_CHUNK,
 ) -> ExtractionResult:
     """Batch extraction of Φ̃' (eq. 11), Γ (eq. 14) and the learning inputs from a filtered log
-    (τ̇: the filtered torque rate; None leaves its inputs NaN, unusable for learning)."""
-    q, v, a = np.asarray(q, float), np.asarray(v, float), np.asarray(a, float)
+    (τ̇: the filtered torque rate; None leaves its inputs NaN, unusable for learning), `chunk`
+    samples at a time into the result's rows (EXTRACTION_CHUNK)."""
+    q, v, a, tau, u = (np.asarray(x, float) for x in (q, v, a, tau, u))
     n = len(q)
+    rows = {
+        "q": q, "v": v, "a": a, "tau": tau, "u": u, "contacts": np.asarray(contacts, dtype=bool),
+        "t": np.arange(n, dtype=float) if t is None else np.asarray(t, float),
+        "valid": np.ones(n, dtype=bool) if valid is None else np.asarray(valid, dtype=bool),
+        "tau_dot": np.full(np.shape(tau), np.nan) if tau_dot is None else np.asarray(tau_dot, float),
+    }
+    if n <= chunk:
+        return _extract_chunk(robot, gamma, **rows)
+    out = {"t": rows["t"], "contacts": rows["contacts"]}  # passed through, as in one chunk
+    for start in range(0, n, chunk):
+        part = _extract_chunk(robot, gamma, **{k: x[start:start + chunk] for k, x in rows.items()})
+        for name, x in vars(part).items():
+            if name in ("t", "contacts"):
+                continue
+            if name not in out:
+                out[name] = np.empty((n,) + x.shape[1:], x.dtype)
+            out[name][start:start + len(x)] = x
+    return ExtractionResult(**out)
+
+
+def _extract_chunk(robot: RobotDescription, gamma: float, q: np.ndarray, v: np.ndarray, a: np.ndarray,
+                   tau: np.ndarray, u: np.ndarray, contacts: np.ndarray, t: np.ndarray, valid: np.ndarray,
+                   tau_dot: np.ndarray) -> ExtractionResult:
+    """extract() of one chunk (its arguments as arrays of one length)."""
     S = selection_matrix(robot)
     id_terms, jac = dynamics_batch(robot, q, v, a)
-    residual = np.asarray(tau, float) @ S - id_terms
+    residual = tau @ S - id_terms
     basis = contact_invariant_bases(jac, robot.leg_joints, gamma)
     phi, mask = observe(jac, basis, contacts, residual)
     ok = np.all(np.isfinite(phi), axis=1)
     phi[~ok] = 0.0
     mask[~ok] = False
-    valid = np.ones(n, dtype=bool) if valid is None else np.asarray(valid, dtype=bool).copy()
-    valid &= ok
     generalized, generalized_mask = generalized_rbd_error(basis, phi, mask, robot.leg_joints)
     return ExtractionResult(
-        t=np.arange(n, dtype=float) if t is None else np.asarray(t, float),
-        inputs=learning_inputs(q, v, a, tau, np.full(np.shape(tau), np.nan) if tau_dot is None else tau_dot),
+        t=t,
+        inputs=learning_inputs(q, v, a, tau, tau_dot),
         rbd_error=phi,
         rbd_observed=mask,
         actuation_error=actuation_error(tau, u),
-        contacts=np.asarray(contacts, dtype=bool),
-        valid=valid,
+        contacts=contacts,
+        valid=valid & ok,
         residual=residual,
         generalized_error=generalized,
         generalized_observed=generalized_mask,

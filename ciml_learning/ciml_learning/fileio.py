@@ -2,8 +2,9 @@
 
 Outputs (docs/ARCHITECTURE.md, "Files: atomic outputs and checks"):
 
-- atomic_write_bytes/_text/_json: one file, written to a temporary sibling
-  (`.NAME.tmp-PID`), fsynced, renamed over NAME, then the folder fsynced.
+- atomic_write_bytes/_text/_json (atomic_write_stream: content written by a function, with
+  no copy of it in memory): one file, written to a temporary sibling (`.NAME.tmp-PID`),
+  fsynced, renamed over NAME, then the folder fsynced.
 - atomic_dir: a whole output directory (model, diagnosis, snapshot) built under a
   temporary sibling with its final file names, every file fsynced, then published with
   one rename; an existing directory is swapped with renameat2(RENAME_EXCHANGE), so a
@@ -35,7 +36,7 @@ import shutil
 import stat
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, BinaryIO
 
 from .errors import CimlError
 
@@ -78,10 +79,10 @@ def fsync_dir(path: str) -> None:
         os.close(fd)
 
 
-def _write_file(path: str, data: bytes) -> None:
+def _write_file(path: str, write: Callable[[BinaryIO], object]) -> None:
     fault_point("write")
     with open(path, "xb") as f:
-        f.write(data)
+        write(f)
         f.flush()
         fault_point("fsync")
         os.fsync(f.fileno())
@@ -221,6 +222,11 @@ def check_out_dir(path: str, is_ours: Callable[[str], bool], kind: str, what: st
 # ---------------------------------------------------------------------- atomic writes
 def atomic_write_bytes(path: str, data: bytes, what: str = "--out") -> None:
     """Write to `.NAME.tmp-PID` beside `path`, fsync, rename over `path`, fsync the folder."""
+    atomic_write_stream(path, lambda f: f.write(data), what)
+
+
+def atomic_write_stream(path: str, write: Callable[[BinaryIO], object], what: str = "--out") -> None:
+    """atomic_write_bytes of what write(file) writes to the (binary, seekable) file."""
     full = check_out_file(path, what)
     parent = os.path.dirname(full)
     _makedirs(parent, what, path)
@@ -229,7 +235,7 @@ def atomic_write_bytes(path: str, data: bytes, what: str = "--out") -> None:
     try:
         if os.path.lexists(tmp):
             os.unlink(tmp)
-        _write_file(tmp, data)
+        _write_file(tmp, write)
         fault_point("rename")
         os.replace(tmp, full)
         fsync_dir(parent)

@@ -193,3 +193,46 @@ def test_reference_torque_realises_the_reference_and_differentiates_within_a_con
     assert np.allclose(tau_dot2, (tau2 - tau) / 0.004)
     _, tau_dot3 = ref_torque(SimpleNamespace(t=0.008, q=q, v=v, a=a, contacts=~contacts | contacts), e)
     assert np.all(tau_dot3 == 0.0)  # across a change of the contact schedule
+
+
+def test_dataset_extracted_in_chunks_matches_the_whole_log(tmp_path, monkeypatch):
+    """pipeline.load_dataset (bags joined column by column, eq. 11 in chunks that cross bag
+    boundaries) gives the numbers of the whole-log path it replaced: the bags' filtered logs
+    concatenated, then one extract() of everything."""
+    import functools
+
+    from synthetic import write_synthetic_bag
+
+    from ciml_learning import pipeline
+    from ciml_learning.filters import filter_state_log
+    from ciml_learning.loginputs import load_log
+
+    bags = []
+    for seed, seconds in enumerate((2.0, 1.5, 2.5)):
+        bags.append(str(tmp_path / f"bag{seed}"))
+        write_synthetic_bag(ROBOT, bags[-1], seconds=seconds, seed=seed)
+    # whole log, as before: filter each bag, concatenate (segment ids made distinct), extract once
+    logs = []
+    for bag in bags:
+        raw = load_log(ROBOT, bag, None)
+        logs.append(filter_state_log(raw.t, raw.q, raw.v, raw.tau, raw.u, raw.contacts, fs=raw.rate_hz))
+    whole = {f: np.concatenate([getattr(log, f) for log in logs]) for f in pipeline.LOG_COLUMNS}
+    offsets = np.cumsum([0] + [int(log.segment.max()) + 1 for log in logs[:-1]])
+    whole["segment"] = np.concatenate([log.segment + o for log, o in zip(logs, offsets)])
+    n = len(whole["t"])
+    reference = extract(ROBOT, whole["q"], whole["v"], whole["a"], whole["tau"], whole["u"], whole["contacts"],
+                        whole["t"], whole["valid"], tau_dot=whole["tau_dot"], chunk=n)
+
+    monkeypatch.setattr(pipeline, "extract", functools.partial(extract, chunk=173))
+    ds = pipeline.load_dataset(ROBOT, bags, progress=False)
+    assert len(ds.targets.t) == n > 3 * 173 and ds.n_valid > 0
+    np.testing.assert_array_equal(ds.bag_index, np.repeat([0, 1, 2], [len(log) for log in logs]))
+    for f in pipeline.LOG_COLUMNS:
+        np.testing.assert_array_equal(getattr(ds.log, f), whole[f], err_msg=f)
+    for f, x in vars(reference).items():
+        y = getattr(ds.targets, f)
+        assert y.shape == x.shape and y.dtype == x.dtype, f
+        if x.dtype == bool:
+            np.testing.assert_array_equal(y, x, err_msg=f)
+        else:
+            np.testing.assert_allclose(y, x, rtol=1e-9, atol=1e-9 * np.nanmax(np.abs(x)), err_msg=f)

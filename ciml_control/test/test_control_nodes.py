@@ -307,7 +307,8 @@ def test_a_late_reference_is_waited_for_in_lockstep_and_held_otherwise(wait):
         node.on_joints(cv.joint_state_msg(ROBOT, ns, q_stand[7:], np.zeros(12), np.zeros(12)))
         if wait:
             assert len(commands) == 1 and node.health.counts["reference_waits"] == 1
-            ref = make_reference(ROBOT, "base_only", q_stand).sample(1.2)
+            # 0.3 s into base_only: 4 mm from the stand (a leap beyond resume_tolerance would stop the robot)
+            ref = make_reference(ROBOT, "base_only", q_stand).sample(0.3)
             node.on_reference(reference_msg(ROBOT, ns, ref))
             target = ref.q[7:]
         else:

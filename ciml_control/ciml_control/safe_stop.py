@@ -13,9 +13,10 @@ Hence:
   foot that touched down early where the posture's foot is not, and rolled the base;
 - fresh again: resumed only if the reference's base is within `resume_tolerance`
   (horizontally) of the pose the robot stopped at; otherwise the robot keeps standing until
-  the motion restarts. A fresh reference that leaps by more than that from the one before
-  (live: a reference node stopped for 0.3 s first sent its pre-stall instant, then caught up)
-  stops the robot the same way.
+  the motion restarts. A fresh reference that moved further from the one before than its
+  speed allows in the controller's time, by more than that tolerance (live: a reference
+  node stopped for 0.3 s first sent its pre-stall instant, then caught up), stops the robot
+  the same way.
 """
 from __future__ import annotations
 
@@ -51,23 +52,25 @@ class SafeStop:
         self.landing_time, self.resume_tolerance = landing_time, resume_tolerance
         self.stopped: ReferencePoint | None = None  # the last fresh reference before the stop
         self.previous: ReferencePoint | None = None  # the newest reference tracked live
+        self.previous_now = 0.0                      # [s] when it was
         self.since = 0.0                             # [s] when the stop began
         self.jump = 0.0                              # [m] base distance of the newest fresh reference
 
     def track(self, ref: ReferencePoint, fresh: bool, now: float) -> tuple[ReferencePoint, str]:
         if self.stopped is None:
-            previous, self.previous = self.previous, ref
+            previous, previous_now = self.previous, self.previous_now
+            self.previous, self.previous_now = ref, now
             if not fresh:
                 self._stop(ref, now)
-            elif previous is None or self._distance(ref, previous) <= self.resume_tolerance:
+            elif previous is None or self._leap(previous, ref, now - previous_now) <= self.resume_tolerance:
                 return ref, LIVE
-            else:  # a leap between two fresh references (e.g. a reference node whose clock caught up)
+            else:  # the reference moved further than its speed allows in the controller's time
                 self._stop(previous, now)
         if fresh:
             assert self.stopped is not None
             self.jump = self._distance(ref, self.stopped)
             if self.jump <= self.resume_tolerance:
-                self.stopped, self.previous = None, ref
+                self.stopped, self.previous, self.previous_now = None, ref, now
                 return ref, LIVE
         elapsed = now - self.since
         return self.landing(elapsed), LANDING if elapsed < self.landing_time else STANDING
@@ -76,6 +79,15 @@ class SafeStop:
     def _distance(a: ReferencePoint, b: ReferencePoint) -> float:
         """Horizontal distance of two references' bases [m] (a gait keeps its height)."""
         return float(np.linalg.norm(a.q[:2] - b.q[:2]))
+
+    @classmethod
+    def _leap(cls, a: ReferencePoint, b: ReferencePoint, elapsed: float) -> float:
+        """How much further than its own speed allows in `elapsed` [s] of the controller's clock
+        the base moved from reference a to b [m, horizontal]: a reference node that stalls and
+        catches up, or restarts elsewhere, leaps; one that skips samples while the simulation
+        waits (lockstep) does not."""
+        speed = max(float(np.linalg.norm(a.v[:2])), float(np.linalg.norm(b.v[:2])))  # base frame: |v| is kept
+        return cls._distance(a, b) - speed * max(elapsed, 0.0)
 
     def _stop(self, ref: ReferencePoint, now: float) -> None:
         """Begin a stop at the last fresh reference: where its feet are, and where they land."""

@@ -58,3 +58,15 @@ def test_a_leap_between_fresh_references_stops_the_robot():
     held, state = stop.track(leap, True, 0.004)
     assert state == LANDING and stop.stopped is a
     np.testing.assert_allclose(held.q[:3], a.q[:3])
+
+
+def test_a_reference_that_skips_samples_at_its_own_speed_is_no_leap():
+    """Lockstep: the simulation waited, the controller's clock moved as far as the reference's."""
+    q_stand = standing_configuration(ROBOT)
+    motion = make_reference(ROBOT, "trot_35", q_stand)
+    stop = SafeStop(ROBOT, q_stand)
+    assert stop.track(motion.sample(2.5), True, 2.5)[1] == LIVE
+    later = motion.sample(2.59)  # 5 cm further at ~0.5 m/s
+    assert stop.track(later, True, 2.59) == (later, LIVE)
+    ahead = motion.sample(2.69)  # 0.1 s of motion in 4 ms of the controller's clock: a leap
+    assert stop.track(ahead, True, 2.594)[1] == LANDING

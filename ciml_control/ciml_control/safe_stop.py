@@ -38,7 +38,8 @@ LIVE, LANDING, STANDING = "live", "landing", "standing"
 class SafeStop:
     """The reference to track, given the newest one and whether it is fresh.
 
-    `track(ref, fresh, now)` → (reference point, state): LIVE (the newest reference),
+    `track(ref, fresh, now)` → (reference point, state), `now` [s] the time of the robot's
+    sample being answered (its stamp: the controller's clock may lag behind it): LIVE (the newest reference),
     LANDING (stale: the last fresh one, its swing feet coming down) or STANDING (landed, or a
     fresh reference whose base is further than `resume_tolerance` from the stop's)."""
 

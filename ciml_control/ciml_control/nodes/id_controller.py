@@ -289,7 +289,7 @@ class IdControllerNode(Node):
                 self.health.counts["reference_waits"] += 1
                 return
         # a late reference (its node stalled, or restarts) is not a dead one: safe stop, not a fall
-        ref, stop = self.safe_stop.track(self.reference[2], fresh, now)
+        ref, stop = self.safe_stop.track(self.reference[2], fresh, stamp * 1e-9)  # the robot's sample time
         if stop != LIVE:
             if fresh:
                 self.health.count("reference_not_resumed", f"{topics.REFERENCE} came back {self.safe_stop.jump:.3f} m "

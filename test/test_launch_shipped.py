@@ -124,3 +124,34 @@ def test_every_node_reads_the_robot_parameter(tmp_path):
             assert "no_such_robot" in str(err.value) and "\n" not in str(err.value), name
     finally:
         rclpy.try_shutdown(context=ctx)
+
+
+@pytest.mark.ros
+def test_the_learner_pauses_at_info_for_a_missing_reference_and_warns_for_a_fall(tmp_path):
+    """online_learner's /diagnostics level follows the pause's reason: a /reference that never came
+    (a learner behind on a loaded machine) is OK with the pause text, a fall is WARN."""
+    import random
+
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from ciml_learning.learning_gate import FALL, NO_REFERENCE
+    from ciml_learning.nodes.online_learner import OnlineLearnerNode
+    from ciml_learning.ros_common import OK, WARN
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=random.SystemRandom().randint(1, 101))
+    try:
+        node = OnlineLearnerNode(context=ctx, parameter_overrides=[Parameter("model_dir", value=str(tmp_path))])
+        levels = {}
+        for key in (NO_REFERENCE, FALL):
+            node.gate.paused, node.gate.key, node.gate.reason = True, key, f"because {key}"
+            node._sync_gate()
+            levels[key] = (node.health.mode_level, node.health.mode_message)
+            node.gate.paused = False
+            node._sync_gate()
+        assert levels[NO_REFERENCE] == (OK, f"learning paused: because {NO_REFERENCE}"), levels
+        assert levels[FALL] == (WARN, f"learning paused: because {FALL}"), levels
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)

@@ -89,6 +89,7 @@ class LearningGate:
         self.references_seen = 0
         self.paused = False
         self.reason = ""
+        self.key = ""  # the current pause's reason (one of the paused_* keys)
         self._last_bad = 0  # stamp [ns] of the last refused sample (read while paused)
         self.counts: Counter[str] = Counter()
 
@@ -150,7 +151,8 @@ class LearningGate:
         stamp_ns = int(stamp_ns)
         problem = self._problem(stamp_ns, np.asarray(q, float), rbd_error, actuation_error)
         if problem is not None:
-            key, self.reason = problem
+            self.key, self.reason = problem
+            key = self.key
             self.paused = True
             self._last_bad = stamp_ns
             self.counts[key] += 1

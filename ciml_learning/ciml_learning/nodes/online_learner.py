@@ -25,7 +25,8 @@ Learning that cannot poison the loop (ciml_learning.learning_gate, docs/LIVE_GRA
 valid pairs are learned only while the robot is up (base height, tilt), tracks the
 /reference sample of the same stamp (base position, attitude, joints), and the measured
 error is within the robot's physical bounds (m·g, m·g·leg span, torque limits). Otherwise
-learning pauses: /diagnostics WARN "learning paused: <reason>" and the paused_* counters;
+learning pauses: /diagnostics WARN "learning paused: <reason>" and the paused_* counters (OK and INFO
+for a /reference that never came: nothing a user must act on);
 back to OK ("learning …") once the checks have passed for `resume_after` seconds. Without any
 /reference (a replayed log) tracking is not checked unless `require_reference`.
 
@@ -51,7 +52,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from .. import conversions as cv
 from .. import topics
 from ..errors import CimlError
-from ..learning_gate import GateConfig, LearningGate
+from ..learning_gate import NO_REFERENCE, GateConfig, LearningGate
 from ..models import ModelSet
 from ..node_params import ONLINE_LEARNER
 from ..online import (
@@ -196,10 +197,15 @@ class OnlineLearnerNode(Node):
             self.learn_times.clear()
 
     def _sync_gate(self) -> None:
-        """/diagnostics follows the gate: WARN with the reason while paused, OK when learning."""
+        """/diagnostics follows the gate: WARN with the reason while paused, OK when learning. A pause
+        for a /reference that never came (a learner behind its queue on a loaded machine) is nothing
+        the user must act on: OK and INFO, counted (paused_no_reference); `starved` warns on losses."""
         if self.gate.paused and (not self._paused or self.health.mode_message != self._pause_text()):
-            self.health.set(WARN, self._pause_text())
-            if not self._paused:
+            waiting = self.gate.key == NO_REFERENCE
+            self.health.set(OK if waiting else WARN, self._pause_text())
+            if not self._paused and waiting:  # rclpy: one severity per call site
+                self.get_logger().info(self._pause_text())
+            elif not self._paused:
                 self.get_logger().warning(self._pause_text())
         elif not self.gate.paused and self._paused:
             self.health.set(OK, self._learning_message)

@@ -38,10 +38,10 @@ LIVE, LANDING, STANDING = "live", "landing", "standing"
 class SafeStop:
     """The reference to track, given the newest one and whether it is fresh.
 
-    `track(ref, fresh, now)` → (reference point, state), `now` [s] the time of the robot's
-    sample being answered (its stamp: the controller's clock may lag behind it): LIVE (the newest reference),
-    LANDING (stale: the last fresh one, its swing feet coming down) or STANDING (landed, or a
-    fresh reference whose base is further than `resume_tolerance` from the stop's)."""
+    `track(ref, fresh, now)` → (reference point, state); `now` [s] is the stamp of the robot's
+    sample being answered (the controller's clock may lag behind it). States: LIVE (the newest
+    reference), LANDING (stale: the last fresh one, its swing feet coming down) or STANDING
+    (landed, or a fresh reference further than `resume_tolerance` from the stop's)."""
 
     def __init__(self, robot: RobotDescription, q_stand: np.ndarray, landing_time: float = LANDING_TIME,
                  resume_tolerance: float = RESUME_TOLERANCE) -> None:

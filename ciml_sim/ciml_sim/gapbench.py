@@ -19,7 +19,9 @@ scenario can reach it. The result is scored against the answer:
   nominal, with the diagnosis' identified_scenario.yaml and with the case's own scenario (the oracle);
 - reference cases (``reference_effects``): the simulator records the same motions twice, with the
   reference scenario A and with A + B, and `ciml diagnose --bag A+B... --reference A...` must name
-  B, and only B, as what distinguishes them.
+  B, and only B, as what distinguishes them; then the reference motions are recorded again with
+  that diagnosis's identified_scenario.yaml (A's identified effects plus B), and a second
+  --reference diagnosis against them must find no difference with a share above CLOSURE_SHARE.
 
 The suite targets HyQ's joint and link names (the robot the simulator stands in for).
 """
@@ -218,6 +220,19 @@ def reference_effects_found(diagnosis: dict) -> list[dict]:
     return out
 
 
+def reference_closure(diagnosis: dict) -> float:
+    """The largest share (in the real or the reference logs) of a difference a --reference diagnosis
+    still finds; 0 if it finds none. Run against reference logs re-recorded with the first
+    diagnosis's identified scenario, it says whether that simulator closes the gap (target ≤ 0.05)."""
+    return max((max(float(d.get("share_real", 0.0)), float(d.get("share_reference", 0.0)))
+                for d in diagnosis.get("reference_comparison", {}).get("differences", [])), default=0.0)
+
+
+CLOSURE_SHARE = 0.05
+"""A reference case is closed when re-simulating it with the identified scenario leaves no difference
+with a larger share (reference_closure)."""
+
+
 _LINKS: set[str] = set()
 """Link names of the robot (filled from the robot description when scoring)."""
 
@@ -369,12 +384,32 @@ def run_case(index: int, spec: dict, out_dir: str, scale: float = 1.0) -> dict:
         scored["verify_s"] = round(time.perf_counter() - t2, 1)
     if "reference_effects" in spec:
         scored["reference_effects"] = spec["reference_effects"]
+        # the reference re-recorded with the identified scenario ("the simulator you need"), compared again
+        resim = _record_motions(case, os.path.join(diag_dir, "identified_scenario.yaml"), spec, scale,
+                                prefix="identified_")
+        _ciml("diagnose", "--bag", *bags["train"], "--heldout", *bags["heldout"],
+              "--reference", *resim["train"], *resim["heldout"], "--out", os.path.join(case, CLOSURE_DIR))
+        scored["reference"].update(closure_scores(case))
+        scored["closure_s"] = round(time.perf_counter() - t2, 1)
     return scored
 
 
 def _resimulated(spec: dict) -> bool:
     """In-catalogue cases without a reference are re-simulated (`ciml verify`)."""
     return "reference_effects" not in spec and not any(e["type"] in OUT_OF_CATALOGUE for e in spec["effects"])
+
+
+CLOSURE_DIR = "diagnosis_vs_identified"
+"""Of a reference case: the --reference diagnosis against the reference re-recorded with the identified scenario."""
+
+
+def closure_scores(case_dir: str) -> dict:
+    """{"closure_max_share": reference_closure} of a reference case's CLOSURE_DIR ({} without one)."""
+    path = os.path.join(case_dir, CLOSURE_DIR, "diagnosis.json")
+    if not os.path.isfile(path):
+        return {}
+    with open(path, encoding="utf-8") as f:
+        return {"closure_max_share": round(reference_closure(json.load(f)), 4)}
 
 
 def resimulated_scores(case_dir: str) -> dict:
@@ -402,8 +437,8 @@ def summarise(cases: list[dict]) -> dict:
     phys = [c["shrink_ratio_physical"] for c in in_cat if c.get("shrink_ratio_physical") is not None]
     resim = [c for c in ok if c.get("resim_shrink") is not None]
     of_oracle = [c["resim_shrink"] / c["resim_shrink_oracle"] for c in resim if c.get("resim_shrink_oracle")]
-    cov = np.sum([[c["coverage"]["in_95"], c["coverage"]["in_68"], c["coverage"]["params"]]
-                  for c in ok if "coverage" in c], axis=0) if ok else np.zeros(3)
+    cov_rows = [[c["coverage"][k] for k in ("in_95", "in_68", "params")] for c in ok if "coverage" in c]
+    cov = np.sum(cov_rows, axis=0) if cov_rows else np.zeros(3)
     return {
         "cases": len(cases),
         "failed_cases": sum(1 for c in cases if "error" in c),
@@ -434,6 +469,8 @@ def summarise(cases: list[dict]) -> dict:
         "reference_cases_named_only_the_difference": sum(1 for c in refs
                                                          if c["reference"]["named_only_the_difference"]),
         "reference_cases": len(refs),
+        "reference_cases_closed_by_resimulation": sum(
+            1 for c in refs if c["reference"].get("closure_max_share", 1.0) <= CLOSURE_SHARE),
         "median_diagnose_s": float(np.median([c["diagnose_s"] for c in cases if "diagnose_s" in c])) if cases else None,
         "targets": {"named_right_fraction": ">= 0.95", "spurious share": "<= 0.05", "median_param_rel_error": "<= 0.15",
                     "coverage_95": ">= 0.90", "confident_outside_bounds": "0",
@@ -441,7 +478,8 @@ def summarise(cases: list[dict]) -> dict:
                     "median_resimulated_shrink_of_oracle": ">= 0.90",
                     "cases_identified_further_than_nominal": "0",
                     "out_of_catalogue_unexplained_and_localised": ">= 3 of 4, no catalogue effect above 30 % share",
-                    "reference_cases_named_only_the_difference": "all"},
+                    "reference_cases_named_only_the_difference": "all",
+                    "reference_cases_closed_by_resimulation": f"all (no difference left above {CLOSURE_SHARE:.0%})"},
     }
 
 
@@ -479,6 +517,8 @@ def table(cases: list[dict]) -> str:
 
         cv = c.get("coverage", {})
         resim = f"{fmt(c.get('resim_shrink'))} / {fmt(c.get('resim_shrink_oracle'))}" if "resim_shrink" in c else ""
+        if "closure_max_share" in c.get("reference", {}):
+            resim = f"difference left: {c['reference']['closure_max_share']:.1%}"
         cov = f"{cv['in_95']}/{cv['params']} / {cv['in_68']}/{cv['params']}" if cv.get("params") else ""
         lines.append(f"| {c['case']} | {true} | {named} | {fmt(max(rel) if rel else None)} | {cov} "
                      f"| {len(c.get('spurious', []))} "
@@ -521,6 +561,7 @@ def rescore(out_dir: str) -> dict:
         scored.update(resimulated_scores(os.path.join(out_dir, f"case_{i:02d}")))
         if "reference_effects" in spec:
             scored["reference_effects"] = spec["reference_effects"]
+            scored["reference"].update(closure_scores(os.path.join(out_dir, f"case_{i:02d}")))
         results.append(scored)
     return _write(out_dir, results)
 

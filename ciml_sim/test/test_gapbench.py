@@ -136,3 +136,17 @@ def test_resimulated_shrink_is_read_and_summarised(tmp_path):
     s = summarise(cases)
     assert s["resimulated_cases"] == 2 and s["cases_identified_further_than_nominal"] == 1
     assert abs(s["median_resimulated_shrink_of_oracle"] - (0.9 + (-0.25 / 0.75)) / 2) < 1e-12
+
+
+def test_reference_closure_is_the_largest_share_left_and_is_summarised():
+    """After re-recording the reference with the identified scenario: the largest share (real or
+    reference) of a difference still found; a case is closed at ≤ CLOSURE_SHARE."""
+    assert gapbench.reference_closure({"reference_comparison": {"differences": []}}) == 0.0
+    left = {"reference_comparison": {"differences": [
+        {"type": "link_mass_scale", "where": "lf_hipassembly", "status": "differs", "share_real": 0.005,
+         "share_reference": 0.026},
+        {"type": "payload", "where": "base", "status": "real only", "share_real": 0.01}]}}
+    assert gapbench.reference_closure(left) == 0.026
+    cases = [{"case": k, "reference": {"named_only_the_difference": True, "closure_max_share": share},
+              "diagnose_s": 1.0} for k, share in ((25, 0.026), (26, 0.2))]
+    assert gapbench.summarise(cases)["reference_cases_closed_by_resimulation"] == 1

@@ -101,7 +101,7 @@ class SafeStop:
         # the ground is where the stance feet stand (the standing pose's feet if none does)
         ground = self._feet0[stance, 2].mean() if stance.any() else self.ground
         self._drop[~stance, 2] = ground - self._feet0[~stance, 2]
-        rpy = pin.rpy.matrixToRpy(pin.Quaternion(*map(float, ref.q[[6, 3, 4, 5]])).toRotationMatrix())
+        rpy = pin.rpy.matrixToRpy(pin.Quaternion(ref.q[3:7]).matrix())
         zero = np.zeros(3)
         self._base = BaseState(ref.q[:3].copy(), zero, zero, rpy, zero, zero)
 

@@ -152,11 +152,10 @@ class LearningGate:
         problem = self._problem(stamp_ns, np.asarray(q, float), rbd_error, actuation_error)
         if problem is not None:
             self.key, self.reason = problem
-            key = self.key
             self.paused = True
             self._last_bad = stamp_ns
-            self.counts[key] += 1
-            return key
+            self.counts[self.key] += 1
+            return self.key
         if self.paused:
             if stamp_ns < self._last_bad:  # the stamps restarted: the recovery time starts again
                 self._last_bad = stamp_ns

@@ -33,7 +33,7 @@ from . import conversions as cv
 from . import rollback, topics
 from .errors import CimlError
 from .executor import DirectExecutor
-from .realtime import set_fifo_priority, stat_fields, thread_ids
+from .realtime import rss_mb, set_fifo_priority, stat_fields, thread_ids
 
 LAUNCH_PACKAGE = "ciml_sim"
 LAUNCH_FILE = "closed_loop.launch.yaml"
@@ -72,18 +72,6 @@ def feedback_effort(cmd: cv.TorqueCommandArrays, q: np.ndarray, qd: np.ndarray) 
     (rollback.feedback_effort: the law the controller's rollback watch uses too)."""
     return rollback.feedback_effort(cmd.stiffness, cmd.damping, cmd.position_target, cmd.velocity_target,
                                     cmd.feedback_linearization, q, qd)
-
-
-def rss_mb(pid: int) -> float | None:
-    """Resident memory of a process [MB] (VmRSS), None once it has exited."""
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            for line in f:
-                if line.startswith("VmRSS:"):
-                    return round(int(line.split()[1]) / 1024.0, 1)
-    except OSError:
-        return None
-    return None
 
 
 def cpu_seconds(pid: int) -> float | None:

@@ -58,6 +58,18 @@ def stat_fields(pid: int, tid: int | None = None) -> list[str]:
         return f.read().rsplit(")", 1)[1].split()
 
 
+def rss_mb(pid: int, field: str = "VmRSS") -> float | None:
+    """Resident memory of a process [MB] (VmRSS; or VmHWM, its peak), None once it has exited."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith(field + ":"):
+                    return round(int(line.split()[1]) / 1024.0, 1)
+    except OSError:
+        return None
+    return None
+
+
 def scheduling_policy(pid: int, tid: int | None = None) -> int:
     """The scheduling policy of a thread (os.SCHED_OTHER, os.SCHED_FIFO, ...)."""
     return int(stat_fields(pid, tid)[38])

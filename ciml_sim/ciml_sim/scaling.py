@@ -40,6 +40,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ciml_learning.realtime import rss_mb
+
 RATE_HZ = 250.0
 STAGES = ("extraction", "diagnosis", "train_lwpr", "train_sgpr")
 FIT_KEYS = {"wall_s": "time", "cpu_s": "cpu", "peak_rss_mb": "rss", "rss_growth_mb": "rss_growth"}
@@ -81,15 +83,6 @@ def _record(robot, scenario, motion: str, samples: int, seed: int, bag_dir: str,
 # --- one (stage, N) in its own process ---------------------------------------------------------------
 
 
-def _status_mb(field: str) -> float:
-    """VmRSS / VmHWM of this process [MB]."""
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith(field + ":"):
-                return int(line.split()[1]) / 1024.0
-    return float("nan")
-
-
 def _cpu_s() -> float:
     import resource
 
@@ -112,7 +105,7 @@ def run_stage(stage: str, bags: Sequence[str], out_dir: str, jobs: int = 1) -> d
         from ciml_learning.training import train_from_bags  # (train_sgpr: GPy is imported by its first fit, timed)
     else:
         raise ValueError(f"unknown stage {stage!r}; valid: {', '.join(STAGES)}")
-    info: dict = {"import_s": round(time.perf_counter() - t_import, 3), "rss_before_mb": round(_status_mb("VmRSS"), 1)}
+    info: dict = {"import_s": round(time.perf_counter() - t_import, 3), "rss_before_mb": rss_mb(os.getpid())}
     bags = list(bags)
     t0, c0 = time.perf_counter(), _cpu_s()
     if stage == "extraction":
@@ -134,7 +127,7 @@ def run_stage(stage: str, bags: Sequence[str], out_dir: str, jobs: int = 1) -> d
                     fit_s=tr["fit_seconds"], save_s=round(time.perf_counter() - t1, 3))
     info["wall_s"] = round(time.perf_counter() - t0, 3)
     info["cpu_s"] = round(_cpu_s() - c0, 3)
-    info["peak_rss_mb"] = round(_status_mb("VmHWM"), 1)
+    info["peak_rss_mb"] = rss_mb(os.getpid(), "VmHWM")
     info["rss_growth_mb"] = round(info["peak_rss_mb"] - info["rss_before_mb"], 1)
     return info
 

@@ -114,8 +114,8 @@ class IdControllerNode(Node):
         self._damped = False     # the last command was MODE_DAMPING
         self._awaiting_reference = False  # the newest joint sample waits for a fresh /reference
         self.controller = self._build_controller(p)
-        self.safe_stop = SafeStop(self.robot, standing_configuration(self.robot), p["landing_time"],
-                                  p["resume_tolerance"])
+        self.q_stand = standing_configuration(self.robot, 0.002)
+        self.safe_stop = SafeStop(self.robot, self.q_stand, p["landing_time"], p["resume_tolerance"])
         self._warm_up()
         self.health = Health(self)
         self.periods = PublishPeriods(self.health, "torque_command", rate)  # commands as published
@@ -178,7 +178,7 @@ class IdControllerNode(Node):
         """One control step at the standing reference before any input: the first step loads the
         compiled core and fills caches (~0.2 s here), which must not delay the first command
         after the robot driver's standing hold (a late first command drops the robot)."""
-        ref = make_reference(self.robot, "stand", standing_configuration(self.robot, 0.002)).sample(0.0)
+        ref = make_reference(self.robot, "stand", self.q_stand).sample(0.0)
         t0 = time.perf_counter()
         self.controller.compute(ref.q, ref.v, ref.contacts, ref, np.zeros(self.robot.nv))
         basis = contact_invariant_basis(self.controller.desired_terms(ref)[2], self.robot.leg_joints)

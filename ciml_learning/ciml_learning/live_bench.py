@@ -33,7 +33,7 @@ from . import conversions as cv
 from . import rollback, topics
 from .errors import CimlError
 from .executor import DirectExecutor
-from .realtime import rss_mb, set_fifo_priority, stat_fields, thread_ids
+from .realtime import rss_mb, set_fifo_priority, set_nice, stat_fields, thread_ids
 
 LAUNCH_PACKAGE = "ciml_sim"
 LAUNCH_FILE = "closed_loop.launch.yaml"
@@ -60,6 +60,12 @@ PROBE_PRIORITY = 5
 own wait for the CPU (~4 ms p99 on every topic, even /joint_states published with 0.1 ms of tick
 error), not the graph's delivery."""
 
+EFFORT_PROBE_NICE = 19
+"""Nice level of live_online_learning's probe threads. The probe decodes every /joint_states and
+/torque_command sample in Python to compute the feedback effort; normally scheduled, it took about
+a quarter of a core from a 2-core machine the graph already fills, and the learner (nice 10) lost a
+quarter to a half of the filtered states while a user's own run of the same graph lost none. The
+effort is a sample of the commands either way (results/LIVE_GRAPH.md)."""
 FALL_HEIGHT = 0.3
 """[m] base height below which HyQ lies on its trunk (standing 0.61 m; ciml_sim.recorder's fall rule)."""
 FALL_RATIO = 0.5
@@ -112,11 +118,14 @@ class GraphProbe:
     keeps each node's newest counters.
     """
 
-    def __init__(self, rate_topics: dict[str, str] | None = None, effort_robot=None, priority: int = 0) -> None:
+    def __init__(self, rate_topics: dict[str, str] | None = None, effort_robot=None, priority: int = 0,
+                 nice: int = 0) -> None:
         """priority > 0: the probe's threads (its spin thread and its DDS threads, not the rest of
         this process, whose children must not inherit it) run SCHED_FIFO at that priority where
         permitted, so what it times is the graph's delivery, not its own wait for the CPU
-        (`self.scheduling` says which it got). With `effort_robot` (a RobotDescription) the probe
+        (`self.scheduling` says which it got). nice > 0: those threads run at that nice level
+        instead, so a probe that decodes 250 Hz topics does not take the CPU from the graph it
+        measures. With `effort_robot` (a RobotDescription) the probe
         keeps (stamp [s], feedback_effort) of every MODE_TORQUE command on its joint sample in
         `efforts`, not the messages (hours of them would not fit in memory)."""
         import rclpy
@@ -169,6 +178,9 @@ class GraphProbe:
         if priority > 0:
             refused = set_fifo_priority(priority, thread_ids() - before)
             self.scheduling = refused or f"SCHED_FIFO {priority}"
+        elif nice > 0:
+            set_nice(nice, thread_ids() - before)
+            self.scheduling = f"nice {nice}"
 
     def _spin(self) -> None:
         while not self._stop.is_set():
@@ -545,7 +557,7 @@ def _effort_run(robot, arguments: dict[str, str], duration: float, period: float
     fall = FALL_RATIO * physical_bounds(robot).standing_height
     with tempfile.TemporaryDirectory(prefix="ciml_live_") as tmp:
         args = {"model_dir": os.path.join(tmp, "online_model"), **arguments}
-        probe = GraphProbe(effort_robot=robot)
+        probe = GraphProbe(effort_robot=robot, nice=EFFORT_PROBE_NICE)
         launcher, log = start_graph(args, tmp)
         periods: list[dict] = []
         fell_at = None

@@ -40,6 +40,16 @@ def set_fifo_priority(priority: int, tids: set[int] | None = None) -> str | None
     return None
 
 
+def set_nice(nice: int, tids: set[int]) -> None:
+    """Nice level `nice` for the threads `tids` of this process (Linux: a thread's nice is its own;
+    threads they start later inherit it); threads that ended meanwhile are skipped."""
+    for tid in tids:
+        try:
+            os.setpriority(os.PRIO_PROCESS, tid, nice)
+        except ProcessLookupError:
+            continue
+
+
 def normal_scheduling() -> None:
     """The calling thread back to normal scheduling (SCHED_OTHER), e.g. a worker that does long,
     non-real-time work inside a real-time process; nothing if it cannot."""

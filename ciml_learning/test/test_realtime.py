@@ -71,6 +71,24 @@ def test_only_the_given_threads_real_time_scheduled_and_children_of_the_others_n
     assert policies.split() == [str(os.SCHED_FIFO), str(os.SCHED_OTHER), str(os.SCHED_OTHER)]
 
 
+CHILD_NICE = """
+import os, threading, time
+from ciml_learning import realtime
+before, start = realtime.thread_ids(), os.getpriority(os.PRIO_PROCESS, 0)
+mine = threading.Thread(target=time.sleep, args=(2,), daemon=True)
+mine.start()
+realtime.set_nice(19, realtime.thread_ids() - before)
+print(os.getpriority(os.PRIO_PROCESS, mine.native_id), os.getpriority(os.PRIO_PROCESS, 0) == start)
+"""
+
+
+@pytest.mark.skipif(os.getpriority(os.PRIO_PROCESS, 0) >= 19, reason="already at nice 19")
+def test_only_the_given_threads_niced():
+    out = subprocess.run([sys.executable, "-c", CHILD_NICE], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["19", "True"]  # the main thread keeps its own
+
+
 @pytest.mark.parametrize("status", [0, 3])
 def test_exit_after_ends_a_process_whose_main_thread_holds_the_gil(status):
     """realtime.exit_after: a native timer thread calls _exit(status) while the main thread is

@@ -380,7 +380,11 @@ class ModelSet:
         e_hat = np.zeros(stance.shape)
         for j in range(self.n_actuation):
             model, rows = self.models_[N_BASE + j], stance[:, j]
-            if model is not None and rows.any():
+            if model is None or not rows.any():
+                continue
+            if len(Xs) == 1:  # online, one sample per tick: the one-sample path (the same numbers, no batch checks)
+                e_hat[0, j] = model.predict_one(self._dim_inputs(N_BASE + j, Xs[0]))[0] * self.output_scale_[N_BASE + j]
+            else:
                 e_hat[rows, j] = model.predict(self._dim_inputs(N_BASE + j, Xs[rows])) * self.output_scale_[N_BASE + j]
         return rbd_error[:, :N_BASE] + np.einsum("nbj,nj->nb", leg_coupling, e_hat)
 

@@ -111,6 +111,17 @@ def test_stance_legs_learned_errors_are_added_back_to_the_base_wrench(data):
     assert np.sqrt(np.mean(with_coupling ** 2)) < 0.7 * np.sqrt(np.mean(without ** 2)), errors
 
 
+def test_base_wrench_targets_of_one_sample_equal_the_batch_rows(lwpr_set, data):
+    """partial_fit_one's one-sample path (predict_one per stance leg) gives the batch's numbers."""
+    X, rbd, observed, _gamma, _valid, C = fit_args(data, slice(0, 40))
+    Xs = lwpr_set.standardize(X)
+    batch = lwpr_set.base_wrench_targets(Xs, rbd, observed, C)
+    one = np.array([lwpr_set.base_wrench_targets(Xs[k:k + 1], rbd[k:k + 1], observed[k:k + 1], C[k:k + 1])[0]
+                    for k in range(len(X))])
+    assert (~observed[:, 6:]).any() and np.abs(batch - rbd[:, :6]).max() > 0  # stance legs predicted
+    np.testing.assert_array_equal(one, batch)
+
+
 def test_online_partial_fit_matches_batch_and_snapshots(data, tmp_path):
     """partial_fit_one sample by sample == partial_fit on the batch; a snapshot saved while
     learning loads back to exactly that state."""

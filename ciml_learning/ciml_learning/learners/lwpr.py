@@ -833,9 +833,8 @@ class LWPR(Learner):
         """Variance of the prior pseudo-field (normalised output units)."""
         if self.prior_std is not None:
             return (float(self.prior_std) / self.norm_out) ** 2
-        if self.n_samples_seen_ == 0:
-            return 1.0
-        return max(self.sum_y2_ / self.n_samples_seen_, 1e-12)
+        n = self.n_samples_seen_
+        return max(float(self._moments[1]) / n, 1e-12) if n else 1.0
 
     def predict(self, X: np.ndarray, return_std: bool = False):
         """Mean (N,), or (mean, std) with return_std=True, at X (N × n)."""

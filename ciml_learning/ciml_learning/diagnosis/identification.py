@@ -178,7 +178,9 @@ def _solve(model: Model, G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.nd
     """θ of the model's current A (bounded least squares); returns the objective θᵀHθ − 2cᵀθ
     (the training residual up to a constant)."""
     A = model.matrix()
-    H, g = A.T @ G @ A, A.T @ c
+    rows = np.flatnonzero(np.any(A != 0.0, axis=1))  # a candidate loads a few of the ~300 features
+    A = A[rows]
+    H, g = A.T @ G[np.ix_(rows, rows)] @ A, A.T @ c[rows]
     model.theta = bounded_least_squares(H, g, lo, hi)
     return float(model.theta @ H @ model.theta - 2 * g @ model.theta)
 

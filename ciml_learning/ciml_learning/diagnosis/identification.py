@@ -411,22 +411,26 @@ def relevance_function(rows: Rows, train: Grams):
     raw_rms = np.sqrt(np.maximum(rows.raw_signal, 0) / n) if rows.raw_signal is not None else None
 
     def relevance(model: Model, cand: Candidate) -> float:
-        t = model.matrix()[:, model.slices()[model.candidates.index(cand)]] @ model.params_of(cand)
+        t = lay.matrix(cand, model.payload_com, model.lag_scale, model.nonlinear) @ model.params_of(cand)
         if cand.kind == "rbd":
             if rows.raw_G is None:
                 return np.inf
-            tr = t[:lay.n_rbd]
-            size = np.sqrt(np.maximum(np.einsum("f,ifg,g->i", tr, rows.raw_G, tr), 0) / n)
+            nz = np.flatnonzero(t[:lay.n_rbd])  # the few features the candidate loads
+            tr = t[nz]
+            size = np.sqrt(np.maximum(np.einsum("f,ifg,g->i", tr, rows.raw_G[:, nz][:, :, nz], tr), 0) / n)
             assert raw_rms is not None  # raw_signal and raw_G are recorded together
             return float(np.max(size / np.maximum(raw_rms, 1e-9)))
         best = 0.0
+        nz = np.flatnonzero(t)
+        tz = t[nz]
         for j in range(lay.robot.n_joints):
             d = n_rbd_dims + j
             if train.n[d] <= 0:
                 continue
             g = lay.actuation_feature(j, "gain")
             tau_rms = np.sqrt(train.G[d][g, g] / train.n[d])
-            best = max(best, float(np.sqrt(max(t @ train.G[d] @ t, 0) / train.n[d]) / max(tau_rms, 1e-9)))
+            quad = tz @ train.G[d][np.ix_(nz, nz)] @ tz
+            best = max(best, float(np.sqrt(max(quad, 0) / train.n[d]) / max(tau_rms, 1e-9)))
         return best
 
     return relevance

@@ -313,32 +313,39 @@ class RegressorEvaluator:
             for j in range(nj):
                 E[:, 6 + j, c0 + k * j:c0 + k * (j + 1)] = x[:, j]
         frames = r.foot_frame_ids
-        unit = np.zeros(nv)
-        for k in range(n):
-            qk, vk, ak = q[k], v[k], a[k]
+        Y = np.empty((n, nv, 10 * (model.njoints - 1)))
+        D = np.empty((n, nv, nv))
+        for k in range(n):  # the per-sample Pinocchio calls; everything else is batched below
+            qk = q[k]
             pin.computeJointJacobians(model, data, qk)
             pin.updateFramePlacements(model, data)
             for i, f in enumerate(frames):
                 jac[k, i] = pin.getFrameJacobian(model, data, f, pin.LOCAL_WORLD_ALIGNED)[:3]
-            Y = pin.computeJointTorqueRegressor(model, data, qk, vk, ak)
-            E[k, :, lay.root0:lay.root0 + 10] = Y[:, :10]
-            for c, (col, params) in enumerate(self.link_cols):
-                E[k, :, lay.link0 + c] = Y[:, col:col + 10] @ params
-            pin.computeRNEADerivatives(model, data, qk, vk, ak)
-            D = data.dtau_dq
-            E[k, :, lay.encoder0:lay.encoder0 + nj] = -D[:, 6:]
-            E[k, :, lay.imu0:lay.imu0 + 2] = -D[:, 3:5]
-            stance = np.flatnonzero(contacts[k])
-            if len(stance):
-                Jc = jac[k, stance].reshape(-1, nv)
-                lam = -np.linalg.lstsq(Jc.T, residual[k], rcond=None)[0].reshape(-1, 3)
+            Y[k] = pin.computeJointTorqueRegressor(model, data, qk, v[k], a[k])
+            pin.computeRNEADerivatives(model, data, qk, v[k], a[k])
+            D[k] = data.dtau_dq
+        E[:, :, lay.root0:lay.root0 + 10] = Y[:, :, :10]
+        for c, (col, params) in enumerate(self.link_cols):
+            E[:, :, lay.link0 + c] = Y[:, :, col:col + 10] @ params
+        E[:, :, lay.encoder0:lay.encoder0 + nj] = -D[:, :, 6:]
+        E[:, :, lay.imu0:lay.imu0 + 2] = -D[:, :, 3:5]
+        # encoder term: the stance feet's contact forces λ (least squares on r = −J_cᵀλ, per contact
+        # pattern) through ∂J_c/∂q_j of each stance leg joint j
+        unit = np.eye(nv)
+        patterns, which = np.unique(np.asarray(contacts, bool), axis=0, return_inverse=True)
+        for p_i, pattern in enumerate(patterns):
+            stance = np.flatnonzero(pattern)
+            rows = np.flatnonzero(which.ravel() == p_i)
+            if not len(stance) or not len(rows):
+                continue
+            JcT = jac[rows][:, stance].reshape(len(rows), -1, nv).transpose(0, 2, 1)  # m × nv × 3s
+            lam = -(np.linalg.pinv(JcT) @ residual[rows][:, :, None])[:, :, 0].reshape(len(rows), -1, 3)
+            for k, lam_k in zip(rows, lam):
                 for s_i, foot in enumerate(stance):
                     for j in r.leg_joints[foot]:
-                        unit[:] = 0.0
-                        unit[6 + j] = 1.0
-                        pin.computeJointJacobiansTimeVariation(model, data, qk, unit)
-                        dJ = pin.getFrameJacobianTimeVariation(model, data, frames[foot], pin.LOCAL_WORLD_ALIGNED)[:3]
-                        E[k, :, lay.encoder0 + j] += dJ.T @ lam[s_i]
+                        pin.computeJointJacobiansTimeVariation(model, data, q[k], unit[6 + j])
+                        dJ = pin.getFrameJacobianTimeVariation(model, data, frames[foot], pin.LOCAL_WORLD_ALIGNED)
+                        E[k, :, lay.encoder0 + j] += dJ[:3].T @ lam_k[s_i]
         return E, jac
 
 

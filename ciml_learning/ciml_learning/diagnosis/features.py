@@ -98,8 +98,9 @@ def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples:
         basis = contact_invariant_bases(jac, robot.leg_joints)
         O, _ = observation_operators(jac, basis, log.contacts[idx])
         phi = O @ E  # batched matmul (BLAS), = einsum("nij,njf->nif")
-        Et = E.transpose(1, 0, 2)
-        raw_G += Et.transpose(0, 2, 1) @ Et  # Σ_n E[n, i]ᵀ E[n, i] per coordinate i
+        for i, cols in enumerate(np.any(E != 0.0, axis=0)):  # Σ_n E[n, i]ᵀ E[n, i] on the features coordinate i loads
+            Ei = E[:, i, cols]
+            raw_G[i][np.ix_(cols, cols)] += Ei.T @ Ei
         raw_signal[:6] += np.sum(targets.residual[idx, :6] ** 2, axis=0)  # Sᵀτ has no base rows: r = −(M q̈ + h)
         raw_signal[6:] += np.sum(log.tau[idx] ** 2, axis=0)
         sig = np.einsum("nij,nj->ni", O[:, :, 6:], log.tau[idx]) if nv > 6 else np.zeros((len(idx), nv))

@@ -335,9 +335,9 @@ class RegressorEvaluator:
         patterns, which = np.unique(np.asarray(contacts, bool), axis=0, return_inverse=True)
         for p_i, pattern in enumerate(patterns):
             stance = np.flatnonzero(pattern)
-            rows = np.flatnonzero(which.ravel() == p_i)
-            if not len(stance) or not len(rows):
+            if not len(stance):
                 continue
+            rows = np.flatnonzero(which.ravel() == p_i)
             JcT = jac[rows][:, stance].reshape(len(rows), -1, nv).transpose(0, 2, 1)  # m × nv × 3s
             lam = -(np.linalg.pinv(JcT) @ residual[rows][:, :, None])[:, :, 0].reshape(len(rows), -1, 3)
             for k, lam_k in zip(rows, lam):

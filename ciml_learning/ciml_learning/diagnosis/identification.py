@@ -624,7 +624,10 @@ def _prune(prob: _Problem, fixed: list[Candidate], current: list[Candidate], thr
 def consistency(model: Model, subsets: list[Grams], weights: np.ndarray, extra=None) -> list[float]:
     """Relative spread of each effect's main parameter over data subsets (contact configurations,
     bags): refit that effect alone on each subset, the others held at their estimates, and take
-    the information-weighted RMS deviation from the overall estimate, divided by its size.
+    the information-weighted RMS deviation from the overall estimate, divided by its size. The
+    information is the main parameter's own (the Schur complement of the others in the subset's
+    normal matrix): a subset that fixes an effect's other parameters but not its main one (a
+    Stribeck friction's fast-sliding bin, which sees only its Coulomb level) weighs nothing.
     A physical effect has one value everywhere; a stand-in for an effect outside the catalogue
     (a term that fits on average but not condition by condition) has not. extra(candidate) → more
     subsets for that candidate (e.g. a joint friction's sliding-speed bins: a friction whose level
@@ -643,7 +646,7 @@ def consistency(model: Model, subsets: list[Grams], weights: np.ndarray, extra=N
         for g in list(subsets) + (list(extra(cand)) if extra is not None else []):
             G, c, _ = g.weighted(weights)
             H = Ak.T @ G @ Ak
-            info = float(np.trace(H))
+            info = _main_information(H)
             if info <= 0:
                 continue
             d = np.linalg.lstsq(H, Ak.T @ (c - G @ theta), rcond=None)[0]
@@ -657,6 +660,14 @@ def consistency(model: Model, subsets: list[Grams], weights: np.ndarray, extra=N
         dev = np.sqrt(np.sum(infos[ok] * (ests[ok] - tk[0]) ** 2) / infos[ok].sum())
         out.append(float(dev / max(abs(tk[0]), 1e-12)))
     return out
+
+
+def _main_information(H: np.ndarray) -> float:
+    """Information on the first parameter with the others free: H₀₀ − H₀ᵣ H_rr⁺ H_r0."""
+    h = float(H[0, 0])
+    if len(H) > 1:
+        h -= float(H[0, 1:] @ np.linalg.lstsq(H[1:, 1:], H[1:, 0], rcond=None)[0])
+    return max(h, 0.0)
 
 
 def noise_floor(layout: FeatureLayout, heldout: Grams, sigma: np.ndarray) -> np.ndarray:

@@ -43,7 +43,7 @@ from .identification import (
 from .identified import identified_scenario_yaml
 from .localization import dimension_names, leg_summary, localize
 from .report import render_report
-from .shrink import residual_series, residuals, shrink
+from .shrink import residual_series, residuals, shrink, stuck_mask
 
 FORMAT_VERSION = 1
 HELDOUT_FRACTION = 0.3
@@ -133,6 +133,31 @@ def friction_speed_subsets(robot: RobotDescription, dataset, rows):
 
 Z95, Z68 = 1.959964, 0.994458
 """Normal quantiles of the reported two-sided 95 % and 68 % intervals (value ± z·std)."""
+
+
+MAX_STICK_PASSES = 3
+
+
+def identify(robot: RobotDescription, layout: FeatureLayout, ds_id, rows_id, rows_ho, v_id: np.ndarray,
+             v_ho: np.ndarray):
+    """The selection (identification.select), repeated without the rows that see a stuck joint of each
+    friction that sticks (shrink.py, "Stiction") until no new such joint is found (at most
+    MAX_STICK_PASSES selections). → (selection, identification rows it used, their held-out Grams,
+    the joints whose stuck rows were left out)."""
+    stick: list[int] = []
+    for _ in range(MAX_STICK_PASSES):
+        fit_id = rows_id.without_rbd(stuck_mask(rows_id, v_id, stick))
+        fit_ho = rows_ho.without_rbd(stuck_mask(rows_ho, v_ho, stick))
+        g_id, g_ho = grams(fit_id), grams(fit_ho)
+        sel = select(layout, g_id, g_ho, subsets=consistency_subsets(robot, ds_id, fit_id),
+                     relevance=relevance_function(fit_id, g_id),
+                     candidate_subsets=friction_speed_subsets(robot, ds_id, fit_id))
+        found = {robot.joint_names.index(c.joint) for c, p in zip(sel.model.candidates, physical_parameters(sel.model))
+                 if c.type in EFFECTS and (EFFECTS[c.type].stiction(p) or 0.0) > 0.0}
+        if found <= set(stick):
+            break
+        stick = sorted(set(stick) | found)
+    return sel, fit_id, g_ho, stick
 
 
 def _interval(params: dict, std: dict, z: float) -> dict:
@@ -235,18 +260,16 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
             raise DiagnosisError(f"only {len(rows.samples)} valid {name} samples (need ≥ {MIN_SAMPLES}, "
                                  f"{MIN_SAMPLES / ds_id.rate_hz:.1f} s at the log's {ds_id.rate_hz:.0f} Hz); "
                                  "give longer or more bags")
-    g_id, g_ho = grams(rows_id), grams(rows_ho)
     _say(progress, "selecting effects on held-out data")
-    sel = select(layout, g_id, g_ho, subsets=consistency_subsets(robot, ds_id, rows_id),
-                 relevance=relevance_function(rows_id, g_id),
-                 candidate_subsets=friction_speed_subsets(robot, ds_id, rows_id))
+    v_id, v_ho = ds_id.log.v[rows_id.samples, 6:], ds_ho.log.v[rows_ho.samples, 6:]
+    sel, fit_id, g_ho, stick = identify(robot, layout, ds_id, rows_id, rows_ho, v_id, v_ho)
     noise_floor = sel.noise_floor
     assert noise_floor is not None  # select() measures it
     _say(progress, "parameter uncertainty (block bootstrap)")
     # what the lag's coefficient reads in these logs (lag_time_constant): their command sampling
     sel.model.sampling = pooled_command_sampling([i["stamp_report"].get("command_sampling") for i in ds_id.inputs],
                                                  1.0 / ds_id.rate_hz)
-    std_all, uncertainty = parameter_uncertainty(sel, rows_id, g_ho, fs=ds_id.rate_hz)
+    std_all, uncertainty = parameter_uncertainty(sel, fit_id, g_ho, fs=ds_id.rate_hz)
     params_all = physical_parameters(sel.model)
     nb = sel.n_baseline
     baseline = sel.model.part(sel.model.candidates[:nb])
@@ -258,15 +281,19 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     raw_loc = {x["dimension"]: x["rms_error"] for x in localize(robot, [(ds_id, rows_id), (ds_ho, rows_ho)], sel.sigma)}
     for x in loc:
         x["rms_error_before_baseline"] = raw_loc[x["dimension"]]
-    res = residuals(corr_ho, effects_model, sel.weights, ds_ho.log.v[rows_ho.samples, 6:])
+    res = residuals(corr_ho, effects_model, sel.weights, v_ho)
     shr = shrink(robot, corr_ho, res, sel.sigma, noise_floor)
-    raw = shrink(robot, rows_ho, residuals(rows_ho, baseline, sel.weights, ds_ho.log.v[rows_ho.samples, 6:]), sel.sigma)
+    raw = shrink(robot, rows_ho, residuals(rows_ho, baseline, sel.weights, v_ho), sel.sigma)
     shr["baseline"] = {"heldout_rms_before_baseline": raw["heldout_rms_nominal"],
                        "heldout_rms_after_baseline": raw["heldout_rms_with_effects"]}
-    # shares: drop-one costs of the selection plus what each friction's stiction estimate removes
-    # (shares are of the gap above the noise floor, identification.Selection.unexplained_share)
-    gap = sel.gap_ss if not sel.gap_at_noise_floor else np.inf
-    shares = [sh + res.stiction_gain.get(c.label, 0.0) / gap for c, sh in zip(sel.effects, sel.shares)]
+    # shares: drop-one costs of the selection plus what each friction's stiction estimate removes, of
+    # the gap above the noise floor (identification.Selection.unexplained_share) on every held-out
+    # row: the selection's and that of the rows left out while a joint stuck (their rest is unexplained)
+    left_out = stuck_mask(corr_ho, v_ho, stick)
+    d_out = corr_ho.dim_rbd[left_out]
+    z = (corr_ho.y_rbd[left_out] ** 2 - noise_floor[d_out] ** 2) * sel.weights[d_out]
+    gap = sel.gap_ss + max(float(np.sum(z)), 0.0) if not sel.gap_at_noise_floor else np.inf
+    shares = [(sh * sel.gap_ss + res.stiction_gain.get(c.label, 0.0)) / gap for c, sh in zip(sel.effects, sel.shares)]
     if sum(shares) > 1.0:  # the residual ended below the estimated noise floor: all of the gap is explained
         shares = [sh / sum(shares) for sh in shares]
     found = list(zip(sel.effects, params_all[nb:], std_all[nb:], shares, sel.spread))
@@ -313,6 +340,7 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
             "heldout_bags": [str(b) for b in heldout] if heldout else [],
             "heldout": how,
             "samples": int(len(rows_id.samples)),
+            "stuck_joints_left_out": [robot.joint_names[j] for j in stick],
             "heldout_samples": int(len(rows_ho.samples)),
             "rejected": {k: int(v) for k, v in ds_id.rejected.items()},
             "rate_hz": ds_id.rate_hz,

@@ -6,12 +6,13 @@ noise level, identification.py), nominal vs with the effects; ratio = 1 − with
 the fraction of the gap removed. The same overall number in physical units (N and Nm mixed)
 is given as `heldout_rms_*_physical` for reference.
 
-Stiction. Coulomb friction sticks: while a joint does not move (|q̇_j| < V_STICK) its friction
-torque is whatever holds it, anywhere in [−f_c, f_c], not a function of the state. For each
-identified Coulomb friction the identification uses the sliding samples only (its regressor
-vanishes at rest); at the stuck samples the friction torque is estimated per sample as the
-projection of the residual onto that joint's torque direction (O_k e_j, eq. 11), clipped to
-±f_c — the set-valued friction law with the identified level. The shrink is given with and
+Stiction. A joint friction that sticks (Coulomb, Stribeck: EffectType.stiction) is set-valued at
+rest: while its joint does not move (|q̇_j| < V_STICK) its torque is whatever holds the joint,
+anywhere in [−f_s, f_s] (f_s the level it holds with), not a function of the state. The
+identification therefore leaves out the rows that see such a joint's torque while it is stuck
+(sliding_rows; run.identify). On held-out rows the friction torque at a stuck sample is estimated
+per sample as the projection of the residual onto that joint's torque direction (O_k e_j, eq. 11),
+clipped to ±f_s — the set-valued law with the identified level. The shrink is given with and
 without this per-sample estimate.
 """
 from __future__ import annotations
@@ -22,11 +23,29 @@ from typing import Any
 import numpy as np
 
 from .features import Rows, predict
-from .identification import Model
+from .identification import Model, physical_parameters
 from .localization import dimension_names, dimension_units
 
 V_STICK = 0.05
-"""[rad/s] a joint slower than this may be stuck by its Coulomb friction."""
+"""[rad/s] a joint slower than this may be stuck by its friction."""
+STICK_SEEN = 1e-6
+"""A row sees joint j's torque when |O_k e_j| in it exceeds this (rows are in N or Nm per Nm)."""
+
+
+def stuck_rows(rows: Rows, v_joints: np.ndarray, j: int) -> np.ndarray:
+    """Rows (bool over the Φ̃' rows) of samples where joint j may be stuck (v_joints: N × n_j of
+    rows.samples) that see its torque."""
+    stuck = (np.abs(v_joints[:, j]) < V_STICK)[rows.sample_rbd]
+    return stuck & (np.abs(rows.X_rbd[:, rows.layout.torque0 + j]) > STICK_SEEN)
+
+
+def stuck_mask(rows: Rows, v_joints: np.ndarray, joints: list[int]) -> np.ndarray:
+    """Φ̃' rows (bool) that see a stuck joint of `joints` (stuck_rows): leaving them out keeps the rows
+    where every friction law of those joints is a function of the state."""
+    drop = np.zeros(len(rows.y_rbd), bool)
+    for j in joints:
+        drop |= stuck_rows(rows, v_joints, j)
+    return drop
 
 
 @dataclass
@@ -40,9 +59,11 @@ class Residuals:
 
 
 def residuals(rows: Rows, model: Model, weights: np.ndarray, v_joints: np.ndarray) -> Residuals:
-    """Residuals of `rows` under the model, with the stiction estimate of each Coulomb friction.
+    """Residuals of `rows` under the model, with the stiction estimate of each friction that sticks.
 
     v_joints: joint velocities of rows.samples (N × n_j)."""
+    from ..effects import EFFECTS
+
     lay = rows.layout
     theta = model.feature_theta()
     pr, pa = predict(rows, theta)
@@ -51,23 +72,26 @@ def residuals(rows: Rows, model: Model, weights: np.ndarray, v_joints: np.ndarra
     wr = weights[rows.dim_rbd]
     n_s = len(rows.samples)
     gains = {}
-    for cand in model.candidates:
-        if cand.type != "joint_coulomb_friction":
+    for cand, params in zip(model.candidates, physical_parameters(model)):
+        kind = EFFECTS.get(cand.type)
+        f_s = kind.stiction(params) if kind is not None else None
+        if not f_s or f_s <= 0:
             continue
         j = lay.robot.joint_names.index(cand.joint)
-        f_c = float(model.params_of(cand)[0])
-        stuck_rows = (np.abs(v_joints[:, j]) < V_STICK)[rows.sample_rbd]
-        if f_c <= 0 or not stuck_rows.any():
+        stuck = stuck_rows(rows, v_joints, j)
+        if not stuck.any():
             continue
         before = float(np.sum(wr * res ** 2))
         d = rows.X_rbd[:, lay.torque0 + j].astype(float)
+        own = model.part([cand]).feature_theta()[:lay.n_rbd]
+        cols = np.flatnonzero(own)
         r2 = res.copy()
-        r2[stuck_rows] += f_c * rows.X_rbd[stuck_rows, lay.coulomb0 + j]  # the sliding model does not apply
-        idx = rows.sample_rbd[stuck_rows]
-        num = np.bincount(idx, weights=(wr * d * r2)[stuck_rows], minlength=n_s)
-        den = np.bincount(idx, weights=(wr * d * d)[stuck_rows], minlength=n_s)
-        torque = np.clip(np.divide(num, den, out=np.zeros(n_s), where=den > 0), -f_c, f_c)
-        r2[stuck_rows] -= torque[idx] * d[stuck_rows]
+        r2[stuck] += rows.X_rbd[np.ix_(stuck, cols)] @ own[cols]  # the sliding law does not apply
+        idx = rows.sample_rbd[stuck]
+        num = np.bincount(idx, weights=(wr * d * r2)[stuck], minlength=n_s)
+        den = np.bincount(idx, weights=(wr * d * d)[stuck], minlength=n_s)
+        torque = np.clip(np.divide(num, den, out=np.zeros(n_s), where=den > 0), -f_s, f_s)
+        r2[stuck] -= torque[idx] * d[stuck]
         res = r2
         gains[cand.label] = before - float(np.sum(wr * res ** 2))
     return Residuals(rbd=res, act=rows.y_act - pa, rbd_no_stiction=base, stiction_gain=gains)

@@ -190,6 +190,11 @@ class EffectType:
         """Coefficients on the feature columns of physical parameters (A θ)."""
         return layout.matrix(cand, nonlinear=conv.nonlinear) @ self.to_theta(params, cand, conv)
 
+    def stiction(self, params: dict) -> float | None:
+        """[Nm] the largest torque this friction holds a joint at rest with (its law is set-valued there:
+        diagnosis/shrink.py), or None for an effect that does not stick."""
+        return None
+
     def joint_features(self, v_joints: np.ndarray) -> np.ndarray:
         """(N × n_j × joint_feature_count) joint torques per unit parameter at joint velocities q̇,
         before the log's low-pass (diagnosis/candidates.effect_joint_regressors applies it)."""

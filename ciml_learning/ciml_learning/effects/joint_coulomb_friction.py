@@ -46,6 +46,9 @@ class JointCoulombFriction(EffectType):
     def to_theta(self, params, cand, conv):
         return [float(params["value"])]
 
+    def stiction(self, params):
+        return float(params["value"])
+
     def patch_mjcf(self, patch, effect):
         patch.add_joint_attribute(effect["joint"], "frictionloss", effect["params"]["value"])
         patch.set_joint_default(effect["joint"], "solreffriction", friction_solref(patch.timestep()))

@@ -4,7 +4,7 @@ sensor: in Φ̃, not Γ).
 
 Candidate columns: the Coulomb column LP(tanh(q̇/v_c)) and LP(tanh(q̇/v_c) exp(−(q̇/v_s)²)) with
 θ = (f_s − f_c, f_c) ≥ 0. The model is not linear in v_s: the layout holds the second column at
-STRIBECK_VELOCITIES (one octave apart), a v_s between two is the linear interpolation of its
+STRIBECK_VELOCITIES (half an octave apart), a v_s between two is the linear interpolation of its
 neighbours in log v_s, and v_s is fitted by a 1-D search (identification.fit_model). A Stribeck
 candidate nests the Coulomb one of its joint (group "joint_friction_level"): the two never enter
 one model, and the extra parameters must pay for themselves. MuJoCo has no velocity-dependent
@@ -18,8 +18,10 @@ import numpy as np
 
 from .base import COULOMB_SMOOTHING, FRICTION_FRACTION, Candidate, EffectType, Field, joint_torque_limit, torque_limits
 
-STRIBECK_VELOCITIES = tuple(0.05 * 2.0 ** k for k in range(6))
-"""[rad/s] the Stribeck velocities of the layout's columns (0.05 … 1.6). The lowest is the speed below
+STRIBECK_STEP = 2.0 ** 0.5
+STRIBECK_VELOCITIES = tuple(0.05 * STRIBECK_STEP ** k for k in range(11))
+"""[rad/s] the Stribeck velocities of the layout's columns (0.05 … 1.6, half an octave apart: an octave's
+interpolation biased the breakaway level by ~25 %, outside its interval). The lowest is the speed below
 which a joint may be stuck by its friction (diagnosis/shrink.V_STICK): a friction level that changes only
 below it is the stick–slip transition a smoothed Coulomb law leaves, not a Stribeck curve, and a fit that
 wants a lower velocity ends on the bound ("not identified")."""
@@ -64,7 +66,7 @@ class JointStribeckFriction(EffectType):
     def matrix(self, layout, cand, A, refinement):
         A[cand.features[0], 1] = 1.0
         v = (refinement.nonlinear or {}).get(cand.label, math.sqrt(STRIBECK_VELOCITIES[0] * STRIBECK_VELOCITIES[-1]))
-        x = min(max(math.log2(v / STRIBECK_VELOCITIES[0]), 0.0), len(STRIBECK_VELOCITIES) - 1.0)
+        x = min(max(math.log(v / STRIBECK_VELOCITIES[0], STRIBECK_STEP), 0.0), len(STRIBECK_VELOCITIES) - 1.0)
         i = min(int(x), len(STRIBECK_VELOCITIES) - 2)
         w = x - i
         A[cand.features[1 + i], 0] = 1.0 - w
@@ -76,6 +78,9 @@ class JointStribeckFriction(EffectType):
 
     def to_theta(self, params, cand, conv):
         return [float(params["breakaway"]) - float(params["coulomb"]), float(params["coulomb"])]
+
+    def stiction(self, params):
+        return float(params["breakaway"])
 
     def feature_theta(self, layout, cand, params, conv):
         A = layout.matrix(cand, nonlinear={cand.label: float(params["velocity"])})

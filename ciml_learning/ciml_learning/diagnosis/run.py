@@ -135,6 +135,26 @@ Z95, Z68 = 1.959964, 0.994458
 """Normal quantiles of the reported two-sided 95 % and 68 % intervals (value ± z·std)."""
 
 
+def effect_shares(sel, rows_ho, res, left_out: np.ndarray) -> list[float]:
+    """Each selected effect's share of the gap above the noise floor on every held-out row
+    (identification.Selection.unexplained_share): its drop-one cost in the selection, plus what its
+    stiction estimate removes (shrink.residuals), plus its part (in proportion to the selection's
+    shares) of what the effects' laws explain on the rows the selection left out (`left_out`: rows
+    that see a stuck joint, run.identify). Without such rows: the selection's shares + stiction."""
+    if sel.gap_at_noise_floor:
+        return [0.0] * len(sel.shares)
+    d = rows_ho.dim_rbd[left_out]
+    w, y, base = sel.weights[d], rows_ho.y_rbd[left_out], res.rbd_no_stiction[left_out]
+    gap = sel.gap_ss + max(float(np.sum(w * (y ** 2 - sel.noise_floor[d] ** 2))), 0.0)
+    laws = float(np.sum(w * (y ** 2 - base ** 2)))  # what the effects' own laws explain there
+    total = sum(sel.shares)
+    shares = [(sh * sel.gap_ss + res.stiction_gain.get(c.label, 0.0) + (laws * sh / total if total > 0 else 0.0)) / gap
+              for c, sh in zip(sel.effects, sel.shares)]
+    if sum(shares) > 1.0:  # the residual ended below the estimated noise floor: all of the gap is explained
+        shares = [sh / sum(shares) for sh in shares]
+    return [max(sh, 0.0) for sh in shares]
+
+
 MAX_STICK_PASSES = 3
 
 
@@ -286,16 +306,7 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     raw = shrink(robot, rows_ho, residuals(rows_ho, baseline, sel.weights, v_ho), sel.sigma)
     shr["baseline"] = {"heldout_rms_before_baseline": raw["heldout_rms_nominal"],
                        "heldout_rms_after_baseline": raw["heldout_rms_with_effects"]}
-    # shares: drop-one costs of the selection plus what each friction's stiction estimate removes, of
-    # the gap above the noise floor (identification.Selection.unexplained_share) on every held-out
-    # row: the selection's and that of the rows left out while a joint stuck (their rest is unexplained)
-    left_out = stuck_mask(corr_ho, v_ho, stick)
-    d_out = corr_ho.dim_rbd[left_out]
-    z = (corr_ho.y_rbd[left_out] ** 2 - noise_floor[d_out] ** 2) * sel.weights[d_out]
-    gap = sel.gap_ss + max(float(np.sum(z)), 0.0) if not sel.gap_at_noise_floor else np.inf
-    shares = [(sh * sel.gap_ss + res.stiction_gain.get(c.label, 0.0)) / gap for c, sh in zip(sel.effects, sel.shares)]
-    if sum(shares) > 1.0:  # the residual ended below the estimated noise floor: all of the gap is explained
-        shares = [sh / sum(shares) for sh in shares]
+    shares = effect_shares(sel, corr_ho, res, stuck_mask(corr_ho, v_ho, stick))
     found = list(zip(sel.effects, params_all[nb:], std_all[nb:], shares, sel.spread))
     effects = [_effect_entry(c, p, s, sh, sp) for c, p, s, sh, sp in found if c.in_catalogue]
     effects.sort(key=lambda e: -e["share"])

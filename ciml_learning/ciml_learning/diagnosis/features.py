@@ -58,13 +58,6 @@ class Rows:
                     new_pos[self.sample_rbd[r_keep]], self.X_act[keep], self.y_act[keep], self.signal_rbd[r_keep],
                     self.raw_G, self.raw_signal, self.n_raw)
 
-    def without_rbd(self, drop: np.ndarray) -> "Rows":
-        """The same samples without the Φ̃' rows where drop (bool over them) is True."""
-        keep = ~np.asarray(drop, bool)
-        return Rows(self.layout, self.samples, self.X_rbd[keep], self.y_rbd[keep], self.dim_rbd[keep],
-                    self.sample_rbd[keep], self.X_act, self.y_act, self.signal_rbd[keep],
-                    self.raw_G, self.raw_signal, self.n_raw)
-
 
 def command_rate(log) -> np.ndarray:
     """u̇ (N × n_j) of the low-passed command, per segment (central differences)."""

@@ -473,18 +473,32 @@ def _grouped(k: Candidate, current: list[Candidate]) -> bool:
 
 def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total_nominal: float,
                 fixed: list[Candidate], thresholds: dict[str, float], progress=None, relevance=None,
-                limited: dict | None = None) -> list[Candidate]:
+                limited: dict | None = None, start: list[Candidate] | None = None) -> list[Candidate]:
     """Forward selection, swaps and backward pruning over every kind (module docstring).
 
     A candidate is accepted when its held-out gain reaches its kind's threshold. `fixed`
     candidates (the baseline) are part of every fit and never selected or dropped. `limited`
     collects candidates whose estimate ended on a non-null physical bound although they would
-    have reduced the held-out residual by their threshold: label → (candidate, model, gain)."""
-    nominal = prob.ss(prob.fit(fixed))
-    current: list[Candidate] = []
-    current_ss = nominal
+    have reduced the held-out residual by their threshold: label → (candidate, model, gain).
+    `start`: effects to begin with (a previous selection's, on other rows), each in the simplest form
+    of its group (a Stribeck friction as the Coulomb friction it nests: the extra parameters must pass
+    the test again); those on a bound or negligible here are left out, then swaps are tried, then the
+    forward steps, and the pruning drops those that do not pay for themselves here."""
     diag = np.diag(prob.Gt)
     usable = [k for k in cands if np.any(diag[list(k.features)] > 0)]
+    current: list[Candidate] = []
+    for k in start or []:
+        k = min((c for c in usable if c is k or (k.group is not None and c.group == k.group)),
+                key=lambda c: c.n_params, default=k)
+        if k in usable and k not in current:
+            current.append(k)
+    if current:
+        m = prob.fit(fixed + current)
+        current = [k for k in current
+                   if not _at_bound(m, k) and (relevance is None or relevance(m, k) >= MIN_RELEVANCE)]
+    for k in current:
+        steps.append(Step(f"{k.label} (from the previous selection)", 0.0, None, 0.0))
+    current_ss = prob.ss(prob.fit(fixed + current))
 
     def thr(k: Candidate) -> float:
         return thresholds[k.kind]
@@ -501,6 +515,34 @@ def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total
             return None
         return prob.ss(m), m
 
+    def swaps() -> None:
+        """Swaps: an effect chosen early (before others were modelled) may be the wrong one."""
+        nonlocal current_ss
+        improved = True
+        while improved:
+            improved = False
+            best: tuple[float, int | None, Candidate | None] = (np.inf, None, None)
+            for i in range(len(current)):
+                for k2 in usable:
+                    if k2 in current or not k2.in_catalogue or _grouped(k2, current[:i] + current[i + 1:]):
+                        continue
+                    cset = current[:i] + [k2] + current[i + 1:]
+                    t = trial(cset, k2)
+                    margin = SWAP_MARGIN * min(thr(k2), thr(current[i]))
+                    if k2.group is not None and k2.group == current[i].group and k2.n_params > current[i].n_params:
+                        margin = thr(k2)  # a nesting effect's extra parameters pass the test of a new effect
+                    if t is not None and t[0] < current_ss - margin and t[0] < best[0]:
+                        best = (t[0], i, k2)
+            _, at, replacement = best
+            if at is not None and replacement is not None:
+                steps.append(Step(f"{replacement.label} (replaces {current[at].label})",
+                                  (current_ss - best[0]) / total_nominal, None, 0.0))
+                current[at] = replacement
+                current_ss = best[0]
+                improved = True
+
+    if current:
+        swaps()
     while len(current) < MAX_EFFECTS:
         trials = []
         for k in usable:
@@ -526,29 +568,7 @@ def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total
                           runner[0] / total_nominal if runner else 0.0))
         current.append(k)
         current_ss -= gain
-        # swaps: an effect chosen early (before others were modelled) may be the wrong one
-        improved = True
-        while improved:
-            improved = False
-            best: tuple[float, int | None, Candidate | None] = (np.inf, None, None)
-            for i in range(len(current)):
-                for k2 in usable:
-                    if k2 in current or not k2.in_catalogue or _grouped(k2, current[:i] + current[i + 1:]):
-                        continue
-                    cset = current[:i] + [k2] + current[i + 1:]
-                    t = trial(cset, k2)
-                    margin = SWAP_MARGIN * min(thr(k2), thr(current[i]))
-                    if k2.group is not None and k2.group == current[i].group and k2.n_params > current[i].n_params:
-                        margin = thr(k2)  # a nesting effect's extra parameters pass the test of a new effect
-                    if t is not None and t[0] < current_ss - margin and t[0] < best[0]:
-                        best = (t[0], i, k2)
-            _, at, replacement = best
-            if at is not None and replacement is not None:
-                steps.append(Step(f"{replacement.label} (replaces {current[at].label})",
-                                  (current_ss - best[0]) / total_nominal, None, 0.0))
-                current[at] = replacement
-                current_ss = best[0]
-                improved = True
+        swaps()
     # effects pushed onto a physical bound (or to a negligible size) once the others are modelled
     # do not explain the data
     while current:
@@ -689,7 +709,7 @@ def noise_floor(layout: FeatureLayout, heldout: Grams, sigma: np.ndarray) -> np.
 
 def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
            candidates: list[Candidate] | None = None, subsets: list[Grams] | None = None,
-           relevance=None, candidate_subsets=None) -> Selection:
+           relevance=None, candidate_subsets=None, start: list[Candidate] | None = None) -> Selection:
     """Greedy forward selection with swaps and backward pruning (module docstring).
 
     Every kind of candidate competes in one loop on all output dimensions (rigid-body and actuation
@@ -697,7 +717,8 @@ def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
     threshold of its kind, relative to that kind's own nominal residual. The baseline
     (command-update sampling, candidates.py) is part of every model: the "nominal" residual is
     the one after it. With `subsets` (Grams of parts of the identification data), effects whose
-    parameter is not consistent across them (consistency() > MAX_SPREAD) are rejected."""
+    parameter is not consistent across them (consistency() > MAX_SPREAD) are rejected. `start`: effects
+    of a previous selection to begin with (_select_all)."""
     cands = list(layout.candidates if candidates is None else candidates)
     base = [layout.baseline]
     sigma, full_rms = noise_levels(layout, train, heldout)
@@ -713,7 +734,7 @@ def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
     steps: list[Step] = []
     limited: dict = {}
     prob = _Problem(layout, train, heldout, w, np.arange(len(sigma)))
-    current = _select_all(prob, cands, steps, nominal, base, thresholds, progress, relevance, limited)
+    current = _select_all(prob, cands, steps, nominal, base, thresholds, progress, relevance, limited, start)
     model = fit_model(layout, base + current, Gt, ct)
     rejected: list[tuple[str, float]] = []
     if (subsets or candidate_subsets) and current:

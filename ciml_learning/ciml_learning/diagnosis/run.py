@@ -43,7 +43,7 @@ from .identification import (
 from .identified import identified_scenario_yaml
 from .localization import dimension_names, leg_summary, localize
 from .report import render_report
-from .shrink import residual_series, residuals, shrink, stuck_mask
+from .shrink import project_stuck, residual_series, residuals, shrink, stuck_ss
 
 FORMAT_VERSION = 1
 HELDOUT_FRACTION = 0.3
@@ -135,21 +135,27 @@ Z95, Z68 = 1.959964, 0.994458
 """Normal quantiles of the reported two-sided 95 % and 68 % intervals (value ± z·std)."""
 
 
-def effect_shares(sel, rows_ho, res, left_out: np.ndarray) -> list[float]:
-    """Each selected effect's share of the gap above the noise floor on every held-out row
-    (identification.Selection.unexplained_share): its drop-one cost in the selection, plus what its
-    stiction estimate removes (shrink.residuals), plus its part (in proportion to the selection's
-    shares) of what the effects' laws explain on the rows the selection left out (`left_out`: rows
-    that see a stuck joint, run.identify). Without such rows: the selection's shares + stiction."""
+def effect_shares(sel, rows_ho, res, v_ho: np.ndarray, stick: list[int]) -> list[float]:
+    """Each selected term's share of the held-out gap above the noise floor (identification.Selection.
+    unexplained_share). The selection saw the stuck joints' torques projected out (identify): a term's
+    share is its drop-one cost there, plus, in the directions projected out (shrink.stuck_ss), what its
+    stiction estimate removes and its part of what the terms' laws explain there, in proportion to its
+    own drop-one cost there (no refit). The gap counts those directions' nominal error in full (their
+    noise is not taken off). Without stuck joints: the selection's shares."""
     if sel.gap_at_noise_floor:
         return [0.0] * len(sel.shares)
-    d = rows_ho.dim_rbd[left_out]
-    w, y, base = sel.weights[d], rows_ho.y_rbd[left_out], res.rbd_no_stiction[left_out]
-    gap = sel.gap_ss + max(float(np.sum(w * (y ** 2 - sel.noise_floor[d] ** 2))), 0.0)
-    laws = float(np.sum(w * (y ** 2 - base ** 2)))  # what the effects' own laws explain there
-    total = sum(sel.shares)
-    shares = [(sh * sel.gap_ss + res.stiction_gain.get(c.label, 0.0) + (laws * sh / total if total > 0 else 0.0)) / gap
-              for c, sh in zip(sel.effects, sel.shares)]
+    own = [rows_ho.X_rbd.astype(float) @ sel.model.part([c]).feature_theta()[:rows_ho.layout.n_rbd]
+           for c in sel.effects]
+    base = rows_ho.y_rbd - sum(own, np.zeros(len(rows_ho.y_rbd)))  # every term, no stiction estimate
+    ss = stuck_ss(rows_ho, np.column_stack([rows_ho.y_rbd, res.rbd, base] + [base + o for o in own]), v_ho, stick,
+                  sel.sigma)
+    nominal, final, without = ss[0], ss[1], ss[2]
+    gains = [res.stiction_gain.get(c.label, 0.0) for c in sel.effects]
+    laws = nominal - final - sum(gains)  # what the terms' own laws explain in the stuck directions
+    cost = np.maximum(ss[3:] - without, 0.0)
+    gap = sel.gap_ss + nominal
+    shares = [(sh * sel.gap_ss + g + (laws * c / cost.sum() if cost.sum() > 0 else 0.0)) / gap
+              for sh, g, c in zip(sel.shares, gains, cost)]
     if sum(shares) > 1.0:  # the residual ended below the estimated noise floor: all of the gap is explained
         shares = [sh / sum(shares) for sh in shares]
     return [max(sh, 0.0) for sh in shares]
@@ -160,23 +166,29 @@ MAX_STICK_PASSES = 3
 
 def identify(robot: RobotDescription, layout: FeatureLayout, ds_id, rows_id, rows_ho, v_id: np.ndarray,
              v_ho: np.ndarray):
-    """The selection (identification.select), repeated without the rows that see a stuck joint of each
-    friction that sticks (shrink.py, "Stiction") until no new such joint is found (at most
-    MAX_STICK_PASSES selections). → (selection, identification rows it used, their held-out Grams,
-    the joints whose stuck rows were left out)."""
+    """The selection (identification.select), repeated with the torque of each stuck joint whose
+    identified friction sticks projected out of its samples (shrink.project_stuck, with the previous
+    selection's noise levels as weights), starting from the previous selection's effects (a greedy
+    selection from scratch can stop in a worse set on the new rows), until no new such joint is
+    found (at most MAX_STICK_PASSES selections).
+    → (selection, identification rows it used, their held-out Grams, those joints)."""
     stick: list[int] = []
-    for _ in range(MAX_STICK_PASSES):
-        fit_id = rows_id.without_rbd(stuck_mask(rows_id, v_id, stick))
-        fit_ho = rows_ho.without_rbd(stuck_mask(rows_ho, v_ho, stick))
+    fit_id, fit_ho = rows_id, rows_ho
+    start: list | None = None
+    for n_pass in range(MAX_STICK_PASSES):
         g_id, g_ho = grams(fit_id), grams(fit_ho)
         sel = select(layout, g_id, g_ho, subsets=consistency_subsets(robot, ds_id, fit_id),
                      relevance=relevance_function(fit_id, g_id),
-                     candidate_subsets=friction_speed_subsets(robot, ds_id, fit_id))
+                     candidate_subsets=friction_speed_subsets(robot, ds_id, fit_id),
+                     start=start)
         found = {robot.joint_names.index(c.joint) for c, p in zip(sel.model.candidates, physical_parameters(sel.model))
                  if c.type in EFFECTS and (EFFECTS[c.type].stiction(p) or 0.0) > 0.0}
-        if found <= set(stick):
+        if found <= set(stick) or n_pass == MAX_STICK_PASSES - 1:
             break
         stick = sorted(set(stick) | found)
+        start = sel.effects
+        fit_id = project_stuck(rows_id, v_id, stick, sel.sigma)
+        fit_ho = project_stuck(rows_ho, v_ho, stick, sel.sigma)
     return sel, fit_id, g_ho, stick
 
 
@@ -306,7 +318,7 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     raw = shrink(robot, rows_ho, residuals(rows_ho, baseline, sel.weights, v_ho), sel.sigma)
     shr["baseline"] = {"heldout_rms_before_baseline": raw["heldout_rms_nominal"],
                        "heldout_rms_after_baseline": raw["heldout_rms_with_effects"]}
-    shares = effect_shares(sel, corr_ho, res, stuck_mask(corr_ho, v_ho, stick))
+    shares = effect_shares(sel, corr_ho, res, v_ho, stick)
     found = list(zip(sel.effects, params_all[nb:], std_all[nb:], shares, sel.spread))
     effects = [_effect_entry(c, p, s, sh, sp) for c, p, s, sh, sp in found if c.in_catalogue]
     effects.sort(key=lambda e: -e["share"])
@@ -351,7 +363,7 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
             "heldout_bags": [str(b) for b in heldout] if heldout else [],
             "heldout": how,
             "samples": int(len(rows_id.samples)),
-            "stuck_joints_left_out": [robot.joint_names[j] for j in stick],
+            "stuck_joints_projected_out": [robot.joint_names[j] for j in stick],
             "heldout_samples": int(len(rows_ho.samples)),
             "rejected": {k: int(v) for k, v in ds_id.rejected.items()},
             "rate_hz": ds_id.rate_hz,

@@ -9,11 +9,11 @@ is given as `heldout_rms_*_physical` for reference.
 Stiction. A joint friction that sticks (Coulomb, Stribeck: EffectType.stiction) is set-valued at
 rest: while its joint does not move (|q̇_j| < V_STICK) its torque is whatever holds the joint,
 anywhere in [−f_s, f_s] (f_s the level it holds with), not a function of the state. The
-identification therefore leaves out the rows that see such a joint's torque while it is stuck
-(sliding_rows; run.identify). On held-out rows the friction torque at a stuck sample is estimated
-per sample as the projection of the residual onto that joint's torque direction (O_k e_j, eq. 11),
-clipped to ±f_s — the set-valued law with the identified level. The shrink is given with and
-without this per-sample estimate.
+identification therefore projects a stuck joint's torque out of its samples, as eq. (11) projects
+out the contact forces (project_stuck; run.identify). On held-out rows the friction torque at a
+stuck sample is estimated per sample as the projection of the residual onto that joint's torque
+direction (O_k e_j, eq. 11), clipped to ±f_s — the set-valued law with the identified level. The
+shrink is given with and without this per-sample estimate.
 """
 from __future__ import annotations
 
@@ -39,13 +39,54 @@ def stuck_rows(rows: Rows, v_joints: np.ndarray, j: int) -> np.ndarray:
     return stuck & (np.abs(rows.X_rbd[:, rows.layout.torque0 + j]) > STICK_SEEN)
 
 
-def stuck_mask(rows: Rows, v_joints: np.ndarray, joints: list[int]) -> np.ndarray:
-    """Φ̃' rows (bool) that see a stuck joint of `joints` (stuck_rows): leaving them out keeps the rows
-    where every friction law of those joints is a function of the state."""
-    drop = np.zeros(len(rows.y_rbd), bool)
-    for j in joints:
-        drop |= stuck_rows(rows, v_joints, j)
-    return drop
+def _stuck_bases(rows: Rows, v_joints: np.ndarray, joints: list[int], sigma: np.ndarray):
+    """Per group of samples with the same number of Φ̃' rows m and of stuck joints of `joints` (that
+    their rows see): (row indices B × m, σ_d of each row B × m × 1, orthonormal bases B × m × n_j of the
+    whitened directions O_k e_j of the stuck joints)."""
+    if not joints or len(rows.y_rbd) == 0:
+        return
+    cols = rows.layout.torque0 + np.asarray(joints)
+    seen = (np.abs(v_joints[:, joints]) < V_STICK)[rows.sample_rbd] & (np.abs(rows.X_rbd[:, cols]) > STICK_SEEN)
+    n_s = len(rows.samples)
+    hits = np.zeros((n_s, len(joints)), int)
+    np.add.at(hits, rows.sample_rbd, seen.astype(int))
+    stuck = hits > 0
+    count = np.bincount(rows.sample_rbd, minlength=n_s)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    n_stuck = stuck.sum(axis=1)
+    scale = np.asarray(sigma, float)[rows.dim_rbd]
+    for m in np.unique(count[n_stuck > 0]):
+        for n_j in np.unique(n_stuck[(count == m) & (n_stuck > 0)]):
+            ks = np.flatnonzero((count == m) & (n_stuck == n_j))
+            idx = start[ks][:, None] + np.arange(m)
+            which = np.argsort(~stuck[ks], axis=1, kind="stable")[:, :n_j]
+            w = scale[idx][..., None]
+            Q, _ = np.linalg.qr(rows.X_rbd[idx[:, :, None], cols[which][:, None, :]].astype(float) / w)
+            yield idx, w, Q
+
+
+def project_stuck(rows: Rows, v_joints: np.ndarray, joints: list[int], sigma: np.ndarray) -> Rows:
+    """The rows with the torque of every stuck joint of `joints` projected out, sample by sample: like
+    a contact force (eq. 11), the torque holding a stuck joint is an unknown in [−f_s, f_s], so each
+    sample's Φ̃' rows (whitened by σ_d, the selection's weights) are projected onto the complement of
+    the directions O_k e_j of its stuck joints, then scaled back. The weighted normal equations of the
+    result are those of the projected problem; a sample loses one direction per stuck joint, not its rows."""
+    X, y, g = rows.X_rbd.copy(), rows.y_rbd.copy(), rows.signal_rbd.copy()
+    for idx, w, Q in _stuck_bases(rows, v_joints, joints, sigma):
+        for arr in (X, y, g):
+            a = arr[idx].reshape(idx.shape + (-1,)).astype(float) / w
+            arr[idx] = ((a - Q @ (Q.transpose(0, 2, 1) @ a)) * w).reshape(arr[idx].shape)
+    return Rows(rows.layout, rows.samples, X, y, rows.dim_rbd, rows.sample_rbd, rows.X_act, rows.y_act, g,
+                rows.raw_G, rows.raw_signal, rows.n_raw)
+
+
+def stuck_ss(rows: Rows, values: np.ndarray, v_joints: np.ndarray, joints: list[int], sigma: np.ndarray) -> np.ndarray:
+    """Per column of `values` (M_r × K, one row per Φ̃' row): the whitened sum of squares, over all
+    samples, in the directions project_stuck removes."""
+    out = np.zeros(values.shape[1])
+    for idx, w, Q in _stuck_bases(rows, v_joints, joints, sigma):
+        out += np.sum((Q.transpose(0, 2, 1) @ (values[idx] / w)) ** 2, axis=(0, 1))
+    return out
 
 
 @dataclass

@@ -482,8 +482,8 @@ def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total
     have reduced the held-out residual by their threshold: label → (candidate, model, gain).
     `start`: effects to begin with (a previous selection's, on other rows), each in the simplest form
     of its group (a Stribeck friction as the Coulomb friction it nests: the extra parameters must pass
-    the test again); those on a bound or negligible here are left out, then swaps are tried, then the
-    forward steps, and the pruning drops those that do not pay for themselves here."""
+    the test again); those on a bound or negligible here are left out, then swaps within their groups
+    are tried, then the forward steps, and the pruning drops those that do not pay for themselves here."""
     diag = np.diag(prob.Gt)
     usable = [k for k in cands if np.any(diag[list(k.features)] > 0)]
     current: list[Candidate] = []
@@ -515,8 +515,9 @@ def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total
             return None
         return prob.ss(m), m
 
-    def swaps() -> None:
-        """Swaps: an effect chosen early (before others were modelled) may be the wrong one."""
+    def swaps(within_groups: bool = False) -> None:
+        """Swaps: an effect chosen early (before others were modelled) may be the wrong one.
+        within_groups: only for a member of its own group (Coulomb → Stribeck friction of the joint)."""
         nonlocal current_ss
         improved = True
         while improved:
@@ -525,6 +526,8 @@ def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total
             for i in range(len(current)):
                 for k2 in usable:
                     if k2 in current or not k2.in_catalogue or _grouped(k2, current[:i] + current[i + 1:]):
+                        continue
+                    if within_groups and (k2.group is None or k2.group != current[i].group):
                         continue
                     cset = current[:i] + [k2] + current[i + 1:]
                     t = trial(cset, k2)
@@ -542,7 +545,7 @@ def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total
                 improved = True
 
     if current:
-        swaps()
+        swaps(within_groups=True)  # the others were modelled together already; new ones swap below
     while len(current) < MAX_EFFECTS:
         trials = []
         for k in usable:

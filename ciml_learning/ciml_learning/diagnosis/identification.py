@@ -712,7 +712,8 @@ def noise_floor(layout: FeatureLayout, heldout: Grams, sigma: np.ndarray) -> np.
 
 def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
            candidates: list[Candidate] | None = None, subsets: list[Grams] | None = None,
-           relevance=None, candidate_subsets=None, start: list[Candidate] | None = None) -> Selection:
+           relevance=None, candidate_subsets=None, start: list[Candidate] | None = None,
+           sigma: np.ndarray | None = None) -> Selection:
     """Greedy forward selection with swaps and backward pruning (module docstring).
 
     Every kind of candidate competes in one loop on all output dimensions (rigid-body and actuation
@@ -721,10 +722,12 @@ def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
     (command-update sampling, candidates.py) is part of every model: the "nominal" residual is
     the one after it. With `subsets` (Grams of parts of the identification data), effects whose
     parameter is not consistent across them (consistency() > MAX_SPREAD) are rejected. `start`: effects
-    of a previous selection to begin with (_select_all)."""
+    of a previous selection to begin with (_select_all); `sigma`: its noise levels, kept (the gap and
+    the shares stay in the same units)."""
     cands = list(layout.candidates if candidates is None else candidates)
     base = [layout.baseline]
-    sigma, full_rms = noise_levels(layout, train, heldout)
+    own_sigma, full_rms = noise_levels(layout, train, heldout)
+    sigma = own_sigma if sigma is None else np.asarray(sigma, float)
     w = 1.0 / sigma ** 2
     Gt, ct, _ = train.weighted(w)
     Gh, ch, sh = heldout.weighted(w)

@@ -368,6 +368,12 @@ class Selection:
     floor_ss: float = 0.0        # held-out normalised SS of the noise floor (noise_floor)
     noise_floor: np.ndarray | None = None  # per dimension [N or Nm] (noise_floor)
     not_identified: list[dict] = field(default_factory=list)  # candidates whose estimate ends on a bound
+    fit_weights: np.ndarray | None = None  # the weights the model was fitted with (None: `weights`)
+
+    @property
+    def fitted_with(self) -> np.ndarray:
+        """The weights of the model's fit (parameter_uncertainty refits with them)."""
+        return self.weights if self.fit_weights is None else self.fit_weights
 
     @property
     def effects(self) -> list[Candidate]:
@@ -713,7 +719,7 @@ def noise_floor(layout: FeatureLayout, heldout: Grams, sigma: np.ndarray) -> np.
 def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
            candidates: list[Candidate] | None = None, subsets: list[Grams] | None = None,
            relevance=None, candidate_subsets=None, start: list[Candidate] | None = None,
-           sigma: np.ndarray | None = None) -> Selection:
+           report_sigma: np.ndarray | None = None) -> Selection:
     """Greedy forward selection with swaps and backward pruning (module docstring).
 
     Every kind of candidate competes in one loop on all output dimensions (rigid-body and actuation
@@ -722,12 +728,11 @@ def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
     (command-update sampling, candidates.py) is part of every model: the "nominal" residual is
     the one after it. With `subsets` (Grams of parts of the identification data), effects whose
     parameter is not consistent across them (consistency() > MAX_SPREAD) are rejected. `start`: effects
-    of a previous selection to begin with (_select_all); `sigma`: its noise levels, kept (the gap and
-    the shares stay in the same units)."""
+    of a previous selection to begin with (_select_all); `report_sigma`: its noise levels, in which the
+    gap, the shares and `Selection.sigma` are then given (the fits use this data's own; `fit_weights`)."""
     cands = list(layout.candidates if candidates is None else candidates)
     base = [layout.baseline]
-    own_sigma, full_rms = noise_levels(layout, train, heldout)
-    sigma = own_sigma if sigma is None else np.asarray(sigma, float)
+    sigma, full_rms = noise_levels(layout, train, heldout)
     w = 1.0 / sigma ** 2
     Gt, ct, _ = train.weighted(w)
     Gh, ch, sh = heldout.weighted(w)
@@ -764,15 +769,20 @@ def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
         _prune(prob, base, current, thresholds, relevance, steps, nominal)
         model = fit_model(layout, base + current, Gt, ct)
     current_ss = _heldout_ss(model, Gh, ch, sh)
-    floor = noise_floor(layout, heldout, sigma)
-    floor_ss = float(np.sum(heldout.n * (floor / sigma) ** 2))
-    gap = max(nominal - floor_ss, 0.0)
+    # the reported gap and shares: models fitted with this data's weights, measured in the report's
+    rs = sigma if report_sigma is None else np.asarray(report_sigma, float)
+    Gr, cr, sr = (Gh, ch, sh) if report_sigma is None else heldout.weighted(1.0 / rs ** 2)
+    nominal_r = nominal if report_sigma is None else _heldout_ss(fit_model(layout, base, Gt, ct), Gr, cr, sr)
+    current_r = _heldout_ss(model, Gr, cr, sr)
+    floor = noise_floor(layout, heldout, rs)
+    floor_ss = float(np.sum(heldout.n * (floor / rs) ** 2))
+    gap = max(nominal_r - floor_ss, 0.0)
     # shares: the explained part of the gap above the noise floor, split by the drop-one cost of each effect
-    explained = (max(0.0, min(1.0, (nominal - current_ss) / gap)) if gap > GAP_AT_FLOOR * nominal else 0.0)
+    explained = (max(0.0, min(1.0, (nominal_r - current_r) / gap)) if gap > GAP_AT_FLOOR * nominal_r else 0.0)
     drop = []
     for k in current:
         m = fit_model(layout, base + [x for x in current if x is not k], Gt, ct)
-        drop.append(max(0.0, _heldout_ss(m, Gh, ch, sh) - current_ss))
+        drop.append(max(0.0, _heldout_ss(m, Gr, cr, sr) - current_r))
     total = sum(drop)
     shares = [explained * d / total if total > 0 else explained / len(current) for d in drop] if current else []
     order = list(np.argsort(shares)[::-1])
@@ -789,10 +799,10 @@ def select(layout: FeatureLayout, train: Grams, heldout: Grams, progress=None,
         gain = current_ss - _heldout_ss(m, Gh, ch, sh)
         if _at_far_bound(m, k) and gain >= thresholds[k.kind]:
             not_identified.append(_not_identified_entry(k, m, gain / nominal if nominal > 0 else 0.0))
-    return Selection(model=model, sigma=sigma, weights=w, nominal_ss=nominal, final_ss=current_ss,
+    return Selection(model=model, sigma=rs, weights=1.0 / rs ** 2, nominal_ss=nominal_r, final_ss=current_r,
                      shares=[shares[i] for i in order], steps=steps, full_fit_rms=full_rms,
-                     spread=spread, rejected=rejected, raw_nominal_ss=float(sh), n_baseline=len(base),
-                     floor_ss=floor_ss, noise_floor=floor, not_identified=not_identified)
+                     spread=spread, rejected=rejected, raw_nominal_ss=float(sr), n_baseline=len(base),
+                     floor_ss=floor_ss, noise_floor=floor, not_identified=not_identified, fit_weights=w)
 
 
 def _not_identified_entry(cand: Candidate, model: Model, gain_share: float) -> dict:
@@ -950,7 +960,7 @@ def _block_grams(selection: Selection, rows: Rows, feats: np.ndarray, block: int
     Gb = np.zeros((n_blocks, len(feats), len(feats)))
     cb = np.zeros((n_blocks, len(feats)))
     n_rbd_dims = 6 + 3 * layout.robot.n_feet
-    w = selection.weights
+    w = selection.fitted_with
     rbd_feats = feats[feats < layout.n_rbd]
     pos_r = np.searchsorted(feats, rbd_feats)
     if len(rbd_feats):
@@ -1019,7 +1029,7 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
     flat = _flatten(base)
     reproduction = np.zeros_like(flat)
     if heldout is not None and np.any(heldout.n > 0):
-        Gh, ch, _ = heldout.weighted(selection.weights)
+        Gh, ch, _ = heldout.weighted(selection.fitted_with)
         m_ho = fit_model(layout, model.candidates, Gh, ch, sampling=model.sampling, start=model.nonlinear)
         reproduction = np.abs(_flatten(physical_parameters(m_ho)) - flat) / np.sqrt(2.0)
     conversion = np.zeros_like(flat)
@@ -1062,7 +1072,7 @@ def misspecification_bounds(selection: Selection, heldout: Grams) -> list[float]
     model = selection.model
     if not model.candidates:
         return []
-    w = selection.weights
+    w = selection.fitted_with
     theta = model.feature_theta()
     res = heldout.ss(theta)  # per dimension, physical units²
     floor = (heldout.n * (selection.noise_floor ** 2) if selection.noise_floor is not None

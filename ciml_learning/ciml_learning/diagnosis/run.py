@@ -167,11 +167,11 @@ MAX_STICK_PASSES = 3
 def identify(robot: RobotDescription, layout: FeatureLayout, ds_id, rows_id, rows_ho, v_id: np.ndarray,
              v_ho: np.ndarray):
     """The selection (identification.select), repeated with the torque of each stuck joint whose
-    identified friction sticks projected out of its samples (shrink.project_stuck, with the first
-    selection's noise levels as weights, kept for every selection so that gaps and shares stay in the
-    same units), starting from the previous selection's effects (a greedy selection from scratch can
-    stop in a worse set on the new rows), until no new such joint is found (at most MAX_STICK_PASSES
-    selections).
+    identified friction sticks projected out of its samples (shrink.project_stuck, whitened by the first
+    selection's noise levels; each selection fits with its own data's noise levels and reports its gap
+    and shares in the first one's, so that they stay in the same units), starting from the previous
+    selection's effects (a greedy selection from scratch can stop in a worse set on the new rows),
+    until no new such joint is found (at most MAX_STICK_PASSES selections).
     → (selection, identification rows it used, their held-out Grams, those joints)."""
     stick: list[int] = []
     fit_id, fit_ho = rows_id, rows_ho
@@ -182,13 +182,13 @@ def identify(robot: RobotDescription, layout: FeatureLayout, ds_id, rows_id, row
         sel = select(layout, g_id, g_ho, subsets=consistency_subsets(robot, ds_id, fit_id),
                      relevance=relevance_function(fit_id, g_id),
                      candidate_subsets=friction_speed_subsets(robot, ds_id, fit_id),
-                     start=start, sigma=sigma)
+                     start=start, report_sigma=sigma)
         found = {robot.joint_names.index(c.joint) for c, p in zip(sel.model.candidates, physical_parameters(sel.model))
                  if c.type in EFFECTS and (EFFECTS[c.type].stiction(p) or 0.0) > 0.0}
         if found <= set(stick) or n_pass == MAX_STICK_PASSES - 1:
             break
         stick = sorted(set(stick) | found)
-        start, sigma = sel.effects, sel.sigma
+        start, sigma = sel.effects, sel.sigma  # the first selection's: kept for the report
         fit_id = project_stuck(rows_id, v_id, stick, sel.sigma)
         fit_ho = project_stuck(rows_ho, v_ho, stick, sel.sigma)
     return sel, fit_id, g_ho, stick

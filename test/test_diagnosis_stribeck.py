@@ -54,8 +54,8 @@ def test_coulomb_friction_does_not_turn_into_stribeck(tmp_path):
 def test_stribeck_friction_above_the_stick_speed_is_named_on_walking_logs(tmp_path):
     """Stribeck velocity 0.3 rad/s on gap-bench's kind of logs (case 19: walk and trot to identify, a
     slower trot held out): named as Stribeck friction at the right joint, every parameter inside its
-    95 % interval. Measured: breakaway 11.9 ± 1.4 Nm (12), Coulomb 4.19 ± 0.54 Nm (4), velocity
-    0.30 ± 0.07 rad/s (0.3), share 0.86. Before stuck joints were projected out (shrink.py, "Stiction"):
+    95 % interval. Measured: breakaway 12.2 ± 1.2 Nm (12), Coulomb 4.18 ± 0.49 Nm (4), velocity
+    0.28 ± 0.06 rad/s (0.3), share 0.85. Before stuck joints were projected out (shrink.py, "Stiction"):
     16.5 ± 5.1, 4.57 ± 0.86, 0.137 ± 0.041 (the stick phases pulled the velocity down)."""
     from ciml_learning.cli import main
 

@@ -46,7 +46,7 @@ def _stuck_bases(rows: Rows, v_joints: np.ndarray, joints: list[int], sigma: np.
     if not joints or len(rows.y_rbd) == 0:
         return
     cols = rows.layout.torque0 + np.asarray(joints)
-    seen = (np.abs(v_joints[:, joints]) < V_STICK)[rows.sample_rbd] & (np.abs(rows.X_rbd[:, cols]) > STICK_SEEN)
+    seen = np.column_stack([stuck_rows(rows, v_joints, j) for j in joints])
     n_s = len(rows.samples)
     hits = np.zeros((n_s, len(joints)), int)
     np.add.at(hits, rows.sample_rbd, seen.astype(int))

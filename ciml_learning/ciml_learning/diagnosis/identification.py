@@ -494,10 +494,10 @@ def _select_all(prob: _Problem, cands: list[Candidate], steps: list[Step], total
     usable = [k for k in cands if np.any(diag[list(k.features)] > 0)]
     current: list[Candidate] = []
     for k in start or []:
-        k = min((c for c in usable if c is k or (k.group is not None and c.group == k.group)),
-                key=lambda c: c.n_params, default=k)
-        if k in usable and k not in current:
-            current.append(k)
+        simplest = min((c for c in usable if c is k or (k.group is not None and c.group == k.group)),
+                       key=lambda c: c.n_params, default=None)
+        if simplest is not None and simplest not in current:
+            current.append(simplest)
     if current:
         m = prob.fit(fixed + current)
         current = [k for k in current

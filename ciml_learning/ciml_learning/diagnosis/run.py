@@ -31,7 +31,7 @@ from ..robot import RobotDescription
 from .bounds import physical_ranges
 from .candidates import COULOMB_SMOOTHING, UNMODELLED_SENSOR_TYPE, FeatureLayout, link_inertias
 from .effects import DiagnosisError
-from .features import build_rows, grams
+from .features import build_rows, grams, predict
 from .files import IDENTIFIED_SCENARIO, is_diagnosis_dir, write_diagnosis_dir
 from .identification import (
     parameter_uncertainty,
@@ -144,13 +144,15 @@ def effect_shares(sel, rows_ho, res, v_ho: np.ndarray, stick: list[int]) -> list
     noise is not taken off). Without stuck joints: the selection's shares."""
     if sel.gap_at_noise_floor:
         return [0.0] * len(sel.shares)
-    own = [rows_ho.X_rbd.astype(float) @ sel.model.part([c]).feature_theta()[:rows_ho.layout.n_rbd]
-           for c in sel.effects]
+    gains = [res.stiction_gain.get(c.label, 0.0) for c in sel.effects]
+    if not stick:
+        shares = [sh + g / sel.gap_ss for sh, g in zip(sel.shares, gains)]
+        return [sh / sum(shares) for sh in shares] if sum(shares) > 1.0 else shares
+    own = [predict(rows_ho, sel.model.part([c]).feature_theta())[0] for c in sel.effects]
     base = rows_ho.y_rbd - sum(own, np.zeros(len(rows_ho.y_rbd)))  # every term, no stiction estimate
     ss = stuck_ss(rows_ho, np.column_stack([rows_ho.y_rbd, res.rbd, base] + [base + o for o in own]), v_ho, stick,
                   sel.sigma)
     nominal, final, without = ss[0], ss[1], ss[2]
-    gains = [res.stiction_gain.get(c.label, 0.0) for c in sel.effects]
     laws = nominal - final - sum(gains)  # what the terms' own laws explain in the stuck directions
     cost = np.maximum(ss[3:] - without, 0.0)
     gap = sel.gap_ss + nominal

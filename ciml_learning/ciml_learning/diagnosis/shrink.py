@@ -74,8 +74,9 @@ def project_stuck(rows: Rows, v_joints: np.ndarray, joints: list[int], sigma: np
     X, y, g = rows.X_rbd.copy(), rows.y_rbd.copy(), rows.signal_rbd.copy()
     for idx, w, Q in _stuck_bases(rows, v_joints, joints, sigma):
         for arr in (X, y, g):
-            a = arr[idx].reshape(idx.shape + (-1,)).astype(float) / w
-            arr[idx] = ((a - Q @ (Q.transpose(0, 2, 1) @ a)) * w).reshape(arr[idx].shape)
+            part = arr[idx]
+            a = part.reshape(idx.shape + (-1,)).astype(float) / w
+            arr[idx] = ((a - Q @ (Q.transpose(0, 2, 1) @ a)) * w).reshape(part.shape)
     return Rows(rows.layout, rows.samples, X, y, rows.dim_rbd, rows.sample_rbd, rows.X_act, rows.y_act, g,
                 rows.raw_G, rows.raw_signal, rows.n_raw)
 

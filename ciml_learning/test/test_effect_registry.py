@@ -11,6 +11,7 @@ from ciml_learning.diagnosis.effects import feature_coefficients
 from ciml_learning.diagnosis.features import Rows, grams
 from ciml_learning.diagnosis.identification import Model, parameter_uncertainty, physical_parameters, select
 from ciml_learning.effects import CATALOGUE, EFFECTS, EffectTypeError, effect_type
+from ciml_learning.effects.base import COULOMB_SMOOTHING
 from ciml_learning.effects.joint_stribeck_friction import STRIBECK_VELOCITIES
 from ciml_learning.robot import load_robot
 
@@ -63,7 +64,7 @@ def _friction_rows(rng, truth: dict, n: int = 4000, noise: float = 0.05) -> Rows
     nr = LAYOUT.n_rbd
     qd = rng.normal(scale=0.4, size=n)
     X = np.zeros((n, nr))
-    c = np.tanh(qd / 0.03)
+    c = np.tanh(qd / COULOMB_SMOOTHING)
     X[:, LAYOUT.coulomb0 + J] = c
     X[:, LAYOUT.viscous0 + J] = qd
     k = len(STRIBECK_VELOCITIES)

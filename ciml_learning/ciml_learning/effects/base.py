@@ -29,8 +29,13 @@ OFFSET_FRACTION = 0.2
 """A torque offset is at most this fraction of the torque limit."""
 FALLBACK_TORQUE_LIMIT = 1000.0
 """[Nm] torque limit of a joint whose URDF gives none (0 or not finite)."""
-COULOMB_SMOOTHING = 0.03
-"""Velocity [rad/s] of the tanh that smooths sign(q̇) in the joint-friction regressors."""
+COULOMB_SMOOTHING = 0.01
+"""Velocity [rad/s] of the tanh that smooths sign(q̇) in the joint-friction regressors: a sticking
+friction is fully developed as soon as the joint slides, and samples slower than
+diagnosis/shrink.V_STICK (0.05) are projected out where it sticks, so the tanh is 1 above it
+(tanh(5)). 0.03 left the regressor 7 % short at 0.05 rad/s, where a Stribeck curve is highest: a
+0.1 rad/s Stribeck velocity came out 0.082 [0.064, 0.0998] with the breakaway 27 % high (gap-bench
+case 19); with 0.01, 0.093 [0.073, 0.112] and 12.2 Nm for 12."""
 
 
 def torque_limits(robot) -> np.ndarray:

@@ -37,7 +37,7 @@ def test_stribeck_friction_is_named_with_its_parameters(tmp_path):
     assert len(strib) == 1 and strib[0]["joint"] == STRIBECK["joint"], d["effects"]
     assert not [e for e in d["effects"] if e["type"] == "joint_coulomb_friction" and e["share"] > 0.05]
     p, lo_hi = strib[0]["params"], strib[0]["interval_95"]
-    for key, rel in (("breakaway", 0.2), ("coulomb", 0.3), ("velocity", 0.4)):
+    for key, rel in (("breakaway", 0.1), ("coulomb", 0.1), ("velocity", 0.1)):  # measured 11.67, 4.01, 0.148
         assert p[key] == pytest.approx(STRIBECK[key], rel=rel), (key, p)
         assert lo_hi[key][0] <= STRIBECK[key] <= lo_hi[key][1], (key, strib[0])
     assert strib[0]["share"] > 0.5
@@ -47,15 +47,15 @@ def test_coulomb_friction_does_not_turn_into_stribeck(tmp_path):
     d = _diagnose(tmp_path, COULOMB, 7)
     assert not [e for e in d["effects"] if e["type"] == "joint_stribeck_friction"], d["effects"]
     coul = [e for e in d["effects"] if e["type"] == "joint_coulomb_friction" and e["joint"] == COULOMB["joint"]]
-    assert coul and coul[0]["params"]["value"] == pytest.approx(COULOMB["value"], rel=0.15)
+    assert coul and coul[0]["params"]["value"] == pytest.approx(COULOMB["value"], rel=0.05)  # measured 7.97
 
 
 @pytest.mark.slow
 def test_stribeck_friction_above_the_stick_speed_is_named_on_walking_logs(tmp_path):
     """Stribeck velocity 0.3 rad/s on gap-bench's kind of logs (case 19: walk and trot to identify, a
     slower trot held out): named as Stribeck friction at the right joint, every parameter inside its
-    95 % interval. Measured: breakaway 12.2 ± 1.2 Nm (12), Coulomb 4.18 ± 0.49 Nm (4), velocity
-    0.28 ± 0.06 rad/s (0.3), share 0.85. Before stuck joints were projected out (shrink.py, "Stiction"):
+    95 % interval. Measured: breakaway 11.76 ± 1.12 Nm (12), Coulomb 4.16 ± 0.48 Nm (4), velocity
+    0.298 ± 0.034 rad/s (0.3), share 0.85. Before stuck joints were projected out (shrink.py, "Stiction"):
     16.5 ± 5.1, 4.57 ± 0.86, 0.137 ± 0.041 (the stick phases pulled the velocity down)."""
     from ciml_learning.cli import main
 

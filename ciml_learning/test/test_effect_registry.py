@@ -97,18 +97,3 @@ def test_coulomb_friction_rows_are_not_named_stribeck():
     sel = select(LAYOUT, grams(tr), grams(ho))
     assert [c.label for c in sel.effects] == [f"joint_coulomb_friction:{JOINT}"]
     assert physical_parameters(sel.model)[1]["value"] == pytest.approx(8.0, rel=0.01)
-
-
-def test_a_candidate_matrix_kept_by_the_layout_does_not_depend_on_the_fitted_model():
-    """FeatureLayout.loaded keeps A of every candidate whose type is not `refined`: a type whose A reads
-    the model's Refinement (payload CoM, lag scales, a non-linear parameter) must say so, or its fits
-    would use a stale A."""
-    lay = FeatureLayout(ROBOT, link_inertias(ROBOT))
-    other = {"payload_com": np.array([0.1, -0.05, 0.2]), "lag_scale": {j: 0.7 for j in ROBOT.joint_names}}
-    for c in [lay.baseline] + lay.candidates:
-        plain = lay.matrix(c)
-        moved = lay.matrix(c, nonlinear={c.label: 0.4}, **other)
-        refined = c.type in EFFECTS and EFFECTS[c.type].refined
-        assert refined or np.array_equal(plain, moved), c.label
-        rows, A = lay.loaded(c, nonlinear={c.label: 0.4}, **other)
-        assert np.array_equal(A, moved[rows]) and not np.any(np.delete(moved, rows, axis=0)), c.label

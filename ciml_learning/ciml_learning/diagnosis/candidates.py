@@ -155,7 +155,6 @@ class FeatureLayout:
         self.generic0 = self.sensor_gain0 + nj
         self.baseline0 = self.generic0 + N_GENERIC * nj
         self.act0 = self.n_rbd
-        self._loaded: dict[Candidate, tuple[np.ndarray, np.ndarray]] = {}
 
     @property
     def n_features(self) -> int:
@@ -218,21 +217,6 @@ class FeatureLayout:
             for k, f in enumerate(cand.features):
                 A[f, k] = 1.0
         return A
-
-    def loaded(self, cand: Candidate, payload_com: np.ndarray | None = None, lag_scale: dict[str, float] | None = None,
-               nonlinear: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(the features the candidate loads, its A on those rows): all a fit needs of `matrix` (a
-        candidate loads 1–12 of ~300 features). Kept after the first call unless the effect type's A
-        depends on the fitted model (EffectType.refined): selection fits thousands of candidate sets."""
-        hit = self._loaded.get(cand)
-        if hit is not None:
-            return hit
-        A = self.matrix(cand, payload_com, lag_scale, nonlinear)
-        rows = np.flatnonzero(np.any(A != 0.0, axis=1))
-        out = (rows, A[rows])
-        if not (cand.in_catalogue and cand.type != BASELINE and effect_type(cand.type).refined):
-            self._loaded[cand] = out
-        return out
 
 
 def coulomb_regressor(v_joints: np.ndarray, segment: np.ndarray | None, fs: "float | np.ndarray" = 250.0,

@@ -134,15 +134,6 @@ class Model:
         return np.hstack([self.layout.matrix(c, self.payload_com, self.lag_scale, self.nonlinear)
                           for c in self.candidates])
 
-    def loaded_matrix(self) -> tuple[np.ndarray, np.ndarray]:
-        """(the features any candidate loads, sorted; `matrix()` on those rows)."""
-        blocks = [self.layout.loaded(c, self.payload_com, self.lag_scale, self.nonlinear) for c in self.candidates]
-        rows = np.unique(np.concatenate([r for r, _ in blocks])) if blocks else np.zeros(0, int)
-        A = np.zeros((len(rows), len(self.theta)))
-        for (r, B), sl in zip(blocks, self.slices()):
-            A[np.searchsorted(rows, r), sl] = B
-        return rows, A
-
     def feature_theta(self) -> np.ndarray:
         """Coefficients on the feature columns (A θ)."""
         return self.matrix() @ self.theta if self.candidates else np.zeros(self.layout.n_features)
@@ -186,7 +177,9 @@ NONLINEAR_XTOL = 0.005
 def _solve(model: Model, G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
     """θ of the model's current A (bounded least squares); returns the objective θᵀHθ − 2cᵀθ
     (the training residual up to a constant)."""
-    rows, A = model.loaded_matrix()
+    A = model.matrix()
+    rows = np.flatnonzero(np.any(A != 0.0, axis=1))  # a candidate loads a few of the ~300 features
+    A = A[rows]
     H, g = A.T @ G[np.ix_(rows, rows)] @ A, A.T @ c[rows]
     model.theta = bounded_least_squares(H, g, lo, hi)
     return float(model.theta @ H @ model.theta - 2 * g @ model.theta)

@@ -17,7 +17,6 @@ MAX_LAG = 0.1
 
 class ActuatorLag(EffectType):
     name = "actuator_lag"
-    refined = True
     fields = {"joints": Field("joints"), "time_constant": Field("float", "s", 0.0, 0.2)}
     kind = "actuation"
     null = {"time_constant": 0.0}

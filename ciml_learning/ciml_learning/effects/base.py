@@ -147,9 +147,6 @@ class EffectType:
     mujoco_note: ClassVar[str] = ""
     nonlinear: ClassVar[tuple[str, float, float] | None] = None
     """(name, lo, hi) of a parameter the candidate is not linear in, fitted by a 1-D search."""
-    refined: ClassVar[bool] = False
-    """Its `matrix` reads the fitted model's Refinement (payload CoM, lag scales, a non-linear
-    parameter): recomputed at every fit, where the others' are computed once (FeatureLayout.loaded)."""
     speed_bins: ClassVar[bool] = False
     """Its parameter must agree across sliding-speed bins (identification.consistency: a friction level
     that changes with speed, like Stribeck friction, is not Coulomb friction)."""

@@ -29,7 +29,6 @@ wants a lower velocity ends on the bound ("not identified")."""
 
 class JointStribeckFriction(EffectType):
     name = "joint_stribeck_friction"
-    refined = True
     fields = {"joint": Field("joints"), "breakaway": Field("float", "Nm", 0.0, 100.0),
               "coulomb": Field("float", "Nm", 0.0, 100.0), "velocity": Field("float", "rad/s", 1e-3, 5.0)}
     null = {"breakaway": 0.0, "coulomb": 0.0, "velocity": 0.0}

@@ -27,7 +27,6 @@ def point_mass_rotational(com: np.ndarray) -> np.ndarray:
 
 class Payload(EffectType):
     name = "payload"
-    refined = True
     fields = {"mass": Field("float", "kg", 0.0, 100.0), "com": Field("vec3", "m", -1.0, 1.0)}
     null = {"mass": 0.0, "com": [0.0, 0.0, 0.0]}
     wording = "an extra mass carried by the base"

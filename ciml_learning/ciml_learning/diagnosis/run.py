@@ -147,17 +147,17 @@ def effect_shares(sel, rows_ho, res, v_ho: np.ndarray, stick: list[int]) -> list
     gains = [res.stiction_gain.get(c.label, 0.0) for c in sel.effects]
     if not stick:
         shares = [sh + g / sel.gap_ss for sh, g in zip(sel.shares, gains)]
-        return [sh / sum(shares) for sh in shares] if sum(shares) > 1.0 else shares
-    own = [predict(rows_ho, sel.model.part([c]).feature_theta())[0] for c in sel.effects]
-    base = rows_ho.y_rbd - sum(own, np.zeros(len(rows_ho.y_rbd)))  # every term, no stiction estimate
-    ss = stuck_ss(rows_ho, np.column_stack([rows_ho.y_rbd, res.rbd, base] + [base + o for o in own]), v_ho, stick,
-                  sel.sigma)
-    nominal, final, without = ss[0], ss[1], ss[2]
-    laws = nominal - final - sum(gains)  # what the terms' own laws explain in the stuck directions
-    cost = np.maximum(ss[3:] - without, 0.0)
-    gap = sel.gap_ss + nominal
-    shares = [(sh * sel.gap_ss + g + (laws * c / cost.sum() if cost.sum() > 0 else 0.0)) / gap
-              for sh, g, c in zip(sel.shares, gains, cost)]
+    else:
+        own = [predict(rows_ho, sel.model.part([c]).feature_theta())[0] for c in sel.effects]
+        base = rows_ho.y_rbd - sum(own, np.zeros(len(rows_ho.y_rbd)))  # every term, no stiction estimate
+        ss = stuck_ss(rows_ho, np.column_stack([rows_ho.y_rbd, res.rbd, base] + [base + o for o in own]), v_ho,
+                      stick, sel.sigma)
+        nominal, final, without = ss[0], ss[1], ss[2]
+        laws = nominal - final - sum(gains)  # what the terms' own laws explain in the stuck directions
+        cost = np.maximum(ss[3:] - without, 0.0)
+        gap = sel.gap_ss + nominal
+        shares = [(sh * sel.gap_ss + g + (laws * c / cost.sum() if cost.sum() > 0 else 0.0)) / gap
+                  for sh, g, c in zip(sel.shares, gains, cost)]
     if sum(shares) > 1.0:  # the residual ended below the estimated noise floor: all of the gap is explained
         shares = [sh / sum(shares) for sh in shares]
     return [max(sh, 0.0) for sh in shares]

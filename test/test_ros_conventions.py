@@ -349,6 +349,25 @@ def test_sourcing_setup_bash_makes_the_venv_an_ament_prefix():
     assert res.returncode != 0
 
 
+@pytest.mark.slow
+def test_vendored_tf2_msgs_is_built_unless_the_install_prefix_has_it(tmp_path):
+    """ciml_msgs' CMake (as tools/install.sh runs it) builds the vendored tf2_msgs into its install
+    prefix unless that prefix has one: a tf2_msgs that CMake finds elsewhere — here this venv's,
+    for a new prefix — does not count, as the new prefix's Python cannot import it (a fresh clone
+    installed from a shell with another venv activated lost /tf so)."""
+    env = dict(os.environ, AMENT_PREFIX_PATH=sys.prefix, CMAKE_PREFIX_PATH=sys.prefix,
+               PATH=f"{os.path.join(sys.prefix, 'bin')}:{os.environ['PATH']}")
+    assert os.path.isdir(os.path.join(sys.prefix, "share", "tf2_msgs", "cmake"))
+    for prefix, vendored in ((tmp_path / "prefix", True), (sys.prefix, False)):
+        build = tmp_path / f"build_{vendored}"
+        build.mkdir()
+        res = subprocess.run(["cmake", os.path.join(ROOT, "ciml_msgs"), f"-DCMAKE_INSTALL_PREFIX={prefix}",
+                              f"-DPython3_EXECUTABLE={sys.executable}", "-DBUILD_TESTING=OFF"],
+                             cwd=build, env=env, capture_output=True, text=True, timeout=300)
+        assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+        assert (build / "install_vendor_tf2_msgs.cmake").exists() == vendored, (prefix, res.stdout[-1500:])
+
+
 # --- shipped layouts and the diagnostic aggregator -------------------------------------------------
 
 CONFIG = os.path.join(ROOT, "ciml_learning", "config")

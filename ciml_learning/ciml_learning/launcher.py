@@ -12,11 +12,15 @@ code). Like ros2 launch, the launcher:
   also writing it to `<log_dir>/<name>.log`;
 - reports a node that exits while the others run (`… died with exit code N`) and keeps
   the others running;
-- exits 0 when every node exited cleanly (rc 0), 1 otherwise.
+- exits 0 when every node exited cleanly (rc 0), 1 otherwise;
+- never leaves orphans: each node gets SIGTERM when the launcher dies, even by SIGKILL
+  (Linux PR_SET_PDEATHSIG, kept across the node's exec), so a killed `ciml launch` does not
+  leave a simulator and a controller running on the domain.
 Every node inherits ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless the caller set it.
 """
 from __future__ import annotations
 
+import ctypes
 import os
 import shlex
 import signal
@@ -31,6 +35,17 @@ from .launch_file import LaunchDescription, LaunchFileError, ProcessAction, find
 
 KILL_GRACE = 5.0
 """[s] between SIGTERM and SIGKILL of a node that ignores SIGINT."""
+_LIBC = ctypes.CDLL(None, use_errno=True)  # resolved here: the forked child only calls it
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def _die_with_launcher(launcher_pid: int):
+    """preexec_fn of a node: SIGTERM when the launcher's thread that started it ends."""
+    def preexec() -> None:
+        _LIBC.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+        if os.getppid() != launcher_pid:  # the launcher died before prctl took effect
+            os._exit(1)
+    return preexec
 
 
 @dataclass
@@ -144,7 +159,8 @@ class Launcher:
             if only is not None and action.label not in only:
                 continue
             proc = subprocess.Popen(cmd, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                    stdin=subprocess.DEVNULL, text=True, bufsize=1, process_group=0)
+                                    stdin=subprocess.DEVNULL, text=True, bufsize=1, process_group=0,
+                                    preexec_fn=_die_with_launcher(os.getpid()))
             node = NodeProcess(action, cmd, proc, threading.Thread(target=lambda: None))
             node.reader = threading.Thread(target=self._read, args=(node,), name=f"out-{action.label}", daemon=True)
             node.reader.start()

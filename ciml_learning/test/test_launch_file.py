@@ -3,6 +3,7 @@ without ROS: parsing, substitutions, conditions, parameter typing, errors, signa
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -203,6 +204,42 @@ def test_ciml_launch_process_exits_0_on_sigint(tmp_path):
                 os.environ.pop("AMENT_PREFIX_PATH")
             else:
                 os.environ["AMENT_PREFIX_PATH"] = old
+
+
+def _alive(pid: int) -> bool:
+    """A process that runs (a zombie left to a parent that does not reap is not running)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_a_killed_ciml_launch_leaves_no_node_running(tmp_path):
+    """kill -9 of `ciml launch` (no chance to forward a signal): every node it started ends
+    anyway, a stubborn one too (SIGTERM from the kernel, PR_SET_PDEATHSIG)."""
+    _fake_package(tmp_path, {"good": TRAP_INT, "stubborn": "echo up; trap '' INT; while true; do sleep 0.05; done\n"})
+    path = _write(tmp_path, "launch:\n- node: {pkg: fake, exec: good, name: a}\n"
+                            "- node: {pkg: fake, exec: stubborn, name: s}\n")
+    env = dict(os.environ, AMENT_PREFIX_PATH=str(tmp_path / "prefix"))
+    proc = subprocess.Popen([os.path.join(sys.prefix, "bin", "ciml"), "launch", path], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    try:
+        pids: list[int] = []
+        while sum("] up" in ln for ln in lines) < 2 or len(pids) < 2:
+            line = proc.stdout.readline()
+            assert line, "".join(lines)
+            lines.append(line)
+            pids += [int(m) for m in re.findall(r"started \w+ \(pid (\d+)\)", line)]
+        assert all(_alive(p) for p in pids), lines
+    finally:
+        proc.kill()
+        proc.communicate()
+    deadline = time.monotonic() + 10.0
+    while any(_alive(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(_alive(p) for p in pids), [p for p in pids if _alive(p)]
 
 
 def test_containers_argument_composes_nodes_in_one_process_each(tmp_path, monkeypatch):

@@ -200,6 +200,37 @@ def test_no_package_imports_one_above_it_by_any_means():
         "\n".join(upward)
 
 
+def names_of_packages_above(path: str, above: tuple[str, ...]) -> list[str]:
+    """String constants of a file that name a package of `above` as data ("ciml_sim", "ciml_sim/…",
+    "ciml_sim.x"), e.g. to find its share folder or executables at run time; documentation
+    (docstrings and other bare string statements) is left out."""
+    if not above:
+        return []
+    pattern = re.compile(rf"^({'|'.join(above)})([./:]|$)")
+    with open(path, encoding="utf-8") as f:
+        tree = ast.parse(f.read(), path)
+    docs = {id(n.value) for n in ast.walk(tree) if isinstance(n, ast.Expr) and isinstance(n.value, ast.Constant)}
+    return [f"{os.path.relpath(path, ROOT)}:{n.lineno}: {n.value!r}" for n in ast.walk(tree)
+            if isinstance(n, ast.Constant) and isinstance(n.value, str) and id(n) not in docs
+            and pattern.match(n.value.strip())]
+
+
+def test_the_name_finder_sees_data_not_documentation(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text('"""Uses ciml_sim."""\nPKG = "ciml_sim"\nX = "ciml_sim/launch"\n"""ciml_sim: doc."""\n'
+                 'def g():\n    """ciml_sim"""\n    return "ciml_simulator", "about ciml_sim"\n')
+    assert [h.split(": ", 1)[1] for h in names_of_packages_above(str(f), ("ciml_sim",))] == \
+        ["'ciml_sim'", "'ciml_sim/launch'"]
+
+
+def test_no_package_module_names_a_package_above_it_in_a_string():
+    """ARCHITECTURE.md: nothing names a package above it, not even in a string (a launch file or an
+    executable found by name at run time is a dependency all the same)."""
+    named = [hit for i, pkg in enumerate(LAYERS) for path in package_files(pkg)["modules"]
+             for hit in names_of_packages_above(path, LAYERS[i + 1:])]
+    assert not named, "\n".join(named)
+
+
 def test_no_package_declares_a_package_above_it():
     for pkg in LAYERS:
         above = set(LAYERS[LAYERS.index(pkg) + 1:])

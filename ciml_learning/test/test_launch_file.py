@@ -320,13 +320,13 @@ def test_container_command_line_and_node_lookup():
         container.node_class("ciml_sim", "nope")
 
 
-# --- the live benchmarks' measurement helpers (ciml_learning.live_bench) -------------------------
+# --- the live benchmarks' measurement helpers (ciml_learning.graph_probe) -------------------------
 
 
 def test_period_statistics_of_receipt_times():
     import numpy as np
 
-    from ciml_learning.live_bench import period_stats
+    from ciml_learning.graph_probe import period_stats
 
     rng = np.random.default_rng(0)
     t = np.cumsum(np.full(2500, 0.004) + rng.normal(0, 1e-4, 2500))
@@ -343,7 +343,7 @@ def test_feedback_effort_is_the_pd_part_plus_feedback_linearisation():
     import numpy as np
 
     from ciml_learning.conversions import TorqueCommandArrays
-    from ciml_learning.live_bench import feedback_effort
+    from ciml_learning.graph_probe import feedback_effort
 
     n = 12
     kp, kd = np.full(n, 300.0), np.full(n, 8.0)
@@ -356,7 +356,8 @@ def test_feedback_effort_is_the_pd_part_plus_feedback_linearisation():
 
 
 def test_process_memory_and_cpu_readers():
-    from ciml_learning.live_bench import cpu_seconds, rss_mb
+    from ciml_learning.graph_probe import cpu_seconds
+    from ciml_learning.realtime import rss_mb
 
     assert rss_mb(os.getpid()) > 10.0 and cpu_seconds(os.getpid()) > 0.0
     dead = subprocess.Popen(["true"])

@@ -20,12 +20,13 @@ from sensor_msgs.msg import JointState
 
 from ciml_control.standing import StandingController
 from ciml_learning import conversions as cv
-from ciml_learning import live_bench, topics
+from ciml_learning import topics
 from ciml_learning.bagio import BagWriter
 from ciml_learning.diagnosis.run import diagnose
 from ciml_learning.robot import load_robot
 from ciml_learning.ros_common import COMMAND_QOS, SENSOR_QOS
 
+from . import live_bench
 from .bridge_node import MujocoBridge
 from .plant import Plant
 from .recorder import CONTROL_RATE, PHYSICS_STEPS_PER_TICK, run_headless
@@ -112,7 +113,7 @@ def scaling(sizes: str = "10000,100000,1000000", stages: str = "extraction,diagn
 
 
 def live_graph_rates() -> dict:
-    """The launch file's whole graph for 60 s: rates, CPU, exit codes (ciml_learning.live_bench; it
+    """The launch file's whole graph for 60 s: rates, CPU, exit codes (ciml_sim.live_bench; it
     starts this package's launch file, so the benchmark is registered here)."""
     return live_bench.graph_rates(duration=60.0)
 
@@ -128,7 +129,7 @@ def live_online_learning(seeds: str = "0,1,2,3,4", scenarios: str = "default_gap
                          period: str = "60", baseline_seeds: str = "", robot: str = "hyq", launch: str = "",
                          plot: str = "") -> dict:
     """Online learning on the live graph, with and without, per seed and scenario, per period
-    (ciml_learning.live_bench.online_learning_runs); `plot`: also a PNG of the effort per period.
+    (ciml_sim.live_bench.online_learning_runs); `plot`: also a PNG of the effort per period.
     Options (ciml bench --set NAME=VALUE): seeds, baseline_seeds (the runs without learning;
     default: seeds) and scenarios comma-separated (a scenario: a shipped name or a YAML file),
     duration and period in simulated seconds, robot (a shipped name or a profile; the scenarios

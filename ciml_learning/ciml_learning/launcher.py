@@ -151,7 +151,9 @@ class Launcher:
     # --- life cycle ----------------------------------------------------------------------
     def start(self, only: list[str] | None = None) -> list[NodeProcess]:
         """Start every process of the file (or those named in `only`: a container's name or a
-        lone node's), containers first, then lone nodes in the file's order."""
+        lone node's), containers first, then lone nodes in the file's order. Call it from a
+        thread that outlives the nodes (the main thread): a node gets SIGTERM when the thread
+        that started it ends (PR_SET_PDEATHSIG is per thread)."""
         if self.log_dir:
             os.makedirs(self.log_dir, exist_ok=True)
         started = []

@@ -231,6 +231,25 @@ def test_no_package_module_names_a_package_above_it_in_a_string():
     assert not named, "\n".join(named)
 
 
+def private_imports(path: str) -> list[str]:
+    """`from <a ciml module> import _name` in a file: another module's private name (the module
+    should make it public, or keep the code that needs it)."""
+    with open(path, encoding="utf-8") as f:
+        tree = ast.parse(f.read(), path)
+    return [f"{os.path.relpath(path, ROOT)}:{n.lineno}: {'.' * n.level}{n.module or ''} {a.name}"
+            for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)
+            and (n.level > 0 or (n.module or "").split(".")[0] in LAYERS)
+            for a in n.names if a.name.startswith("_") and not a.name.startswith("__")]
+
+
+def test_no_module_imports_a_private_name_of_another(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text("from .report import _where\nfrom ciml_learning.cli import main, _join\nfrom os import _exit\n")
+    assert [h.split(": ", 1)[1] for h in private_imports(str(f))] == [".report _where", "ciml_learning.cli _join"]
+    found = [hit for pkg in LAYERS for path in package_files(pkg)["modules"] for hit in private_imports(path)]
+    assert not found, "\n".join(found)
+
+
 def test_no_package_declares_a_package_above_it():
     for pkg in LAYERS:
         above = set(LAYERS[LAYERS.index(pkg) + 1:])

@@ -202,7 +202,7 @@ def test_start_orders_end_standing_then_walking(graph, order):
     assert seen >= 8.0, f"{order}: only {seen:.1f} s simulated"
     assert zmin > STANDING_Z - 0.1, (f"{order}: the robot fell (lowest base height {zmin:.2f} m); controller: "
                                      f"{next((v for k, v in probe.diagnostics.items() if 'id_controller' in k), {})}")
-    shown = {k: v for k, v in probe.diagnostics.items() if "controller" in k or "server" in k}
+    shown = {k: v for k, v in probe.diagnostics.items() if any(n in k for n in ("controller", "server", "learner"))}
     assert dx > 0.35 * 8.0 * 0.5, f"{order}: the base advanced only {dx:.2f} m in 8 s of trot_35; {shown}"
 
 

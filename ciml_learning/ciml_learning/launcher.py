@@ -28,6 +28,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TextIO
 
@@ -39,7 +40,7 @@ _LIBC = ctypes.CDLL(None, use_errno=True)  # resolved here: the forked child onl
 PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 
-def _die_with_launcher(launcher_pid: int):
+def _die_with_launcher(launcher_pid: int) -> Callable[[], None]:
     """preexec_fn of a node: SIGTERM when the launcher's thread that started it ends."""
     def preexec() -> None:
         _LIBC.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)

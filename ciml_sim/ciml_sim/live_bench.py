@@ -69,7 +69,6 @@ FALL_RATIO = 0.5
 (physical_bounds; HyQ 0.31 m, the learning gate's own rule)."""
 
 
-
 def _growth(start: float | None, end: float | None) -> float | None:
     return None if start is None or end is None else round(end - start, 1)
 

@@ -14,8 +14,8 @@ code). Like ros2 launch, the launcher:
   the others running;
 - exits 0 when every node exited cleanly (rc 0), 1 otherwise;
 - never leaves orphans: each node gets SIGTERM when the launcher dies, even by SIGKILL
-  (Linux PR_SET_PDEATHSIG, kept across the node's exec), so a killed `ciml launch` does not
-  leave a simulator and a controller running on the domain.
+  (Linux PR_SET_PDEATHSIG, kept across the node's exec; nodes started from the main thread),
+  so a killed `ciml launch` does not leave a simulator and a controller running on the domain.
 Every node inherits ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless the caller set it.
 """
 from __future__ import annotations
@@ -152,18 +152,19 @@ class Launcher:
     # --- life cycle ----------------------------------------------------------------------
     def start(self, only: list[str] | None = None) -> list[NodeProcess]:
         """Start every process of the file (or those named in `only`: a container's name or a
-        lone node's), containers first, then lone nodes in the file's order. Call it from a
-        thread that outlives the nodes (the main thread): a node gets SIGTERM when the thread
-        that started it ends (PR_SET_PDEATHSIG is per thread)."""
+        lone node's), containers first, then lone nodes in the file's order. Nodes started from
+        the main thread end with the launcher; PR_SET_PDEATHSIG is per thread, so nodes started
+        from another thread (which may end before them) are not tied to it."""
         if self.log_dir:
             os.makedirs(self.log_dir, exist_ok=True)
+        main = threading.current_thread() is threading.main_thread()
         started = []
         for action, cmd in zip(self.plan, self.cmds):
             if only is not None and action.label not in only:
                 continue
             proc = subprocess.Popen(cmd, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                     stdin=subprocess.DEVNULL, text=True, bufsize=1, process_group=0,
-                                    preexec_fn=_die_with_launcher(os.getpid()))
+                                    preexec_fn=_die_with_launcher(os.getpid()) if main else None)
             node = NodeProcess(action, cmd, proc, threading.Thread(target=lambda: None))
             node.reader = threading.Thread(target=self._read, args=(node,), name=f"out-{action.label}", daemon=True)
             node.reader.start()

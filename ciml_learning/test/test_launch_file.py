@@ -242,6 +242,28 @@ def test_a_killed_ciml_launch_leaves_no_node_running(tmp_path):
     assert not any(_alive(p) for p in pids), [p for p in pids if _alive(p)]
 
 
+def test_nodes_started_from_a_thread_that_ends_keep_running(tmp_path, monkeypatch):
+    """PR_SET_PDEATHSIG fires when the *thread* that forked the node ends: a launcher started from
+    a short-lived thread (a test runner's, a GUI's) must not see its nodes killed with it."""
+    import threading
+
+    _fake_package(tmp_path, {"good": TRAP_INT})
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(tmp_path / "prefix"))
+    out = tmp_path / "out.txt"
+    with open(out, "w") as f:
+        launcher = Launcher(lf.load(_write(tmp_path, "launch:\n- node: {pkg: fake, exec: good, name: a}\n")), out=f)
+        starter = threading.Thread(target=launcher.start)
+        starter.start()
+        starter.join()
+        deadline = time.monotonic() + 10
+        while "[a] up" not in out.read_text() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        assert launcher.nodes[0].proc.poll() is None, out.read_text()
+        assert launcher.stop() == 0
+    assert "[a] got INT" in out.read_text()
+
+
 def test_containers_argument_composes_nodes_in_one_process_each(tmp_path, monkeypatch):
     """`containers:=NAME:a,b ...`: one ciml_container process per group with each node's own
     arguments, the other nodes alone, a node switched off by its condition left out; errors

@@ -60,10 +60,14 @@ class SafeStop:
     def track(self, ref: ReferencePoint, fresh: bool, now: float) -> tuple[ReferencePoint, str]:
         if self.stopped is None:
             previous, previous_now = self.previous, self.previous_now
-            self.previous, self.previous_now = ref, now
+            if ref is not previous:
+                # the time of a reference is when it first came: one held for a few samples (its node
+                # was late, still fresh) and then caught up moved over all of them, not over one
+                self.previous, self.previous_now = ref, now
             if not fresh:
                 self._stop(ref, now)
-            elif previous is None or self._leap(previous, ref, now - previous_now) <= self.resume_tolerance:
+            elif previous is None or ref is previous or \
+                    self._leap(previous, ref, now - previous_now) <= self.resume_tolerance:
                 return ref, LIVE
             else:  # the reference moved further than its speed allows in the controller's time
                 self._stop(previous, now)

@@ -70,3 +70,25 @@ def test_a_reference_that_skips_samples_at_its_own_speed_is_no_leap():
     assert stop.track(later, True, 2.59) == (later, LIVE)
     ahead = motion.sample(2.69)  # 0.1 s of motion in 4 ms of the controller's clock: a leap
     assert stop.track(ahead, True, 2.594)[1] == LANDING
+
+
+def test_a_reference_held_while_fresh_then_caught_up_is_not_a_leap():
+    """A reference node late by less than reference_timeout: the controller answers several samples
+    with the same (still fresh) reference, then the node catches up with the motion. Its base moved
+    over all those samples, which its speed allows: live, not a stop (a stop here left the robot
+    standing for the rest of a lockstep run: reference_not_resumed)."""
+    q_stand = standing_configuration(ROBOT)
+    motion = make_reference(ROBOT, "trot_35", q_stand)
+    stop = SafeStop(ROBOT, q_stand)
+    t = 2.0
+    a = motion.sample(t)
+    for k in range(25):  # 0.1 s of samples answered with the same reference
+        assert stop.track(a, True, 0.004 * k) == (a, LIVE)
+    caught_up = motion.sample(t + 0.1)
+    assert np.linalg.norm(caught_up.q[:2] - a.q[:2]) > stop.resume_tolerance  # it does move that far
+    assert stop.track(caught_up, True, 0.1) == (caught_up, LIVE)
+    # the same jump within one sample of the last new reference is still a leap
+    b = motion.sample(t + 0.104)
+    assert stop.track(b, True, 0.104)[1] == LIVE
+    far = motion.sample(t + 0.204)
+    assert stop.track(far, True, 0.108)[1] == LANDING

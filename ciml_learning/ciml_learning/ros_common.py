@@ -14,7 +14,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import rclpy
@@ -309,7 +309,9 @@ class Health:
 
     def __init__(self, node: Node, hardware_id: str = "", event_hold: float = PUBLISH_PERIOD + 0.2) -> None:
         self.node = node
-        self.counts: Counter[str] = Counter()
+        # a Counter (an event not yet seen reads 0) that also holds measurements (rates, lags: floats),
+        # which Counter's type, int values only, does not allow
+        self.counts = cast("dict[str, float]", Counter())
         self.mode_level = OK
         self.mode_message = "ok"
         self.event_hold = event_hold

@@ -60,6 +60,8 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Callable
+from typing import Any, TypeGuard, TypeVar
 
 import numpy as np
 from ciml_msgs.msg import ContactState, ModelError, RobotReference, TorqueCommand
@@ -77,11 +79,11 @@ from ciml_learning.projection import contact_invariant_basis
 from ciml_learning.rollback import NOMINAL_SOURCE, EffortWatch, RollbackConfig, feedback_effort
 from ciml_learning.ros_common import COMMAND_QOS, LATEST_QOS, OK, WARN, Health, PublishPeriods, declare_schema, run_node
 
-from ..controller import IdController
+from ..controller import ControlOutput, IdController
 from ..conversions import effort_array_msg, effort_joint_order, feedforward_msg, reference_point
 from ..feedback import FeedbackGains
 from ..node_params import ID_CONTROLLER
-from ..references import make_reference, standing_configuration
+from ..references import ReferencePoint, make_reference, standing_configuration
 from ..safe_stop import LIVE, SafeStop
 from ..standing import safe_damping_gain
 from ..trust import TrustLaw
@@ -91,6 +93,10 @@ MODE_DAMPING = 1
 
 STATE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
 """State topics: only the newest sample matters to a controller (a backlog only adds latency)."""
+
+T = TypeVar("T")
+Stamped = tuple[float, int, T]
+"""An input as the node keeps it: (receipt time on the node clock [s], header stamp [ns], converted message)."""
 
 
 class IdControllerNode(Node):
@@ -119,11 +125,11 @@ class IdControllerNode(Node):
         self._warm_up()
         self.health = Health(self)
         self.periods = PublishPeriods(self.health, "torque_command", rate)  # commands as published
-        self.joints = None       # (receipt time, stamp ns, (q, qd, tau))
-        self.base = None
-        self.contacts = None
-        self.reference = None
-        self.model_error = None
+        self.joints: Stamped[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None  # (q, qd, tau)
+        self.base: Stamped[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None  # (position, quaternion, twist)
+        self.contacts: Stamped[np.ndarray] | None = None
+        self.reference: Stamped[ReferencePoint] | None = None
+        self.model_error: Stamped[cv.ModelErrorArrays] | None = None
         self.compute_times: deque = deque(maxlen=1000)
         self.prediction_lags: deque = deque(maxlen=1000)  # |reference stamp − its prediction's| [s]
         self.pub = self.create_publisher(TorqueCommand, topics.TORQUE_COMMAND, COMMAND_QOS)
@@ -187,31 +193,31 @@ class IdControllerNode(Node):
         self.get_logger().info(f"controller warmed up in {1e3 * (time.perf_counter() - t0):.0f} ms")
 
     # --- inputs ------------------------------------------------------------------------
-    def _convert(self, what: str, fn, msg):
+    def _convert(self, what: str, fn: Callable[[Any], T], msg: Any) -> Stamped[T] | None:
         try:
             return self._now(), cv.stamp_to_ns(msg.header.stamp), fn(msg)
         except CimlError as err:
             self.health.count(f"rejected_{what}", f"{what} rejected: {err}")
             return None
 
-    def on_base(self, msg) -> None:
+    def on_base(self, msg: Odometry) -> None:
         self.base = self._convert("base_state", cv.odometry_arrays, msg) or self.base
 
-    def on_contacts(self, msg) -> None:
+    def on_contacts(self, msg: ContactState) -> None:
         self.contacts = (self._convert("contact_state", lambda m: cv.contact_state_arrays(self.robot, m), msg)
                          or self.contacts)
 
-    def on_reference(self, msg) -> None:
+    def on_reference(self, msg: RobotReference) -> None:
         self.reference = self._convert("reference", lambda m: reference_point(self.robot, m), msg) or self.reference
         if self._awaiting_reference:  # the joint sample that waited for it (wait_for_reference)
             self._awaiting_reference = False
             self.control()
 
-    def on_model_error(self, msg) -> None:
+    def on_model_error(self, msg: ModelError) -> None:
         self.model_error = (self._convert("model_error", lambda m: cv.model_error_arrays(self.robot, m), msg)
                             or self.model_error)
 
-    def on_joints(self, msg) -> None:
+    def on_joints(self, msg: JointState) -> None:
         joints = self._convert("joint_states", lambda m: cv.joint_state_arrays(self.robot, m), msg)
         if joints is None:
             return
@@ -223,7 +229,7 @@ class IdControllerNode(Node):
         """Node clock [s] (simulation time with use_sim_time)."""
         return self.get_clock().now().nanoseconds * 1e-9
 
-    def _fresh(self, item, timeout: float, now: float) -> bool:
+    def _fresh(self, item: Stamped[T] | None, timeout: float, now: float) -> TypeGuard[Stamped[T]]:
         return item is not None and now - item[0] <= timeout
 
     def watchdog(self) -> None:
@@ -242,10 +248,11 @@ class IdControllerNode(Node):
             if not self._fresh(item, timeout, now)]
         self.health.set(WARN, f"waiting for {', '.join(missing) or 'inputs'} before the first command")
 
-    def epsilon(self, ref, now: float) -> tuple[np.ndarray, str]:
+    def epsilon(self, ref: ReferencePoint, now: float) -> tuple[np.ndarray, str]:
         """(ε, the source of the prediction it comes from: NOMINAL_SOURCE for ε = 0)."""
         if not self.use_model_error or not self._fresh(self.model_error, self.model_error_timeout, now):
             return np.zeros(self.robot.nv), NOMINAL_SOURCE
+        assert self.reference is not None  # control() asks only once a reference has arrived
         # a prediction made for another instant of the gait is the wrong correction for this one
         lag = abs(self.reference[1] - self.model_error[1]) * 1e-9
         self.prediction_lags.append(lag)
@@ -270,17 +277,19 @@ class IdControllerNode(Node):
 
     def control(self) -> None:
         now = self._now()
-        stamp = self.joints[1]
-        states_fresh = all(self._fresh(x, self.state_timeout, now) for x in (self.joints, self.base, self.contacts))
-        if not self.commanding and not (states_fresh and self._fresh(self.reference, self.reference_timeout, now)):
+        joints, base, contacts, reference = self.joints, self.base, self.contacts, self.reference
+        assert joints is not None  # a step answers a joint sample (on_joints, or the one awaiting /reference)
+        stamp = joints[1]
+        states_fresh = all(self._fresh(x, self.state_timeout, now) for x in (joints, base, contacts))
+        if not self.commanding and not (states_fresh and self._fresh(reference, self.reference_timeout, now)):
             self._waiting(now)  # not ready yet is not stale after running: no command at all
             return
         if not states_fresh:
             self.publish_damping("stale_state", "base or contact state missing or stale: damping", stamp)
             return
-        fresh = self._fresh(self.reference, self.reference_timeout, now)
+        fresh = self._fresh(reference, self.reference_timeout, now)
         if not fresh:
-            if not self._fresh(self.reference, self.reference_hold, now):
+            if not self._fresh(reference, self.reference_hold, now):
                 self.publish_damping("stale_reference", f"no fresh {topics.REFERENCE}: damping", stamp)
                 return
             if self.params["wait_for_reference"]:
@@ -288,8 +297,9 @@ class IdControllerNode(Node):
                 self._awaiting_reference = True
                 self.health.counts["reference_waits"] += 1
                 return
+        assert base is not None and contacts is not None and reference is not None  # fresh or held: received
         # a late reference (its node stalled, or restarts) is not a dead one: safe stop, not a fall
-        ref, stop = self.safe_stop.track(self.reference[2], fresh, stamp * 1e-9)  # the robot's sample time
+        ref, stop = self.safe_stop.track(reference[2], fresh, stamp * 1e-9)  # the robot's sample time
         if stop != LIVE:
             if fresh:
                 self.health.count("reference_not_resumed", f"{topics.REFERENCE} came back {self.safe_stop.jump:.3f} m "
@@ -297,13 +307,13 @@ class IdControllerNode(Node):
             else:
                 self.health.count("reference_held", f"no fresh {topics.REFERENCE}: feet down, standing")
         t0 = time.perf_counter()
-        qj, qdj, _ = self.joints[2]
-        pos, quat, twist = self.base[2]
+        qj, qdj, _ = joints[2]
+        pos, quat, twist = base[2]
         q = np.concatenate([pos, quat, qj])
         v = np.concatenate([twist, qdj])
         epsilon, source = self.epsilon(ref, now)
         try:
-            out = self.controller.compute(q, v, self.contacts[2], ref, epsilon)
+            out = self.controller.compute(q, v, contacts[2], ref, epsilon)
         except CimlError as err:
             self.publish_damping("controller_errors", f"controller error: {err}", stamp)
             return
@@ -312,7 +322,7 @@ class IdControllerNode(Node):
         if out.epsilon_rejected:
             self.health.count("epsilon_rejected", "non-finite model error: nominal model used")
         if self.feedforward_only:
-            self.publish_feedforward(stamp, q, v, ref, out)
+            self.publish_feedforward(stamp, q, v, contacts[2], ref, out)
             self.compute_times.append(time.perf_counter() - t0)
             return
         cmd = cv.TorqueCommandArrays(mode=MODE_TORQUE, feedforward=out.feedforward,
@@ -348,9 +358,11 @@ class IdControllerNode(Node):
             u = cmd.total(qj, qdj, self.robot.torque_limits)  # the joint-loop law at this sample, within the limits
             self.effort_pub.publish(effort_array_msg(u, self.effort_order))
 
-    def publish_feedforward(self, stamp: int, q: np.ndarray, v: np.ndarray, ref, out) -> None:
+    def publish_feedforward(self, stamp: int, q: np.ndarray, v: np.ndarray, contacts: np.ndarray, ref: ReferencePoint,
+                            out: ControlOutput) -> None:
         """feedforward_only: the QP feedforward with the trusted ε minus the nominal model's."""
-        nominal = self.controller.compute(q, v, self.contacts[2], ref, np.zeros(self.robot.nv))
+        assert self.feedforward_pub is not None  # created with feedforward_only, the only case that calls this
+        nominal = self.controller.compute(q, v, contacts, ref, np.zeros(self.robot.nv))
         if out.qp_failed or nominal.qp_failed:  # a fallback torque is no learned correction
             self.health.count("feedforward_skipped", "QP failed: no learned feedforward for this sample")
             return
@@ -382,7 +394,7 @@ class IdControllerNode(Node):
             self.health.counts["prediction_lag_p99_ms"] = round(float(np.percentile(lag, 99)), 1)
 
 
-def main(args=None) -> None:
+def main(args: list[str] | None = None) -> None:
     import sys
 
     try:

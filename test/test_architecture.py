@@ -13,6 +13,7 @@ Read from the source with `ast`, nothing is imported:
 from __future__ import annotations
 
 import ast
+import configparser
 import importlib.util
 import os
 import re
@@ -438,6 +439,21 @@ def test_mypy_finds_a_type_error(tmp_path):
 
 
 def test_mypy_is_clean():
-    """mypy.ini's modules (every module of the packages but the ROS adapters) type-check."""
+    """mypy.ini's modules (every module of the packages and tools/ but the ROS adapters it lists) type-check."""
     r = _mypy()
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_mypy_checks_the_tools_and_the_controller_nodes():
+    """mypy.ini keeps the tools/ scripts and ciml_control's nodes in the check (both were left out once)."""
+    cfg = configparser.ConfigParser()
+    cfg.read(os.path.join(ROOT, "mypy.ini"))
+    files = [f.strip() for f in cfg["mypy"]["files"].split(",")]
+    exclude = cfg["mypy"]["exclude"]
+    scripts = [os.path.join("tools", f) for f in os.listdir(os.path.join(ROOT, "tools")) if f.endswith(".py")]
+    nodes = [os.path.join("ciml_control", "ciml_control", "nodes", f)
+             for f in os.listdir(os.path.join(ROOT, "ciml_control", "ciml_control", "nodes")) if f.endswith(".py")]
+    assert scripts and nodes
+    for path in scripts + nodes:
+        assert any(path.startswith(f + os.sep) for f in files), f"{path}: not under mypy.ini's files"
+        assert re.search(exclude, path) is None, f"{path}: excluded by mypy.ini"

@@ -46,7 +46,9 @@ def epsilon_function(variant: str, robot, model_set: ModelSet, truth, reference)
     truth_torque = ReferenceTorque(robot)  # its own τ̇ state (learned.predict advances the other)
 
     def eps(ref) -> np.ndarray:
-        rbd, _, gamma, _ = learned.predict(ref)
+        prediction = learned.predict(ref)
+        assert prediction is not None  # None only for a non-finite reference point
+        rbd, _, gamma, _ = prediction
         if variant == "act_true":
             gamma = truth.actuation_error(*truth_torque(ref, rbd))
         else:
@@ -59,25 +61,32 @@ def epsilon_function(variant: str, robot, model_set: ModelSet, truth, reference)
     return eps
 
 
-def _zero_phase(learned: EpsilonFunction, reference) -> EpsilonFunction:
-    """`learned` with τ̇_ref = the training derivative filter over the nominal τ_ref of the
-    reference ticks k − d … k + d (filters.filter_offline's convention, newest first)."""
-    plain = learned.reference_torque
-    taps, d = derivative_taps(CONTROL_RATE), delay_samples()
-    nominal_torque: dict[int, np.ndarray] = {}
+class _ZeroPhaseTorque(ReferenceTorque):
+    """τ_ref as ReferenceTorque gives it; τ̇_ref = the training derivative filter over the nominal
+    τ_ref of the reference ticks k − d … k + d (filters.filter_offline's convention, newest first)."""
 
-    def torque_at(k: int) -> np.ndarray:
-        if k not in nominal_torque:
-            p = reference.sample(max(k, 0) / CONTROL_RATE)
-            nominal_torque[k] = plain.torque(p.q, p.v, p.a, np.asarray(p.contacts, bool))
-        return nominal_torque[k]
+    def __init__(self, robot, reference) -> None:
+        super().__init__(robot)
+        self.reference = reference
+        self.taps, self.d = derivative_taps(CONTROL_RATE), delay_samples()
+        self._nominal: dict[int, np.ndarray] = {}
 
-    def filtered(ref, e=None, foot_jacobians=None):
-        tau, _ = plain(ref, e, foot_jacobians)
+    def _torque_at(self, k: int) -> np.ndarray:
+        if k not in self._nominal:
+            p = self.reference.sample(max(k, 0) / CONTROL_RATE)
+            self._nominal[k] = self.torque(p.q, p.v, p.a, np.asarray(p.contacts, bool))
+        return self._nominal[k]
+
+    def __call__(self, ref, e: np.ndarray | None = None,
+                 foot_jacobians: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        tau, _ = super().__call__(ref, e, foot_jacobians)
         k = int(round(ref.t * CONTROL_RATE))
-        return tau, taps @ np.array([torque_at(k + j) for j in range(d, -d - 1, -1)])
+        return tau, self.taps @ np.array([self._torque_at(k + j) for j in range(self.d, -self.d - 1, -1)])
 
-    learned.reference_torque = filtered
+
+def _zero_phase(learned: EpsilonFunction, reference) -> EpsilonFunction:
+    """`learned` with τ̇_ref from the reference ahead (_ZeroPhaseTorque)."""
+    learned.reference_torque = _ZeroPhaseTorque(learned.robot, reference)
     return learned
 
 

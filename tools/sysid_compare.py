@@ -66,6 +66,7 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -97,7 +98,8 @@ def read_log(robot, bag: str) -> Log:
     from ciml_learning.loginputs import load_log
 
     s = load_log(robot, bag)
-    msgs = [m for _, m in read_messages(bag, ["/torque_command"])["/torque_command"]]
+    # rosbags deserializes into message classes it generates at run time: untyped
+    msgs: list[Any] = [m for _, m in read_messages(bag, ["/torque_command"])["/torque_command"]]
     order = [list(msgs[0].joint_names).index(n) for n in robot.joint_names]
     stamp = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in msgs])
     f = {k: np.array([np.asarray(getattr(m, k), float)[order] for m in msgs])
@@ -302,7 +304,8 @@ def run_verify(case_dir: str, diagnosis_dir: str, oracle: str, out_dir: str) -> 
         if isinstance(a, list) and isinstance(b, list):
             return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b))
         if isinstance(a, float) or isinstance(b, float):
-            return bool(np.isclose(a, b, rtol=1e-9, atol=0.0))
+            return (isinstance(a, (int, float)) and isinstance(b, (int, float))
+                    and bool(np.isclose(a, b, rtol=1e-9, atol=0.0)))
         return a == b
 
     bench_verify = os.path.join(case_dir, "verify", "verify.json")

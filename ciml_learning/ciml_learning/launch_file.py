@@ -8,8 +8,9 @@ No `launch` wheel exists for this platform, so `ciml launch` reads the same file
 - `set_env` (name, value): an environment variable of every process started after it
   (here: before the first node, so that it holds for all of them);
 - `node` (pkg, exec, name, namespace, param [name/value or from], remap [from/to],
-  ros_args, args, launch-prefix, `if`/`unless`; `output` is accepted, output always goes
-  to the screen and, with --log-dir, to a file): one process;
+  env [name/value: this node's process only, over `set_env`], ros_args, args, launch-prefix,
+  `if`/`unless`; `output` is accepted, output always goes to the screen and, with --log-dir,
+  to a file): one process;
 - substitutions `$(var NAME)`, `$(find-pkg-share PKG)`, `$(env NAME [DEFAULT])`,
   `$(dirname)` and `$(filename)`; conditions are "true"/"false" (or 1/0), as in launch.
 
@@ -58,6 +59,8 @@ class NodeAction:
     args: tuple[str, ...] = ()
     launch_prefix: tuple[str, ...] = ()
     """Words before the executable (`launch-prefix`, e.g. `nice -n 10`), as launch_ros runs them."""
+    environment: tuple[tuple[str, str], ...] = ()
+    """The node's own `env` entries, set over the file's `set_env` for its process only."""
 
     @property
     def label(self) -> str:
@@ -92,6 +95,11 @@ class ProcessAction:
     def composed(self) -> bool:
         return len(self.nodes) != 1 or self.nodes[0].label != self.label
 
+    @property
+    def environment(self) -> dict[str, str]:
+        """The nodes' own `env` (process_plan checks that a container's nodes agree)."""
+        return dict(self.nodes[0].environment)
+
 
 CONTAINERS_ARG = "containers"
 """The launch argument `ciml launch` reads for composition: groups `NAME:node,node,...`
@@ -120,6 +128,11 @@ def process_plan(desc: LaunchDescription) -> list[ProcessAction]:
         if len(prefixes) > 1:
             shown = " / ".join(" ".join(p) or "none" for p in sorted(prefixes))
             raise LaunchFileError(f"{CONTAINERS_ARG}: the nodes of {name} have different launch-prefix ({shown}); "
+                                  "one process has one")
+        environments = {tuple(sorted(n.environment)) for n in started}
+        if len(environments) > 1:
+            shown = " / ".join(" ".join(f"{k}={v}" for k, v in e) or "none" for e in sorted(environments))
+            raise LaunchFileError(f"{CONTAINERS_ARG}: the nodes of {name} have different env ({shown}); "
                                   "one process has one")
         if started:
             groups.append(ProcessAction(name, started))
@@ -249,7 +262,7 @@ class _Resolver:
                               "var, find-pkg-share, env, dirname, filename")
 
 
-_NODE_KEYS = {"pkg", "exec", "name", "namespace", "param", "remap", "ros_args", "args", "if", "unless",
+_NODE_KEYS = {"pkg", "exec", "name", "namespace", "param", "remap", "env", "ros_args", "args", "if", "unless",
               "output", "launch-prefix"}
 
 
@@ -371,13 +384,20 @@ def _node(body: dict, resolve: _Resolver, where: str) -> NodeAction | None:
             raise LaunchFileError(f"{where}: each remap is a mapping with from/to")
         _require(r, ("from", "to"), where)
         remaps.append((resolve(r["from"], where), resolve(r["to"], where)))
+    environment: list[tuple[str, str]] = []
+    for e in body.get("env", None) or []:
+        if not isinstance(e, dict):
+            raise LaunchFileError(f"{where}: each env is a mapping with name/value")
+        _require(e, ("name", "value"), where)
+        environment.append((resolve(e["name"], where), resolve(e["value"], where)))
     name = resolve(body["name"], where) if "name" in body else None
     namespace = resolve(body["namespace"], where) if "namespace" in body else None
     return NodeAction(pkg=resolve(body["pkg"], where), executable=resolve(body["exec"], where), name=name,
                       namespace=namespace, parameters=tuple(params), param_files=tuple(files), remaps=tuple(remaps),
                       extra_ros_args=tuple(resolve(body.get("ros_args", ""), where).split()),
                       args=tuple(resolve(body.get("args", ""), where).split()),
-                      launch_prefix=tuple(shlex.split(resolve(body.get("launch-prefix", ""), where))))
+                      launch_prefix=tuple(shlex.split(resolve(body.get("launch-prefix", ""), where))),
+                      environment=tuple(environment))
 
 
 def describe(desc: LaunchDescription) -> str:

@@ -90,11 +90,6 @@ def command(process: ProcessAction) -> list[str]:
     return cmd
 
 
-def commands(desc: LaunchDescription) -> list[list[str]]:
-    """The command line of every process of the launch description (process_plan)."""
-    return [command(p) for p in process_plan(desc)]
-
-
 class Launcher:
     """Start, watch and stop the nodes of one launch description."""
 
@@ -162,7 +157,7 @@ class Launcher:
         for action, cmd in zip(self.plan, self.cmds):
             if only is not None and action.label not in only:
                 continue
-            proc = subprocess.Popen(cmd, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            proc = subprocess.Popen(cmd, env={**self.env, **action.environment}, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                     stdin=subprocess.DEVNULL, text=True, bufsize=1, process_group=0,
                                     preexec_fn=_die_with_launcher(os.getpid()) if main else None)
             node = NodeProcess(action, cmd, proc, threading.Thread(target=lambda: None))
@@ -308,8 +303,8 @@ def launch_command(args) -> int:
         print(describe(desc))
         return 0
     if args.print:
-        env = [f"{k}={shlex.quote(v)}" for k, v in desc.environment.items()]
-        for cmd in commands(desc):
-            print(" ".join(env + [shlex.quote(w) for w in cmd]))
+        for process in process_plan(desc):
+            env = [f"{k}={shlex.quote(v)}" for k, v in {**desc.environment, **process.environment}.items()]
+            print(" ".join(env + [shlex.quote(w) for w in command(process)]))
         return 0
     return launch(desc, log_dir=args.log_dir, stop_timeout=args.stop_timeout)

@@ -76,6 +76,8 @@ def test_substitutions_conditions_and_let(tmp_path, monkeypatch):
     ("launch:\n- node: {pkg: p, exec: e, param: [{name: x, value: '$(env CIML_UNSET)'}]}\n", {}, "is not set"),
     ("launch:\n- node: {pkg: p, exec: e}\n- set_env: {name: A, value: b}\n", {}, "set_env after a node"),
     ("launch:\n- set_env: {name: A}\n", {}, "missing value"),
+    ("launch:\n- node: {pkg: p, exec: e, env: [A=b]}\n", {}, "each env is a mapping"),
+    ("launch:\n- node: {pkg: p, exec: e, env: [{name: A}]}\n", {}, "missing value"),
 ])
 def test_bad_files_and_arguments_are_refused_in_one_line(tmp_path, monkeypatch, text, args, message):
     monkeypatch.delenv("CIML_UNSET", raising=False)
@@ -95,18 +97,22 @@ def test_argument_syntax():
 # --- the runner, with stand-in executables (shell scripts; no ROS) ---------------------------------
 
 
-def test_set_env_reaches_every_process_and_an_argument_overrides_it(tmp_path, monkeypatch):
-    _fake_package(tmp_path, {"env": 'echo "transports=$FASTDDS_BUILTIN_TRANSPORTS"\n'})
+def test_set_env_reaches_every_process_and_a_node_env_its_own(tmp_path, monkeypatch):
+    """`set_env` holds for every process, a node's `env` over it for that node's process only
+    (as ros2 launch applies them); an argument overrides either."""
+    _fake_package(tmp_path, {"env": 'echo "$1 transports=$FASTDDS_BUILTIN_TRANSPORTS"\n'})
     monkeypatch.setenv("AMENT_PREFIX_PATH", str(tmp_path / "prefix"))
     monkeypatch.setenv("FASTDDS_BUILTIN_TRANSPORTS", "SHM")  # the caller's own setting, overridden by the file
     path = _write(tmp_path, """
         launch:
         - arg: {name: t, default: UDPv4}
+        - arg: {name: u, default: LARGE_DATA}
         - set_env: {name: FASTDDS_BUILTIN_TRANSPORTS, value: $(var t)}
-        - node: {pkg: fake, exec: env, name: a}
-        - node: {pkg: fake, exec: env, name: b}
+        - node: {pkg: fake, exec: env, name: a, args: a}
+        - node: {pkg: fake, exec: env, name: b, args: b}
+        - node: {pkg: fake, exec: env, name: c, args: c, env: [{name: FASTDDS_BUILTIN_TRANSPORTS, value: $(var u)}]}
         """)
-    for args, expected in (({}, "UDPv4"), ({"t": "DEFAULT"}, "DEFAULT")):
+    for args, expected in (({}, ("UDPv4", "LARGE_DATA")), ({"t": "DEFAULT", "u": "SHM"}, ("DEFAULT", "SHM"))):
         out = tmp_path / "out.txt"
         with open(out, "w") as f:
             launcher = Launcher(lf.load(path, args), out=f, stop_timeout=10.0)
@@ -115,8 +121,17 @@ def test_set_env_reaches_every_process_and_an_argument_overrides_it(tmp_path, mo
             while launcher.poll() and time.monotonic() < deadline:
                 time.sleep(0.05)
             launcher.stop()
-        text = out.read_text()
-        assert text.count(f"transports={expected}") == 2, text
+        lines = sorted(line.split("] ", 1)[1] for line in out.read_text().splitlines() if "transports=" in line)
+        assert lines == [f"a transports={expected[0]}", f"b transports={expected[0]}",
+                         f"c transports={expected[1]}"], lines
+    # one process has one environment: a container's nodes must agree on theirs
+    desc = lf.load(path, {})
+    with pytest.raises(lf.LaunchFileError, match="nodes of both have different env"):
+        lf.process_plan(lf.LaunchDescription(desc.path, desc.arguments, desc.nodes,
+                                             {**desc.configuration, "containers": "both:a,c"}, desc.declared_nodes))
+    assert [p.environment for p in lf.process_plan(lf.LaunchDescription(
+        desc.path, desc.arguments, desc.nodes, {"containers": "ab:a,b"}, desc.declared_nodes))] == \
+        [{}, {"FASTDDS_BUILTIN_TRANSPORTS": "LARGE_DATA"}]
 
 
 def _fake_package(tmp_path, scripts: dict[str, str]) -> None:

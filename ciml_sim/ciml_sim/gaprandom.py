@@ -6,6 +6,8 @@ suite case does (gapbench.run_case: record without ground truth, `ciml diagnose`
 the bag paths alone, `ciml verify`), then the scorer adds what the statistics need: each true effect's
 size and what was named in its place (the confusion matrix). The draw is written with the results
 (DIR/draws.json before any case runs, and in gap_bench.json), so `--random N --seed S` is the bench.
+Each finished case writes its scores to case_NN/score.json, so an interrupted bench goes on where it
+stopped (`--resume`): hundreds of cases outlast a session, a machine or a cluster.
 
 Cases are independent: locally they run on joblib's processes (--jobs), on a cluster as Dask tasks
 (--cluster, ciml_learning.cluster); both call random_case() and give the same scores.
@@ -20,6 +22,8 @@ from ciml_learning.fileio import atomic_write_json, atomic_write_text
 
 from . import gapbench, gapstats
 
+SCORE_FILE = "score.json"
+"""A finished case's scores (with its timings), in its case folder: the mark `--resume` keeps it by."""
 CASE_FIELDS = ("seed", "kind", "noise_scale", "sensor_noise", "effects", "train_motions", "heldout_motions")
 
 
@@ -66,12 +70,38 @@ def random_case(job: tuple[int, dict, str, float]) -> dict:
     index, spec, out_dir, scale = job
     try:
         scored = gapbench.run_case(index, spec, out_dir, scale)
-        path = os.path.join(out_dir, f"case_{index:02d}", "diagnosis", "diagnosis.json")
-        with open(path, encoding="utf-8") as f:
+        case = os.path.join(out_dir, f"case_{index:02d}")
+        with open(os.path.join(case, "diagnosis", "diagnosis.json"), encoding="utf-8") as f:
             diagnosis = json.load(f)
-        return score_random_case(spec, scored, diagnosis)
+        result = score_random_case(spec, scored, diagnosis)
+        atomic_write_json(os.path.join(case, SCORE_FILE), result)
+        return result
     except Exception as err:  # recorded in the case's row and counted in failed_cases
         return {"case": index, "kind": spec["kind"], "effects_true": spec["effects"], "error": str(err)}
+
+
+def finished_cases(out_dir: str, n: int, seed: int) -> dict[int, dict]:
+    """The cases an earlier run of the same draw finished in DIR (case → its score.json); a draw of
+    another N or seed is a CimlError (its cases are other cases)."""
+    from ciml_learning.errors import CimlError
+    from ciml_learning.fileio import InputFileError, load_json_bounded
+
+    path = os.path.join(out_dir, "draws.json")
+    if not os.path.isfile(path):
+        return {}
+    drawn = load_json_bounded(path, "draws.json")
+    if (drawn.get("n"), drawn.get("seed")) != (n, seed):
+        raise CimlError(f"--resume: {out_dir} holds the draw of --random {drawn.get('n')} --seed {drawn.get('seed')}, "
+                        f"not --random {n} --seed {seed}")
+    done = {}
+    for i in range(1, n + 1):
+        score = os.path.join(out_dir, f"case_{i:02d}", SCORE_FILE)
+        if os.path.isfile(score):
+            try:
+                done[i] = load_json_bounded(score, SCORE_FILE)
+            except InputFileError:  # unreadable: the case runs again
+                continue
+    return done
 
 
 def rescore(out_dir: str) -> dict:
@@ -122,22 +152,30 @@ def write(out_dir: str, n: int, seed: int, specs: list[dict], results: list[dict
 
 
 def random_bench(out_dir: str, n: int, seed: int, jobs: int = 1, scale: float = 1.0,
-                 cluster: str | None = None) -> dict:
-    """Draw N cases from SEED, run them (joblib with `jobs`, or the Dask `cluster`), write the results."""
+                 cluster: str | None = None, resume: bool = False) -> dict:
+    """Draw N cases from SEED, run them (joblib with `jobs`, or the Dask `cluster`), write the results;
+    with `resume`, the cases DIR already finished for this draw are kept, not run again."""
     from ciml_learning.cluster import PartialResults, run_all
 
+    done = finished_cases(out_dir, n, seed) if resume else {}
     os.makedirs(out_dir, exist_ok=True)
     specs = draw(n, seed)
     atomic_write_json(os.path.join(out_dir, "draws.json"), {"n": n, "seed": seed, "cases": specs})
-    jobs_list = [(i, spec, os.path.abspath(out_dir), scale) for i, spec in enumerate(specs, start=1)]
+    jobs_list = [(i, spec, os.path.abspath(out_dir), scale) for i, spec in enumerate(specs, start=1)
+                 if i not in done]
     t0 = time.time()
-    meta = {"scale": scale, "engine": cluster or f"joblib:{jobs}"}
+    meta = {"scale": scale, "engine": cluster or f"joblib:{jobs}", "resumed_cases": len(done)}
+
+    def merged(new: list) -> list:
+        by_case = {**done, **{job[0]: r for job, r in zip(jobs_list, new)}}
+        return [by_case.get(i) for i in range(1, n + 1)]
+
     try:
-        results = run_all(random_case, jobs_list, jobs, cluster, module="ciml_sim.gaprandom")
+        results = run_all(random_case, jobs_list, jobs, cluster, module="ciml_sim.gaprandom") if jobs_list else []
     except PartialResults as err:
-        write(out_dir, n, seed, specs, err.results, {**meta, "wall_s": round(time.time() - t0, 1)})
+        write(out_dir, n, seed, specs, merged(err.results), {**meta, "wall_s": round(time.time() - t0, 1)})
         raise
-    return write(out_dir, n, seed, specs, results, {**meta, "wall_s": round(time.time() - t0, 1)})
+    return write(out_dir, n, seed, specs, merged(results), {**meta, "wall_s": round(time.time() - t0, 1)})
 
 
 def command(args) -> int:
@@ -150,6 +188,8 @@ def command(args) -> int:
 
     from .gapplots import overall_table, per_type_table
 
+    if args.resume and args.random is None:
+        raise CimlError("--resume goes on with a --random bench; the suite's cases are few (run them again)")
     if args.random is None:
         return gapbench.gap_bench_command(args)
     check_out_dir(args.out, gapbench.is_gap_bench_dir, "gap-bench output")
@@ -158,7 +198,7 @@ def command(args) -> int:
     cluster = args.cluster
     if cluster and cluster.startswith(LOCAL_PREFIX):  # a LocalCluster's processes share this machine's cores
         cluster = f"{LOCAL_PREFIX}{cap_jobs(int(cluster[len(LOCAL_PREFIX):]), '--cluster local:N')}"
-    doc = random_bench(args.out, args.random, args.seed, cap_jobs(args.jobs), args.scale, cluster)
+    doc = random_bench(args.out, args.random, args.seed, cap_jobs(args.jobs), args.scale, cluster, args.resume)
     print(gapbench.table(doc["cases"]))
     print(overall_table(doc["summary"]))
     print(per_type_table(doc["summary"]))

@@ -41,6 +41,8 @@ def _gap_bench(s: argparse.ArgumentParser) -> None:
     s.add_argument("--random", type=ca.integer(1, 100_000), metavar="N",
                    help="N cases drawn at random from the effect registry's ranges instead of the suite")
     s.add_argument("--seed", type=ca.integer(0, 2**32 - 1), default=0, help="master seed of --random's draw")
+    s.add_argument("--resume", action="store_true",
+                   help="with --random: keep the cases --out already finished (same N and seed), run the rest")
     s.add_argument("--cluster", type=ca.cluster_address, metavar="ADDRESS",
                    help="run the cases on a Dask scheduler (tcp://HOST:8786) or on local:N, a LocalCluster of N "
                         "worker processes on 127.0.0.1, instead of --jobs")

@@ -11,6 +11,7 @@ import pytest
 
 from ciml_learning import cluster
 from ciml_learning.effects import CATALOGUE, EFFECTS, OUT_OF_CATALOGUE, draws
+from ciml_learning.errors import CimlError
 from ciml_learning.robot import load_robot
 from ciml_sim import gapbench, gapplots, gaprandom, gapstats
 from ciml_sim.scenario import parse_scenario
@@ -218,3 +219,33 @@ def test_rescore_reads_the_draw_and_marks_a_missing_case_partial(tmp_path):
     assert doc["random"]["cases"] == specs
     assert all(r["type_right"] and r["location_right"] for r in doc["cases"][0]["effects"])
     assert json.loads((tmp_path / "gap_bench.json").read_text())["partial"] is True
+
+
+def test_resume_keeps_the_finished_cases_and_runs_the_rest(tmp_path, monkeypatch):
+    """An interrupted bench goes on where it stopped: a case with its score.json is not run again,
+    one without is; another draw in the same folder is refused."""
+    ran: list[int] = []
+
+    def fake_case(index, spec, out_dir, scale):  # the recording and the diagnosis, in one line each
+        ran.append(index)
+        diag = os.path.join(out_dir, f"case_{index:02d}", "diagnosis")
+        os.makedirs(diag, exist_ok=True)
+        with open(os.path.join(diag, "diagnosis.json"), "w") as f:
+            json.dump({"effects": [], "unexplained_share": 1.0}, f)
+        return {"case": index, "effects_true": spec["effects"], "effects": [], "spurious": [], "record_s": 1.0}
+
+    monkeypatch.setattr(gapbench, "run_case", fake_case)
+    monkeypatch.setattr(gaprandom, "score_random_case", lambda spec, scored, diagnosis: dict(scored, kind=spec["kind"]))
+    out = str(tmp_path / "bench")
+    first = gaprandom.random_bench(out, 3, 9)
+    assert ran == [1, 2, 3] and not first["partial"] and first["resumed_cases"] == 0
+    os.remove(os.path.join(out, "case_02", gaprandom.SCORE_FILE))  # case 2 never finished
+    ran.clear()
+    again = gaprandom.random_bench(out, 3, 9, resume=True)
+    assert ran == [2] and again["resumed_cases"] == 2
+    assert [c["case"] for c in again["cases"]] == [1, 2, 3] and again["cases"] == first["cases"]
+    with pytest.raises(CimlError, match="holds the draw of --random 3 --seed 9"):
+        gaprandom.random_bench(out, 3, 10, resume=True)
+    ran.clear()
+    gaprandom.random_bench(out, 3, 9)  # without --resume every case runs again
+    assert ran == [1, 2, 3]

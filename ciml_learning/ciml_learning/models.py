@@ -94,7 +94,7 @@ import numpy as np
 
 from .errors import CimlError
 from .extraction import combined_error
-from .learners import Learner, LearnerError, learner_class
+from .learners import LWPR, Learner, LearnerError, LWPRStack, learner_class
 from .parallel import fit_dimensions
 
 FORMAT_VERSION = 5
@@ -279,6 +279,11 @@ class ModelSet:
         self.models_: list[Learner | None] = [None] * self.n_outputs
         self.n_samples_ = np.zeros(self.n_outputs, dtype=np.int64)
         self.training_: dict[str, Any] = {}
+        self._stacks: tuple[tuple, dict[str, LWPRStack]] | None = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Copies and pickles leave the LWPR stacks behind (the copy's models own their arrays)."""
+        return {**self.__dict__, "_stacks": None}
 
     @classmethod
     def for_robot(cls, robot, learner: str, params: dict | None = None) -> "ModelSet":
@@ -313,6 +318,28 @@ class ModelSet:
     def group(self, i: int) -> str:
         """Hyper-parameter group of output dimension i: "base", "leg" or "actuation"."""
         return "base" if i < N_BASE else "leg" if i < self.n_rbd else "actuation"
+
+    def group_dims(self, group: str) -> range:
+        """The output dimensions of a hyper-parameter group (contiguous)."""
+        return {"base": range(N_BASE), "leg": range(N_BASE, self.n_rbd),
+                "actuation": range(self.n_rbd, self.n_outputs)}[group]
+
+    def lwpr_stacks(self) -> dict[str, LWPRStack]:
+        """The groups whose dimensions all hold an LWPR model, stacked (LWPRStack): the online path
+        updates and predicts a group in one kernel call. Rebuilt when a model was replaced or left
+        its stack; empty for other learners."""
+        models = tuple(self.models_)
+        cached = getattr(self, "_stacks", None)
+        if cached is not None and cached[0] == models and all(st.intact for st in cached[1].values()):
+            return cached[1]
+        stacks = {}
+        for group in GROUPS:
+            dims = self.group_dims(group)
+            members = [m for m in (models[i] for i in dims) if isinstance(m, LWPR) and m.is_fitted]
+            if len(members) == len(dims):
+                stacks[group] = LWPRStack(members, [self.input_index[i] for i in dims])
+        self._stacks = (models, stacks)
+        return stacks
 
     def is_fitted(self) -> bool:
         return any(m is not None for m in self.models_)
@@ -378,14 +405,21 @@ class ModelSet:
         leg models' predictions at the standardised inputs Xs (module docstring)."""
         stance = ~rbd_observed[:, N_BASE:]
         e_hat = np.zeros(stance.shape)
-        for j in range(self.n_actuation):
-            model, rows = self.models_[N_BASE + j], stance[:, j]
-            if model is None or not rows.any():
-                continue
-            if len(Xs) == 1:  # online, one sample per tick: the one-sample path (the same numbers, no batch checks)
-                e_hat[0, j] = model.predict_one(self._dim_inputs(N_BASE + j, Xs[0]))[0] * self.output_scale_[N_BASE + j]
-            else:
-                e_hat[rows, j] = model.predict(self._dim_inputs(N_BASE + j, Xs[rows])) * self.output_scale_[N_BASE + j]
+        legs = self.lwpr_stacks().get("leg") if len(Xs) == 1 else None
+        if legs is not None:  # online, one sample per tick: the stacked leg models, one call
+            mean, _ = legs.predict(Xs[0], stance[0])
+            e_hat[0] = mean * self.output_scale_[N_BASE:self.n_rbd]
+        else:
+            for j in range(self.n_actuation):
+                model, rows = self.models_[N_BASE + j], stance[:, j]
+                if model is None or not rows.any():
+                    continue
+                if len(Xs) == 1:  # online without a stack: the one-sample path (the same numbers)
+                    e_hat[0, j] = (model.predict_one(self._dim_inputs(N_BASE + j, Xs[0]))[0]
+                                   * self.output_scale_[N_BASE + j])
+                else:
+                    e_hat[rows, j] = (model.predict(self._dim_inputs(N_BASE + j, Xs[rows]))
+                                      * self.output_scale_[N_BASE + j])
         return rbd_error[:, :N_BASE] + np.einsum("nbj,nj->nb", leg_coupling, e_hat)
 
     # ------------------------------------------------------------------ learning
@@ -451,13 +485,26 @@ class ModelSet:
         xs = (x - self.input_mean_) / self.input_scale_
         targets = np.concatenate([rbd_error, actuation_error])
         observed = np.concatenate([rbd_observed, np.ones(self.n_actuation, bool)])
-        for i in range(N_BASE, self.n_outputs):
-            self._update_one(i, xs, targets[i], observed[i])
+        self._update_group("leg", xs, targets, observed)
+        self._update_group("actuation", xs, targets, observed)
         if leg_coupling is not None and observed[:N_BASE].any():
             targets[:N_BASE] = self.base_wrench_targets(xs[None], targets[None, :self.n_rbd],
                                                         observed[None, :self.n_rbd], np.asarray(leg_coupling)[None])[0]
-        for i in range(N_BASE):
-            self._update_one(i, xs, targets[i], observed[i])
+        self._update_group("base", xs, targets, observed)
+
+    def _update_group(self, group: str, xs: np.ndarray, targets: np.ndarray, observed: np.ndarray) -> None:
+        """One sample into a group's models: stacked in one call, else one model after the other
+        (until every dimension of the group has its model)."""
+        dims = self.group_dims(group)
+        stack = self.lwpr_stacks().get(group)
+        if stack is None:
+            for i in dims:
+                self._update_one(i, xs, targets[i], observed[i])
+            return
+        part = slice(dims.start, dims.stop)
+        learn = observed[part] & np.isfinite(targets[part])
+        stack.update(xs, targets[part] / self.output_scale_[part], learn)
+        self.n_samples_[part] += learn
 
     def _update_one(self, i: int, xs: np.ndarray, y: float, observed: bool) -> None:
         if not observed or not np.isfinite(y):
@@ -508,17 +555,31 @@ class ModelSet:
         return self._predict_dims(self.standardize(x), dims)
 
     def _predict_dims(self, xs: np.ndarray, dims: range) -> tuple[np.ndarray, np.ndarray]:
+        """(mean, variance) of the dimensions `dims` (whole groups) at standardised inputs xs: a
+        stacked group in one call, the others one model after the other."""
         mean = np.zeros(len(dims))
         var = np.empty(len(dims))
-        for k, i in enumerate(dims):
-            s = self.output_scale_[i]
-            model = self.models_[i]
-            if model is None:
-                var[k] = s * s
+        stacks = self.lwpr_stacks()
+        for group in GROUPS:
+            part = self.group_dims(group)
+            if part.start < dims.start or part.stop > dims.stop:
                 continue
-            m, sd = model.predict_one(xs[self.input_index[i]])
-            mean[k] = m * s
-            var[k] = (sd * s) ** 2
+            out = slice(part.start - dims.start, part.stop - dims.start)
+            s = self.output_scale_[part.start:part.stop]
+            if group in stacks:
+                m, sd = stacks[group].predict(xs)
+                mean[out] = m * s
+                var[out] = (sd * s) * (sd * s)
+                continue
+            for k, i in zip(range(out.start, out.stop), part):
+                model = self.models_[i]
+                if model is None:
+                    var[k] = s[i - part.start] * s[i - part.start]
+                    continue
+                m1, sd1 = model.predict_one(xs[self.input_index[i]])
+                mean[k] = m1 * s[i - part.start]
+                v = sd1 * s[i - part.start]
+                var[k] = v * v  # as the stacked path: v * v, not v ** 2 (libm's pow, 1 ulp off now and then)
         return mean, var
 
     # ------------------------------------------------------------------ files

@@ -1,6 +1,7 @@
 """The per-dimension model set: observed mask, ε (eq. 17), the model file format."""
 from __future__ import annotations
 
+import copy
 import json
 import os
 import shutil
@@ -149,6 +150,46 @@ def test_online_partial_fit_matches_batch_and_snapshots(data, tmp_path):
     rbd, rbd_var, act, act_var = b.predict_one(data["inputs"][-1])
     np.testing.assert_allclose(rbd, pb.rbd[-1], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(act_var, pb.actuation_var[-1], rtol=1e-12)
+
+
+def test_stacked_online_path_equals_the_per_dimension_path(data):
+    """Online, each group's LWPR models are updated and predicted in one kernel call (LWPRStack);
+    one model after the other gives the same model state and mean predictions to the bit, the same
+    variances too (both square by multiplying) — through the stacks' growth (narrow fields: many are
+    created), a model leaving its stack, and a copy taken while learning."""
+    narrow = {"base": {"init_D": 20.0}, "leg": {"init_D": 200.0}, "actuation": {"init_D": 200.0}}
+    stacked = ModelSet.for_robot(ROBOT, "lwpr", narrow)
+    per_dim = ModelSet.for_robot(ROBOT, "lwpr", narrow)
+    per_dim.lwpr_stacks = dict  # type: ignore[method-assign]  # never stacked: one model after the other
+    X, rbd, observed, gamma, valid, C = fit_args(data, slice(0, 600))
+    rng = np.random.default_rng(3)
+    X = X + 0.3 * X.std(axis=0) * rng.standard_normal(X.shape)  # random inputs around the gait's
+    copy_at, copied, grown = 300, None, False
+    for k in np.flatnonzero(valid):
+        for ms in (stacked, per_dim):
+            ms.partial_fit_one(X[k], rbd[k], observed[k], gamma[k], C[k])
+        for a, b in zip(stacked.predict_one(X[k]), per_dim.predict_one(X[k])):
+            np.testing.assert_array_equal(a, b)
+        if not grown and "leg" in stacked.lwpr_stacks():  # a model grown on its own leaves its stack
+            grown = True
+            legs = stacked.lwpr_stacks()["leg"]
+            stacked.models_[6]._grow()
+            per_dim.models_[6]._grow()
+            assert not legs.intact and stacked.lwpr_stacks()["leg"] is not legs
+        if k >= copy_at and copied is None:
+            copied = copy.deepcopy(stacked)
+            at_copy = copied.to_arrays()
+    stacks = stacked.lwpr_stacks()
+    assert grown and set(stacks) == {"base", "leg", "actuation"}
+    assert all(st.models[0].rf_["c"].shape[0] > 16 for st in stacks.values())  # grew past the first capacity
+    a, b = stacked.to_arrays(), per_dim.to_arrays()
+    assert a.keys() == b.keys()
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    np.testing.assert_array_equal(stacked.n_samples_, per_dim.n_samples_)
+    assert copied is not None  # the copy owns its arrays: the original learned on without changing it
+    for key, value in copied.to_arrays().items():
+        np.testing.assert_array_equal(value, at_copy[key], err_msg=key)
 
 
 def test_batch_only_learner_refuses_partial_fit(sgpr_set, data):

@@ -6,7 +6,7 @@ is rebuilt only through it (never by evaluating names read from a file).
 from __future__ import annotations
 
 from .base import Learner, LearnerError
-from .lwpr import LWPR
+from .lwpr import LWPR, LWPRStack
 from .sgpr import SparseGPR
 
 LEARNERS: dict[str, type[Learner]] = {"lwpr": LWPR, "sgpr": SparseGPR}
@@ -20,4 +20,4 @@ def learner_class(name: str) -> type[Learner]:
         raise LearnerError(f"unknown learner {name!r}; valid: {sorted(LEARNERS)}") from None
 
 
-__all__ = ["LEARNERS", "LWPR", "Learner", "LearnerError", "SparseGPR", "learner_class"]
+__all__ = ["LEARNERS", "LWPR", "LWPRStack", "Learner", "LearnerError", "SparseGPR", "learner_class"]

@@ -115,6 +115,21 @@ RF_FIELDS: tuple[tuple[str, str, str], ...] = (
 RF_NAMES = tuple(f[0] for f in RF_FIELDS)
 
 
+# rows of the scratch array the kernels work in (preallocated: numba allocations, not the
+# arithmetic, dominated the per-sample cost of the small online models)
+WK_XMZ, WK_XRES, WK_XPROJ, WK_S, WK_E_CV, WK_DJDM, WK_DDJ = range(7)
+N_WK = 7
+
+
+def workspace(n: int, n_packed: int, R: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Scratch for the kernels of a model with n inputs, n_packed metric entries and R projections:
+    (work (N_WK × max(n, n_packed, R)), M_k and D_k as n × n matrices for a full metric, else 0 × 0)."""
+    work = np.zeros((N_WK, max(n, n_packed, R)))
+    full = n_packed != n
+    size = n if full else 0
+    return work, np.zeros((size, size)), np.zeros((size, size))
+
+
 def metric_packing(n: int, diag_only: bool) -> tuple[np.ndarray, np.ndarray]:
     """(prow, pcol) of the packed metric entries: the diagonal, or the upper triangle."""
     if diag_only:
@@ -140,10 +155,11 @@ def _weight(Mk, prow, pcol, dx, z):
 
 
 @njit(cache=True)
-def _project(Uk, Pk, R, xmz, s):
-    """PLS projections s_r of xmz (x − x̄) with directions U and loadings P."""
+def _project(Uk, Pk, R, xmz, s, xr):
+    """PLS projections s_r of xmz (x − x̄) with directions U and loadings P (xr: scratch of n)."""
     n = xmz.shape[0]
-    xr = xmz.copy()
+    for i in range(n):
+        xr[i] = xmz[i]
     for r in range(R):
         acc = 0.0
         for i in range(n):
@@ -224,7 +240,7 @@ def _copy_rf(dst, src, c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, 
 
 
 @njit(cache=True)
-def _update_metric(k, w, dx, z, s, R, e_cv, e, hp, prow, pcol, M, alpha, log_alpha, meta_h,
+def _update_metric(k, w, dx, z, s, R, e_cv, e, hp, prow, pcol, work, Md, D, M, alpha, log_alpha, meta_h,
                    SSs2, sum_w, lam, sum_e_cv2, sum_e2, H, rr):
     """One stochastic leave-one-out gradient step on M_k (paper §3.2, Table 4)."""
     n = dx.shape[0]
@@ -263,19 +279,17 @@ def _update_metric(k, w, dx, z, s, R, e_cv, e, hp, prow, pcol, M, alpha, log_alp
         dJ1J1dwdw = (-e_cv2 / (W * W) - 2.0 / W * t1 + 2.0 / W * e * e * h / w
                      - (e_cv2 - 2.0 * t2) / (W * W) + 2.0 * E / (W * W * W))
     diag = nP == n
-    Md = np.zeros((0, 0))
-    D = np.zeros((0, 0))
     if not diag:
-        Md = np.zeros((n, n))
+        Md[:, :] = 0.0
         for p in range(nP):
             Md[prow[p], pcol[p]] = M[k, p]
-        D = Md.T @ Md
+        np.dot(Md.T, Md, D)  # D = MᵀM (the same BLAS product as Md.T @ Md, into preallocated D)
     maxM = 0.0
     for p in range(nP):
         if abs(M[k, p]) > maxM:
             maxM = abs(M[k, p])
-    dJdM = np.empty(nP)
-    ddJ = np.empty(nP)
+    dJdM = work[WK_DJDM, :nP]
+    ddJ = work[WK_DDJ, :nP]
     for p in range(nP):
         rw = prow[p]
         cl = pcol[p]
@@ -327,7 +341,7 @@ def _update_metric(k, w, dx, z, s, R, e_cv, e, hp, prow, pcol, M, alpha, log_alp
 
 
 @njit(cache=True)
-def _update_rf(k, x, y, w, dx, z, hp, prow, pcol,
+def _update_rf(k, x, y, w, dx, z, hp, prow, pcol, work, Md, D,
                c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2, SSYres,
                SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust):
     """Update RF k with sample (x, y) at weight w (means, incremental PLS, metric, projections)."""
@@ -337,22 +351,24 @@ def _update_rf(k, x, y, w, dx, z, hp, prow, pcol,
     # weighted means (x̄, β0)
     sw = sum_w[k, 0] * lam[k, 0]
     denom = sw + w
-    xmz = np.empty(n)
+    xmz = work[WK_XMZ, :n]
     for i in range(n):
         mean_x[k, i] = (sw * mean_x[k, i] + w * x[i]) / denom
         xmz[i] = x[i] - mean_x[k, i]
     beta0[k] = (sw * beta0[k] + w * y) / denom
     ymz = y - beta0[k]
     # leave-one-out (prediction before the update) residuals after each projection
-    s = np.empty(Rmax)
-    e_cv = np.empty(Rmax)
-    _project(U[k], P[k], R, xmz, s)
+    s = work[WK_S, :Rmax]
+    e_cv = work[WK_E_CV, :Rmax]
+    _project(U[k], P[k], R, xmz, s, work[WK_XPROJ, :n])
     yr = ymz
     for r in range(R):
         yr -= beta[k, r] * s[r]
         e_cv[r] = yr
     # incremental PLS with forgetting (paper Table 3)
-    xr = xmz.copy()
+    xr = work[WK_XRES, :n]
+    for i in range(n):
+        xr[i] = xmz[i]
     yres = ymz
     for r in range(R):
         lr = lam[k, r]
@@ -387,7 +403,7 @@ def _update_rf(k, x, y, w, dx, z, hp, prow, pcol,
     sum_e2[k] = lam[k, R - 1] * sum_e2[k] + w * e * e
     # distance metric
     if hp[HP_UPDATE_D] > 0.0 and n_data[k, 0] > hp[HP_N_TRUST]:
-        _update_metric(k, w, dx, z, s, R, e_cv[R - 1], e, hp, prow, pcol, M, alpha, log_alpha, meta_h,
+        _update_metric(k, w, dx, z, s, R, e_cv[R - 1], e, hp, prow, pcol, work, Md, D, M, alpha, log_alpha, meta_h,
                        SSs2, sum_w, lam, sum_e_cv2, sum_e2, H, rr)
     # forgetting schedule
     tau = hp[HP_TAU_LAMBDA]
@@ -406,7 +422,7 @@ def _update_rf(k, x, y, w, dx, z, hp, prow, pcol,
 
 
 @njit(cache=True)
-def _update_sample(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, dx, z,
+def _update_sample(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, dx, z, work, Md, D,
                    c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2, SSYres,
                    SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust):
     """One LWPR update (all RFs, creation, pruning); False if the arrays are full (grow first)."""
@@ -434,7 +450,7 @@ def _update_sample(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, dx, 
             w2 = w
             i2 = k
         if w > hp[HP_W_CUTOFF]:
-            _update_rf(k, x, y, w, dx, z, hp, prow, pcol,
+            _update_rf(k, x, y, w, dx, z, hp, prow, pcol, work, Md, D,
                        c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2,
                        SSYres, SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust)
     if w1 <= hp[HP_W_GEN] and n_rf < max_rfs:
@@ -447,7 +463,7 @@ def _update_sample(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, dx, 
         for i in range(n):
             dx[i] = 0.0
             z[i] = 0.0
-        _update_rf(n_rf, x, y, 1.0, dx, z, hp, prow, pcol,
+        _update_rf(n_rf, x, y, 1.0, dx, z, hp, prow, pcol, work, Md, D,
                    c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2,
                    SSYres, SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust)
         counts[0] = n_rf + 1
@@ -481,8 +497,11 @@ def _update_batch(X, Y, start, hp, initM, initAlpha, prow, pcol, counts, moments
     n = X.shape[1]
     dx = np.empty(n)
     z = np.empty(n)
+    work = np.empty((N_WK, max(n, M.shape[1], U.shape[1])))
+    Md = np.zeros((n, n))
+    D = np.zeros((n, n))
     for t in range(start, X.shape[0]):
-        if not _update_sample(X[t], Y[t], hp, initM, initAlpha, prow, pcol, counts, moments, dx, z,
+        if not _update_sample(X[t], Y[t], hp, initM, initAlpha, prow, pcol, counts, moments, dx, z, work, Md, D,
                               c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2,
                               SSYres, SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust):
             return t  # the caller grows the arrays and calls again
@@ -490,18 +509,37 @@ def _update_batch(X, Y, start, hp, initM, initAlpha, prow, pcol, counts, moments
 
 
 @njit(cache=True)
-def _update_one(x, y, hp, initM, initAlpha, prow, pcol, counts, moments,
+def _update_one(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, dx, z, work, Md, D,
                 c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2, SSYres,
                 SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust):
     """Single-sample update (online fast path); False if the arrays must grow first."""
-    n = x.shape[0]
-    return _update_sample(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, np.empty(n), np.empty(n),
+    return _update_sample(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, dx, z, work, Md, D,
                           c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2,
                           SSYres, SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust)
 
 
 @njit(cache=True)
-def _predict_point(x, hp, prior_var, with_var, prow, pcol, n_rf, dx, z, xmz, s,
+def _update_stack(X, Y, learn, hp, initM, initAlpha, prow, pcol, counts, moments, dx, z, work, Md, D,
+                  c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2, SSYres,
+                  SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust):
+    """One sample into each model g of a stack (LWPRStack) with learn[g]: normalised input X[g], target
+    Y[g]. Returns −1, or — before anything changed — the first such g whose arrays are full."""
+    G = X.shape[0]
+    capacity = c.shape[1]
+    for g in range(G):
+        if learn[g] and capacity <= counts[g, 0] < int(hp[g, HP_MAX_RFS]):
+            return g
+    for g in range(G):
+        if learn[g]:
+            _update_sample(X[g], Y[g], hp[g], initM[g], initAlpha[g], prow[g], pcol[g], counts[g], moments[g],
+                           dx, z, work, Md, D, c[g], M[g], alpha[g], log_alpha[g], meta_h[g], mean_x[g], beta0[g],
+                           n_reg[g], U[g], P[g], beta[g], SXresYres[g], SSs2[g], SSYres[g], SSXres[g], sum_w[g],
+                           n_data[g], lam[g], sum_e_cv2[g], sum_e2[g], H[g], rr[g], trust[g])
+    return -1
+
+
+@njit(cache=True)
+def _predict_point(x, hp, prior_var, with_var, prow, pcol, n_rf, dx, z, xmz, s, xr,
                    c, M, mean_x, beta0, n_reg, U, P, beta, SSs2, sum_w, sum_e_cv2, trust):
     """(mean, variance) at x: mixture of the trustworthy RFs and the zero-mean prior pseudo-field."""
     n = x.shape[0]
@@ -521,7 +559,7 @@ def _predict_point(x, hp, prior_var, with_var, prow, pcol, n_rf, dx, z, xmz, s,
         for i in range(n):
             xmz[i] = x[i] - mean_x[k, i]
         R = n_reg[k]
-        _project(U[k], P[k], R, xmz, s)
+        _project(U[k], P[k], R, xmz, s, xr)
         yk = beta0[k]
         for r in range(R):
             yk += beta[k, r] * s[r]
@@ -550,8 +588,9 @@ def _predict_batch(X, hp, prior_var, with_var, prow, pcol, n_rf,
     z = np.empty(n)
     xmz = np.empty(n)
     s = np.empty(U.shape[1])
+    xr = np.empty(n)
     for t in range(X.shape[0]):
-        m, v = _predict_point(X[t], hp, prior_var, with_var, prow, pcol, n_rf, dx, z, xmz, s,
+        m, v = _predict_point(X[t], hp, prior_var, with_var, prow, pcol, n_rf, dx, z, xmz, s, xr,
                               c, M, mean_x, beta0, n_reg, U, P, beta, SSs2, sum_w, sum_e_cv2, trust)
         out_mean[t] = m
         if with_var:
@@ -559,12 +598,33 @@ def _predict_batch(X, hp, prior_var, with_var, prow, pcol, n_rf,
 
 
 @njit(cache=True)
-def _predict_one(x, hp, prior_var, prow, pcol, counts,
+def _predict_one(x, hp, prior_var, prow, pcol, counts, dx, z, work,
                  c, M, mean_x, beta0, n_reg, U, P, beta, SSs2, sum_w, sum_e_cv2, trust):
     n = x.shape[0]
-    return _predict_point(x, hp, prior_var, True, prow, pcol, counts[0], np.empty(n), np.empty(n), np.empty(n),
-                          np.empty(U.shape[1]), c, M, mean_x, beta0, n_reg, U, P, beta, SSs2, sum_w, sum_e_cv2,
-                          trust)
+    return _predict_point(x, hp, prior_var, True, prow, pcol, counts[0], dx, z, work[WK_XMZ, :n],
+                          work[WK_S, :U.shape[1]], work[WK_XPROJ, :n], c, M, mean_x, beta0, n_reg, U, P, beta, SSs2,
+                          sum_w, sum_e_cv2, trust)
+
+
+@njit(cache=True)
+def _predict_stack(X, active, prior_fixed, norm_out, hp, prow, pcol, counts, moments, dx, z, work,
+                   c, M, mean_x, beta0, n_reg, U, P, beta, SSs2, sum_w, sum_e_cv2, trust, out_mean, out_std):
+    """(mean, std) of each model g of a stack with active[g] at its normalised input X[g], in output
+    units (× norm_out[g]), as LWPR.predict_one: the prior variance is prior_fixed[g], or where that is
+    NaN (no prior_std) the mean y² seen (LWPR.prior_var_)."""
+    n = X.shape[1]
+    for g in range(X.shape[0]):
+        if not active[g]:
+            continue
+        prior_var = prior_fixed[g]
+        if math.isnan(prior_var):
+            seen = int(moments[g, 0])
+            prior_var = max(moments[g, 1] / seen, 1e-12) if seen else 1.0
+        m, v = _predict_point(X[g], hp[g], prior_var, True, prow[g], pcol[g], counts[g, 0], dx, z,
+                              work[WK_XMZ, :n], work[WK_S, :U.shape[2]], work[WK_XPROJ, :n], c[g], M[g], mean_x[g],
+                              beta0[g], n_reg[g], U[g], P[g], beta[g], SSs2[g], sum_w[g], sum_e_cv2[g], trust[g])
+        out_mean[g] = m * norm_out[g]
+        out_std[g] = math.sqrt(v) * norm_out[g]
 
 
 # ----------------------------------------------------------------------------------- learner
@@ -709,15 +769,15 @@ class LWPR(Learner):
         self.n_features_in_ = n
         self.norm_in_ = scale
         self.diag_only_ = bool(diag)
-        self._moments = np.zeros(2)
-        self.n_added_ = 0
-        self.n_pruned_ = 0
         self._prow, self._pcol = prow, pcol
         self._initM = np.ascontiguousarray(M0[prow, pcol])
         self._initAlpha = np.full(len(prow), float(self.init_alpha))
         self._R = R
         self._hp = self._hyper_vector(n)
+        self._dx, self._z = np.zeros(n), np.zeros(n)
+        self._work, self._Md, self._D = workspace(n, len(prow), R)
         self._counts = np.zeros(3, dtype=np.int64)
+        self._moments = np.zeros(2)
         self._allocate(min(16, int(self.max_rfs)))
 
     def _hyper_vector(self, n: int) -> np.ndarray:
@@ -753,11 +813,16 @@ class LWPR(Learner):
             if old is not None:
                 a[:n_used] = old[name][:n_used]
             rf[name] = a
+        self._bind(rf, self._counts.copy(), self._moments.copy())
+
+    def _bind(self, rf: dict[str, np.ndarray], counts: np.ndarray, moments: np.ndarray) -> None:
+        """Use these state arrays (own ones, or views of an LWPRStack's) from now on."""
         self.rf_ = rf
+        self._counts, self._moments = counts, moments
         self._rf_args = tuple(rf[name] for name in RF_NAMES)
         self._update_args = (self._hp, self._initM, self._initAlpha, self._prow, self._pcol, self._counts,
-                             self._moments, *self._rf_args)
-        self._predict_args = (self._prow, self._pcol, self._counts,
+                             self._moments, self._dx, self._z, self._work, self._Md, self._D, *self._rf_args)
+        self._predict_args = (self._prow, self._pcol, self._counts, self._dx, self._z, self._work,
                               *(rf[k] for k in ("c", "M", "mean_x", "beta0", "n_reg", "U", "P", "beta", "SSs2",
                                                 "sum_w", "sum_e_cv2", "trustworthy")))
 
@@ -798,8 +863,6 @@ class LWPR(Learner):
                                   self._counts, self._moments, *self._rf_args)
             if start < len(Xn):
                 self._grow()
-        self.n_added_ = int(self._counts[1])
-        self.n_pruned_ = int(self._counts[2])
 
     def update(self, x: np.ndarray, y: float) -> None:
         """Fast single-sample partial_fit for online use: x (n,) finite, y finite (unchecked)."""
@@ -811,13 +874,21 @@ class LWPR(Learner):
         if not _update_one(xn, yn, *self._update_args):
             self._grow()
             _update_one(xn, yn, *self._update_args)
-        self.n_added_ = int(self._counts[1])
-        self.n_pruned_ = int(self._counts[2])
 
     # --------------------------------------------------------------- prediction
     @property
     def n_receptive_fields(self) -> int:
         return int(self._counts[0]) if self.is_fitted else 0
+
+    @property
+    def n_added_(self) -> int:
+        """Receptive fields created so far."""
+        return int(self._counts[1]) if self.is_fitted else 0
+
+    @property
+    def n_pruned_(self) -> int:
+        """Receptive fields pruned so far."""
+        return int(self._counts[2]) if self.is_fitted else 0
 
     @property
     def n_samples_seen_(self) -> int:
@@ -922,5 +993,80 @@ class LWPR(Learner):
             raise ValueError("rf.n_reg out of range")
         self._counts[:] = [K, int(sc[4]), int(sc[5])]
         self._moments[:] = [sc[2], sc[3]]
-        self.n_added_ = int(sc[4])
-        self.n_pruned_ = int(sc[5])
+
+
+class LWPRStack:
+    """LWPR models of equal shapes (one group of a ModelSet: as many inputs, the same metric packing
+    and projections), stacked so that one kernel call updates or predicts all of them.
+
+    Their state arrays are stacked along a new first axis and each model's arrays become views [g]
+    of the stacked ones (LWPR._bind): the models stay ordinary LWPRs (saved, copied, learned and
+    predicted one by one as before, to the bit), and the online path pays numba's dispatch and the
+    Python work once per group, not once per model. A model that reallocates on its own (its own
+    partial_fit growing it, fit, a loaded state) leaves the stack: `intact` turns False and the
+    owner builds a new one. In memory only: model files hold each model's own get_state().
+    """
+
+    def __init__(self, models: list[LWPR], input_index: list[np.ndarray]) -> None:
+        if not all(m.is_fitted for m in models):
+            raise LearnerError("LWPRStack needs fitted models")
+        n, n_packed, R = models[0].n_features_in_, len(models[0]._prow), models[0]._R
+        if any((m.n_features_in_, len(m._prow), m._R) != (n, n_packed, R) for m in models):
+            raise LearnerError("LWPRStack needs models of equal shapes")
+        self.models = tuple(models)
+        self.input_index = np.stack(input_index)
+        self.norm_in = np.stack([m.norm_in_ for m in models])
+        self.norm_out = np.array([float(m.norm_out) for m in models])
+        self.prior_fixed = np.array([m.prior_var_ if m.prior_std is not None else np.nan for m in models])
+        self.hp = np.stack([m._hp for m in models])
+        self.max_rfs = int(self.hp[:, HP_MAX_RFS].max())
+        self._fixed = (self.hp, np.stack([m._initM for m in models]), np.stack([m._initAlpha for m in models]),
+                       np.stack([m._prow for m in models]), np.stack([m._pcol for m in models]))
+        self._scratch = (np.zeros(n), np.zeros(n), *workspace(n, n_packed, R))
+        self._all = np.ones(len(models), dtype=bool)
+        self._stack(max(m.rf_["c"].shape[0] for m in models))
+
+    def _stack(self, K: int) -> None:
+        """(Re)allocate the stacked arrays with room for K fields per model and bind the models to them."""
+        G = len(self.models)
+        counts = np.stack([m._counts for m in self.models])
+        moments = np.stack([m._moments for m in self.models])
+        rf = {}
+        for name, kind, dt in RF_FIELDS:
+            a = np.zeros((G, *self.models[0]._shape(kind, K)), dtype=dt)
+            for g, m in enumerate(self.models):
+                used = int(counts[g, 0])
+                a[g, :used] = m.rf_[name][:used]
+            rf[name] = a
+        self._bound = []
+        for g, m in enumerate(self.models):
+            m._bind({name: a[g] for name, a in rf.items()}, counts[g], moments[g])
+            self._bound.append(m.rf_)
+        fields = tuple(rf[name] for name in RF_NAMES)
+        hp, _, _, prow, pcol = self._fixed
+        self._update_args = (*self._fixed, counts, moments, *self._scratch, *fields)
+        self._predict_args = (self.prior_fixed, self.norm_out, hp, prow, pcol, counts, moments, *self._scratch[:3],
+                              *(rf[k] for k in ("c", "M", "mean_x", "beta0", "n_reg", "U", "P", "beta", "SSs2",
+                                                "sum_w", "sum_e_cv2", "trustworthy")))
+
+    @property
+    def intact(self) -> bool:
+        """Whether every model still works in the stacked arrays."""
+        return all(m.rf_ is rf for m, rf in zip(self.models, self._bound))
+
+    def update(self, xs: np.ndarray, y: np.ndarray, learn: np.ndarray) -> None:
+        """LWPR.update of each model g with learn[g]: its columns input_index[g] of xs, target y[g]."""
+        X = xs[self.input_index] / self.norm_in
+        Y = y / self.norm_out
+        while (full := _update_stack(X, Y, learn, *self._update_args)) >= 0:
+            self._stack(min(2 * self.models[full].rf_["c"].shape[0], self.max_rfs))
+
+    def predict(self, xs: np.ndarray, active: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(mean, std) of each model (LWPR.predict_one at its columns of xs); with `active`, only those
+        models (the others' entries are 0)."""
+        G = len(self.models)
+        mean = np.zeros(G)
+        std = np.zeros(G)
+        _predict_stack(xs[self.input_index] / self.norm_in, self._all if active is None else active,
+                       *self._predict_args, mean, std)
+        return mean, std

@@ -141,13 +141,14 @@ def metric_packing(n: int, diag_only: bool) -> tuple[np.ndarray, np.ndarray]:
 
 # ----------------------------------------------------------------------------------- kernels
 @njit(cache=True)
-def _weight(Mk, prow, pcol, dx, z):
-    """w = exp(−½ ‖M dx‖²); z ← M dx."""
+def _weight(M, k, prow, pcol, dx, z):
+    """w = exp(−½ ‖M_k dx‖²); z ← M_k dx. (The kernels index M[k], U[k] … in place: a view M[k]
+    costs two atomic reference-count updates, which dominated the scan over the fields.)"""
     n = dx.shape[0]
     for i in range(n):
         z[i] = 0.0
-    for p in range(Mk.shape[0]):
-        z[prow[p]] += Mk[p] * dx[pcol[p]]
+    for p in range(M.shape[1]):
+        z[prow[p]] += M[k, p] * dx[pcol[p]]
     d2 = 0.0
     for i in range(n):
         d2 += z[i] * z[i]
@@ -155,19 +156,19 @@ def _weight(Mk, prow, pcol, dx, z):
 
 
 @njit(cache=True)
-def _project(Uk, Pk, R, xmz, s, xr):
-    """PLS projections s_r of xmz (x − x̄) with directions U and loadings P (xr: scratch of n)."""
+def _project(U, P, k, R, xmz, s, xr):
+    """PLS projections s_r of xmz (x − x̄) with RF k's directions U_k and loadings P_k (xr: scratch of n)."""
     n = xmz.shape[0]
     for i in range(n):
         xr[i] = xmz[i]
     for r in range(R):
         acc = 0.0
         for i in range(n):
-            acc += Uk[r, i] * xr[i]
+            acc += U[k, r, i] * xr[i]
         s[r] = acc
         if r + 1 < R:
             for i in range(n):
-                xr[i] -= acc * Pk[r, i]
+                xr[i] -= acc * P[k, r, i]
 
 
 @njit(cache=True)
@@ -360,7 +361,7 @@ def _update_rf(k, x, y, w, dx, z, hp, prow, pcol, work, Md, D,
     # leave-one-out (prediction before the update) residuals after each projection
     s = work[WK_S, :Rmax]
     e_cv = work[WK_E_CV, :Rmax]
-    _project(U[k], P[k], R, xmz, s, work[WK_XPROJ, :n])
+    _project(U, P, k, R, xmz, s, work[WK_XPROJ, :n])
     yr = ymz
     for r in range(R):
         yr -= beta[k, r] * s[r]
@@ -440,7 +441,7 @@ def _update_sample(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, dx, 
     for k in range(n_rf):
         for i in range(n):
             dx[i] = x[i] - c[k, i]
-        w = _weight(M[k], prow, pcol, dx, z)
+        w = _weight(M, k, prow, pcol, dx, z)
         if w > w1:
             w2 = w1
             i2 = i1
@@ -553,13 +554,13 @@ def _predict_point(x, hp, prior_var, with_var, prow, pcol, n_rf, dx, z, xmz, s, 
             continue
         for i in range(n):
             dx[i] = x[i] - c[k, i]
-        w = _weight(M[k], prow, pcol, dx, z)
+        w = _weight(M, k, prow, pcol, dx, z)
         if w <= cutoff:
             continue
         for i in range(n):
             xmz[i] = x[i] - mean_x[k, i]
         R = n_reg[k]
-        _project(U[k], P[k], R, xmz, s, xr)
+        _project(U, P, k, R, xmz, s, xr)
         yk = beta0[k]
         for r in range(R):
             yk += beta[k, r] * s[r]

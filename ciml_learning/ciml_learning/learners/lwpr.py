@@ -156,19 +156,20 @@ def _weight(M, k, prow, pcol, dx, z):
 
 
 @njit(cache=True)
-def _project(U, P, k, R, xmz, s, xr):
-    """PLS projections s_r of xmz (x − x̄) with RF k's directions U_k and loadings P_k (xr: scratch of n)."""
-    n = xmz.shape[0]
+def _project(U, P, k, R, work):
+    """PLS projections s_r (→ work[WK_S]) of x − x̄ (work[WK_XMZ]) with RF k's directions U_k and
+    loadings P_k (work[WK_XPROJ]: scratch)."""
+    n = U.shape[2]
     for i in range(n):
-        xr[i] = xmz[i]
+        work[WK_XPROJ, i] = work[WK_XMZ, i]
     for r in range(R):
         acc = 0.0
         for i in range(n):
-            acc += U[k, r, i] * xr[i]
-        s[r] = acc
+            acc += U[k, r, i] * work[WK_XPROJ, i]
+        work[WK_S, r] = acc
         if r + 1 < R:
             for i in range(n):
-                xr[i] -= acc * P[k, r, i]
+                work[WK_XPROJ, i] -= acc * P[k, r, i]
 
 
 @njit(cache=True)
@@ -241,9 +242,10 @@ def _copy_rf(dst, src, c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, 
 
 
 @njit(cache=True)
-def _update_metric(k, w, dx, z, s, R, e_cv, e, hp, prow, pcol, work, Md, D, M, alpha, log_alpha, meta_h,
+def _update_metric(k, w, dx, z, R, e_cv, e, hp, prow, pcol, work, Md, D, M, alpha, log_alpha, meta_h,
                    SSs2, sum_w, lam, sum_e_cv2, sum_e2, H, rr):
-    """One stochastic leave-one-out gradient step on M_k (paper §3.2, Table 4)."""
+    """One stochastic leave-one-out gradient step on M_k (paper §3.2, Table 4); the projections s_r
+    of the sample are in work[WK_S]."""
     n = dx.shape[0]
     nP = M.shape[1]
     penalty = hp[HP_PENALTY]
@@ -255,13 +257,13 @@ def _update_metric(k, w, dx, z, s, R, e_cv, e, hp, prow, pcol, work, Md, D, M, a
         tm = 1.0
     h = 0.0
     for r in range(R):
-        h += s[r] * s[r] / SSs2[k, r]
+        h += work[WK_S, r] * work[WK_S, r] / SSs2[k, r]
     h *= w
     e_cv2 = e_cv * e_cv
     sHe = 0.0
     sPr = 0.0
     for r in range(R):
-        Ps = s[r] / SSs2[k, r]
+        Ps = work[WK_S, r] / SSs2[k, r]
         sHe += Ps * e * H[k, r]
         sPr += Ps * Ps * rr[k, r]
     dJ1dw = -E / (W * W) + (e_cv2 - 2.0 * sHe - 2.0 * sPr) / W
@@ -269,11 +271,11 @@ def _update_metric(k, w, dx, z, s, R, e_cv, e, hp, prow, pcol, work, Md, D, M, a
     if meta:
         sPse = 0.0
         for r in range(R):
-            sPse += s[r] * (s[r] / SSs2[k, r]) * e
+            sPse += work[WK_S, r] * (work[WK_S, r] / SSs2[k, r]) * e
         t1 = 0.0
         t2 = 0.0
         for r in range(R):
-            Ps = s[r] / SSs2[k, r]
+            Ps = work[WK_S, r] / SSs2[k, r]
             Pse = Ps * e
             t1 += (-Pse / W - 2.0 * Ps * sPse) * H[k, r]
             t2 += Pse * H[k, r]
@@ -289,8 +291,6 @@ def _update_metric(k, w, dx, z, s, R, e_cv, e, hp, prow, pcol, work, Md, D, M, a
     for p in range(nP):
         if abs(M[k, p]) > maxM:
             maxM = abs(M[k, p])
-    dJdM = work[WK_DJDM, :nP]
-    ddJ = work[WK_DDJ, :nP]
     for p in range(nP):
         rw = prow[p]
         cl = pcol[p]
@@ -306,11 +306,11 @@ def _update_metric(k, w, dx, z, s, R, e_cv, e, hp, prow, pcol, work, Md, D, M, a
                 MD += Md[rw, j] * D[j, cl]
                 rown += Md[rw, j] * Md[rw, j]
             d2J2 = 4.0 * penalty * (D[cl, cl] + mk * mk + rown)
-        dJdM[p] = dwdM * dJ1dw + w / W * 4.0 * penalty * MD
+        work[WK_DJDM, p] = dwdM * dJ1dw + w / W * 4.0 * penalty * MD
         if meta:
             dwwdMdM = dwdM * dwdM / w - w * dx[cl] * dx[cl]
-            ddJ[p] = dwwdMdM * dJ1dw + dwdM * dwdM * dJ1J1dwdw + w / W * d2J2
-            aux = hp[HP_META_RATE] * tm * dJdM[p] * meta_h[k, p]
+            work[WK_DDJ, p] = dwwdMdM * dJ1dw + dwdM * dwdM * dJ1J1dwdw + w / W * d2J2
+            aux = hp[HP_META_RATE] * tm * work[WK_DJDM, p] * meta_h[k, p]
             if aux > 0.1:
                 aux = 0.1
             elif aux < -0.1:
@@ -323,7 +323,7 @@ def _update_metric(k, w, dx, z, s, R, e_cv, e, hp, prow, pcol, work, Md, D, M, a
             log_alpha[k, p] = b
             alpha[k, p] = math.exp(b)
     for p in range(nP):
-        delta = alpha[k, p] * dJdM[p] * tm
+        delta = alpha[k, p] * work[WK_DJDM, p] * tm
         if abs(delta) > 0.1 * maxM:  # too large a step: halve that learning rate instead
             alpha[k, p] *= 0.5
             log_alpha[k, p] = math.log(alpha[k, p])
@@ -331,14 +331,14 @@ def _update_metric(k, w, dx, z, s, R, e_cv, e, hp, prow, pcol, work, Md, D, M, a
             M[k, p] -= delta
     if meta:
         for p in range(nP):
-            aux = 1.0 - alpha[k, p] * ddJ[p] * tm
+            aux = 1.0 - alpha[k, p] * work[WK_DDJ, p] * tm
             if aux < 0.0:
                 aux = 0.0
-            meta_h[k, p] = meta_h[k, p] * aux - alpha[k, p] * dJdM[p] * tm
+            meta_h[k, p] = meta_h[k, p] * aux - alpha[k, p] * work[WK_DJDM, p] * tm
     if h < 0.999:
         for r in range(R):
-            H[k, r] = lam[k, r] * H[k, r] + (w / (1.0 - h)) * s[r] * e_cv * tm
-            rr[k, r] = lam[k, r] * rr[k, r] + (w * w * e_cv2 / (1.0 - h)) * s[r] * s[r] * tm
+            H[k, r] = lam[k, r] * H[k, r] + (w / (1.0 - h)) * work[WK_S, r] * e_cv * tm
+            rr[k, r] = lam[k, r] * rr[k, r] + (w * w * e_cv2 / (1.0 - h)) * work[WK_S, r] * work[WK_S, r] * tm
 
 
 @njit(cache=True)
@@ -352,31 +352,27 @@ def _update_rf(k, x, y, w, dx, z, hp, prow, pcol, work, Md, D,
     # weighted means (x̄, β0)
     sw = sum_w[k, 0] * lam[k, 0]
     denom = sw + w
-    xmz = work[WK_XMZ, :n]
     for i in range(n):
         mean_x[k, i] = (sw * mean_x[k, i] + w * x[i]) / denom
-        xmz[i] = x[i] - mean_x[k, i]
+        work[WK_XMZ, i] = x[i] - mean_x[k, i]
     beta0[k] = (sw * beta0[k] + w * y) / denom
     ymz = y - beta0[k]
     # leave-one-out (prediction before the update) residuals after each projection
-    s = work[WK_S, :Rmax]
-    e_cv = work[WK_E_CV, :Rmax]
-    _project(U, P, k, R, xmz, s, work[WK_XPROJ, :n])
+    _project(U, P, k, R, work)
     yr = ymz
     for r in range(R):
-        yr -= beta[k, r] * s[r]
-        e_cv[r] = yr
+        yr -= beta[k, r] * work[WK_S, r]
+        work[WK_E_CV, r] = yr
     # incremental PLS with forgetting (paper Table 3)
-    xr = work[WK_XRES, :n]
     for i in range(n):
-        xr[i] = xmz[i]
+        work[WK_XRES, i] = work[WK_XMZ, i]
     yres = ymz
     for r in range(R):
         lr = lam[k, r]
         ls = 1.0 - (1.0 - lr) / 10.0
         nrm = 0.0
         for i in range(n):
-            v = ls * SXresYres[k, r, i] + w * yres * xr[i]
+            v = ls * SXresYres[k, r, i] + w * yres * work[WK_XRES, i]
             SXresYres[k, r, i] = v
             nrm += v * v
         if nrm > 1e-300:
@@ -385,27 +381,27 @@ def _update_rf(k, x, y, w, dx, z, hp, prow, pcol, work, Md, D,
                 U[k, r, i] = SXresYres[k, r, i] / nrm
         sr = 0.0
         for i in range(n):
-            sr += U[k, r, i] * xr[i]
-        s[r] = sr
+            sr += U[k, r, i] * work[WK_XRES, i]
+        work[WK_S, r] = sr
         SSs2[k, r] = lr * SSs2[k, r] + w * sr * sr
         SSYres[k, r] = lr * SSYres[k, r] + w * sr * yres
         beta[k, r] = SSYres[k, r] / SSs2[k, r]
         for i in range(n):
-            SSXres[k, r, i] = lr * SSXres[k, r, i] + w * sr * xr[i]
+            SSXres[k, r, i] = lr * SSXres[k, r, i] + w * sr * work[WK_XRES, i]
             P[k, r, i] = SSXres[k, r, i] / SSs2[k, r]
-            xr[i] -= sr * P[k, r, i]
+            work[WK_XRES, i] -= sr * P[k, r, i]
         yres -= sr * beta[k, r]
     e = yres
     for r in range(R):
         lr = lam[k, r]
         sum_w[k, r] = lr * sum_w[k, r] + w
         n_data[k, r] = lr * n_data[k, r] + 1.0
-        sum_e_cv2[k, r] = lr * sum_e_cv2[k, r] + w * e_cv[r] * e_cv[r]
+        sum_e_cv2[k, r] = lr * sum_e_cv2[k, r] + w * work[WK_E_CV, r] * work[WK_E_CV, r]
     sum_e2[k] = lam[k, R - 1] * sum_e2[k] + w * e * e
     # distance metric
     if hp[HP_UPDATE_D] > 0.0 and n_data[k, 0] > hp[HP_N_TRUST]:
-        _update_metric(k, w, dx, z, s, R, e_cv[R - 1], e, hp, prow, pcol, work, Md, D, M, alpha, log_alpha, meta_h,
-                       SSs2, sum_w, lam, sum_e_cv2, sum_e2, H, rr)
+        _update_metric(k, w, dx, z, R, work[WK_E_CV, R - 1], e, hp, prow, pcol, work, Md, D, M, alpha, log_alpha,
+                       meta_h, SSs2, sum_w, lam, sum_e_cv2, sum_e2, H, rr)
     # forgetting schedule
     tau = hp[HP_TAU_LAMBDA]
     for r in range(R):
@@ -540,7 +536,7 @@ def _update_stack(X, Y, learn, hp, initM, initAlpha, prow, pcol, counts, moments
 
 
 @njit(cache=True)
-def _predict_point(x, hp, prior_var, with_var, prow, pcol, n_rf, dx, z, xmz, s, xr,
+def _predict_point(x, hp, prior_var, with_var, prow, pcol, n_rf, dx, z, work,
                    c, M, mean_x, beta0, n_reg, U, P, beta, SSs2, sum_w, sum_e_cv2, trust):
     """(mean, variance) at x: mixture of the trustworthy RFs and the zero-mean prior pseudo-field."""
     n = x.shape[0]
@@ -558,18 +554,18 @@ def _predict_point(x, hp, prior_var, with_var, prow, pcol, n_rf, dx, z, xmz, s, 
         if w <= cutoff:
             continue
         for i in range(n):
-            xmz[i] = x[i] - mean_x[k, i]
+            work[WK_XMZ, i] = x[i] - mean_x[k, i]
         R = n_reg[k]
-        _project(U, P, k, R, xmz, s, xr)
+        _project(U, P, k, R, work)
         yk = beta0[k]
         for r in range(R):
-            yk += beta[k, r] * s[r]
+            yk += beta[k, r] * work[WK_S, r]
         sw += w
         sy += w * yk
         if with_var:
             lev = 0.0
             for r in range(R):
-                lev += s[r] * s[r] / SSs2[k, r]
+                lev += work[WK_S, r] * work[WK_S, r] / SSs2[k, r]
             sigma2 = sum_e_cv2[k, R - 1] / sum_w[k, R - 1]
             sy2 += w * (sigma2 * (1.0 + w * lev) + yk * yk)
     mean = sy / sw
@@ -587,11 +583,9 @@ def _predict_batch(X, hp, prior_var, with_var, prow, pcol, n_rf,
     n = X.shape[1]
     dx = np.empty(n)
     z = np.empty(n)
-    xmz = np.empty(n)
-    s = np.empty(U.shape[1])
-    xr = np.empty(n)
+    work = np.empty((N_WK, max(n, M.shape[1], U.shape[1])))
     for t in range(X.shape[0]):
-        m, v = _predict_point(X[t], hp, prior_var, with_var, prow, pcol, n_rf, dx, z, xmz, s, xr,
+        m, v = _predict_point(X[t], hp, prior_var, with_var, prow, pcol, n_rf, dx, z, work,
                               c, M, mean_x, beta0, n_reg, U, P, beta, SSs2, sum_w, sum_e_cv2, trust)
         out_mean[t] = m
         if with_var:
@@ -601,10 +595,8 @@ def _predict_batch(X, hp, prior_var, with_var, prow, pcol, n_rf,
 @njit(cache=True)
 def _predict_one(x, hp, prior_var, prow, pcol, counts, dx, z, work,
                  c, M, mean_x, beta0, n_reg, U, P, beta, SSs2, sum_w, sum_e_cv2, trust):
-    n = x.shape[0]
-    return _predict_point(x, hp, prior_var, True, prow, pcol, counts[0], dx, z, work[WK_XMZ, :n],
-                          work[WK_S, :U.shape[1]], work[WK_XPROJ, :n], c, M, mean_x, beta0, n_reg, U, P, beta, SSs2,
-                          sum_w, sum_e_cv2, trust)
+    return _predict_point(x, hp, prior_var, True, prow, pcol, counts[0], dx, z, work, c, M, mean_x, beta0, n_reg,
+                          U, P, beta, SSs2, sum_w, sum_e_cv2, trust)
 
 
 @njit(cache=True)
@@ -613,7 +605,6 @@ def _predict_stack(X, active, prior_fixed, norm_out, hp, prow, pcol, counts, mom
     """(mean, std) of each model g of a stack with active[g] at its normalised input X[g], in output
     units (× norm_out[g]), as LWPR.predict_one: the prior variance is prior_fixed[g], or where that is
     NaN (no prior_std) the mean y² seen (LWPR.prior_var_)."""
-    n = X.shape[1]
     for g in range(X.shape[0]):
         if not active[g]:
             continue
@@ -621,9 +612,9 @@ def _predict_stack(X, active, prior_fixed, norm_out, hp, prow, pcol, counts, mom
         if math.isnan(prior_var):
             seen = int(moments[g, 0])
             prior_var = max(moments[g, 1] / seen, 1e-12) if seen else 1.0
-        m, v = _predict_point(X[g], hp[g], prior_var, True, prow[g], pcol[g], counts[g, 0], dx, z,
-                              work[WK_XMZ, :n], work[WK_S, :U.shape[2]], work[WK_XPROJ, :n], c[g], M[g], mean_x[g],
-                              beta0[g], n_reg[g], U[g], P[g], beta[g], SSs2[g], sum_w[g], sum_e_cv2[g], trust[g])
+        m, v = _predict_point(X[g], hp[g], prior_var, True, prow[g], pcol[g], counts[g, 0], dx, z, work, c[g], M[g],
+                              mean_x[g], beta0[g], n_reg[g], U[g], P[g], beta[g], SSs2[g], sum_w[g], sum_e_cv2[g],
+                              trust[g])
         out_mean[g] = m * norm_out[g]
         out_std[g] = math.sqrt(v) * norm_out[g]
 

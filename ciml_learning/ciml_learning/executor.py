@@ -33,7 +33,7 @@ from typing import Any
 from rclpy.context import Context
 from rclpy.event_handler import EventHandler
 from rclpy.exceptions import InvalidHandle
-from rclpy.executors import Executor, ExternalShutdownException, ShutdownException
+from rclpy.executors import Executor, ExternalShutdownException, ShutdownException, TimeoutObject
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.subscription import Subscription
@@ -120,8 +120,8 @@ class DirectExecutor(Executor):
                 ws.add_subscription(s.handle)
             for c in ents.clients:
                 ws.add_client(c.handle)
-            for s in ents.services:
-                ws.add_service(s.handle)
+            for srv in ents.services:
+                ws.add_service(srv.handle)
             for t in ents.timers:
                 ws.add_timer(t.handle)
             for g in ents.guards:
@@ -157,8 +157,10 @@ class DirectExecutor(Executor):
                     # (data, requests, due timers) and is served after the next collection
                     return
 
-    def spin_once_until_future_complete(self, future: Future, timeout_sec: float | None = None) -> None:
-        self.spin_once(timeout_sec)
+    def spin_once_until_future_complete(self, future: Future,
+                                        timeout_sec: float | TimeoutObject | None = None) -> None:
+        # rclpy's spin_until_future_complete passes what is left of its timeout as a TimeoutObject
+        self.spin_once(timeout_sec.timeout if isinstance(timeout_sec, TimeoutObject) else timeout_sec)
 
     def _run(self, fn, *args) -> None:
         result = fn(*args)

@@ -157,9 +157,9 @@ class Launcher:
         for action, cmd in zip(self.plan, self.cmds):
             if only is not None and action.label not in only:
                 continue
-            proc = subprocess.Popen(cmd, env={**self.env, **action.environment}, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                    stdin=subprocess.DEVNULL, text=True, bufsize=1, process_group=0,
-                                    preexec_fn=_die_with_launcher(os.getpid()) if main else None)
+            proc = subprocess.Popen(cmd, env={**self.env, **action.environment}, stdout=subprocess.PIPE,
+                                    stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, text=True, bufsize=1,
+                                    process_group=0, preexec_fn=_die_with_launcher(os.getpid()) if main else None)
             node = NodeProcess(action, cmd, proc, threading.Thread(target=lambda: None))
             node.reader = threading.Thread(target=self._read, args=(node,), name=f"out-{action.label}", daemon=True)
             node.reader.start()

@@ -145,7 +145,7 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
     try:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+        rclpy.init(args=None if args is None else list(args), signal_handler_options=SignalHandlerOptions.NO)
     except Exception as err:  # malformed --ros-args (rcl parses them here)
         rclpy.logging.get_logger(name).error(f"bad arguments: {_one_line(err)}")
         raise SystemExit(1) from None

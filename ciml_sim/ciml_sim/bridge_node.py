@@ -57,6 +57,7 @@ import numpy as np
 from ciml_msgs.msg import ContactState, TorqueCommand
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
@@ -97,7 +98,7 @@ class MujocoBridge(Node):
         self.pub_base = self.create_publisher(Odometry, topics.BASE_STATE, SENSOR_PUB_QOS)
         self.pub_contacts = self.create_publisher(ContactState, topics.CONTACT_STATE, SENSOR_PUB_QOS)
         self.pub_clock = self.create_publisher(Clock, topics.CLOCK, 10)
-        self._truth_pubs: dict[str, object] = {}
+        self._truth_pubs: dict[str, Publisher] = {}
         self.create_subscription(TorqueCommand, topics.TORQUE_COMMAND, self.on_command, COMMAND_QOS)
         self.create_service(Trigger, "~/reset", self.on_reset)
         self.commands_received = 0

@@ -13,6 +13,7 @@ import numpy as np
 from ciml_msgs.msg import ModelError, RobotState
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.timer import Timer
 
 from .. import conversions as cv
 from .. import topics
@@ -31,7 +32,7 @@ class ErrorExtractorNode(Node):
         self.robot = load_profile(p["robot"]).robot()
         self.health = Health(self)
         self.pending: list[tuple] = []  # (stamp ns, q, v, q̈, τ, τ̇, u, contacts, valid) awaiting the next batch
-        self.timer = None
+        self.timer: Timer | None = None
         self._set_batch_period(p["batch_period"])
         self.pub = self.create_publisher(ModelError, topics.MODEL_ERROR_MEASURED, STREAM_QOS)
         self.create_subscription(RobotState, topics.FILTERED_STATE, self.on_state, STREAM_QOS)

@@ -100,7 +100,7 @@ class OnlineLearnerNode(Node):
         self.get_logger().info(f"learner code ready in {warm_up(self.robot, ms.learner):.2f} s")
         self.pairer = StampPairer(int(max_age * 1e9))
         self._items_recent = self._unmatched_recent = 0  # for the unmatched share (_sync_counts)
-        self._loss_mark = (0, 0)  # (states received + lost, lost) at the last loss check
+        self._loss_mark: tuple[float, float] = (0, 0)  # (states received + lost, lost) at the last loss check
         self.waiting = AwaitReference(int(gate.max_reference_age * 1e9), int(max_age * 1e9))
         self.lost_states = LostSamples()
         self.writer = SnapshotWriter(model_dir or DEFAULT_MODEL_DIR, keep, validation)
@@ -220,7 +220,7 @@ class OnlineLearnerNode(Node):
     """WARN when more than this share of /filtered_state was lost over the last ~1,000 states: the
     learner (niced below every other job) does not get the CPU to keep up, and learns little."""
 
-    def _watch_losses(self, received: int, lost: int) -> None:
+    def _watch_losses(self, received: float, lost: float) -> None:
         seen = received + lost
         if seen - self._loss_mark[0] < 1000:
             return

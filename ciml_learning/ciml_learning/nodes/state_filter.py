@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from ciml_msgs.msg import RobotState
@@ -64,7 +66,8 @@ class StateFilterNode(Node):
             cls = message_class(msgtype)  # a type not installed here: one line at start (BagError)
             # sensors best effort (matches any driver); CIML's own controller's commands reliable, as published
             qos = STREAM_QOS if msgtype == TORQUE_COMMAND else SENSOR_STREAM_QOS
-            self.create_subscription(cls, topic, lambda msg, info, t=topic: self.on_message(t, msg, info), qos)
+            # rclpy passes the message info to a two-argument callback (its type hint knows one argument)
+            self.create_subscription(cls, topic, self._receiver(topic), qos)  # type: ignore[arg-type]
             self.last_heard[topic] = None
             self.get_logger().info(f"{'/'.join(roles)}: {topic} ({msgtype})")
         self.started = time.monotonic()
@@ -77,6 +80,9 @@ class StateFilterNode(Node):
 
     def _reject(self, event: str, reason: str | None) -> None:
         self.health.count(event, reason)
+
+    def _receiver(self, topic: str) -> Callable[[Any, Any], None]:
+        return lambda msg, info: self.on_message(topic, msg, info)
 
     def on_message(self, topic: str, msg, info) -> None:
         # the publish time places headerless messages among the joint states (live_inputs)
@@ -117,6 +123,7 @@ class StateFilterNode(Node):
             self._filter(*sample)
 
     def _filter(self, t: float, q, v, tau, u, contacts) -> None:
+        assert self.filter is not None  # process() makes it before passing any sample on
         try:
             ready = self.filter.push(t, q, v, tau, u, contacts)
         except ValueError as err:

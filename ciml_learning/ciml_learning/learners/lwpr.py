@@ -242,10 +242,19 @@ def _copy_rf(dst, src, c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, 
 
 
 @njit(cache=True)
+def _metric_matrices(M, k, prow, pcol, Md, D):
+    """M_k unpacked into Md and D_k = M_kᵀM_k (a full metric's gradient needs both)."""
+    Md[:, :] = 0.0
+    for p in range(M.shape[1]):
+        Md[prow[p], pcol[p]] = M[k, p]
+    np.dot(Md.T, Md, D)  # the same BLAS product as Md.T @ Md, into preallocated D
+
+
+@njit(cache=True)
 def _update_metric(k, w, dx, z, R, e_cv, e, hp, prow, pcol, work, Md, D, M, alpha, log_alpha, meta_h,
                    SSs2, sum_w, lam, sum_e_cv2, sum_e2, H, rr):
     """One stochastic leave-one-out gradient step on M_k (paper §3.2, Table 4); the projections s_r
-    of the sample are in work[WK_S]."""
+    of the sample are in work[WK_S], a full metric's Md and D from _metric_matrices."""
     n = dx.shape[0]
     nP = M.shape[1]
     penalty = hp[HP_PENALTY]
@@ -282,11 +291,6 @@ def _update_metric(k, w, dx, z, R, e_cv, e, hp, prow, pcol, work, Md, D, M, alph
         dJ1J1dwdw = (-e_cv2 / (W * W) - 2.0 / W * t1 + 2.0 / W * e * e * h / w
                      - (e_cv2 - 2.0 * t2) / (W * W) + 2.0 * E / (W * W * W))
     diag = nP == n
-    if not diag:
-        Md[:, :] = 0.0
-        for p in range(nP):
-            Md[prow[p], pcol[p]] = M[k, p]
-        np.dot(Md.T, Md, D)  # D = MᵀM (the same BLAS product as Md.T @ Md, into preallocated D)
     maxM = 0.0
     for p in range(nP):
         if abs(M[k, p]) > maxM:
@@ -341,29 +345,35 @@ def _update_metric(k, w, dx, z, R, e_cv, e, hp, prow, pcol, work, Md, D, M, alph
             rr[k, r] = lam[k, r] * rr[k, r] + (w * w * e_cv2 / (1.0 - h)) * work[WK_S, r] * work[WK_S, r] * tm
 
 
+# The per-field update is a sequence of leaf functions called from _update_sample: numba increfs
+# and decrefs every array argument of a function that calls another one (two atomic operations
+# each), which in one nested _update_rf cost more than the arithmetic.
 @njit(cache=True)
-def _update_rf(k, x, y, w, dx, z, hp, prow, pcol, work, Md, D,
-               c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2, SSYres,
-               SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust):
-    """Update RF k with sample (x, y) at weight w (means, incremental PLS, metric, projections)."""
+def _update_means(k, x, y, w, work, mean_x, beta0, sum_w, lam):
+    """Weighted means x̄_k, β0_k with the sample at weight w; x − x̄ into work[WK_XMZ]; returns y − β0."""
     n = x.shape[0]
-    R = n_reg[k]
-    Rmax = U.shape[1]
-    # weighted means (x̄, β0)
     sw = sum_w[k, 0] * lam[k, 0]
     denom = sw + w
     for i in range(n):
         mean_x[k, i] = (sw * mean_x[k, i] + w * x[i]) / denom
         work[WK_XMZ, i] = x[i] - mean_x[k, i]
     beta0[k] = (sw * beta0[k] + w * y) / denom
-    ymz = y - beta0[k]
+    return y - beta0[k]
+
+
+@njit(cache=True)
+def _update_regression(k, w, ymz, work, n_reg, U, P, beta, SXresYres, SSs2, SSYres, SSXres, sum_w, n_data, lam,
+                       sum_e_cv2, sum_e2):
+    """Incremental PLS of field k (paper Table 3) on x − x̄ (work[WK_XMZ]) and y − β0 (ymz), after
+    _project put the leave-one-out projections in work[WK_S]; returns the fitted residual e."""
+    n = U.shape[2]
+    R = n_reg[k]
     # leave-one-out (prediction before the update) residuals after each projection
-    _project(U, P, k, R, work)
     yr = ymz
     for r in range(R):
         yr -= beta[k, r] * work[WK_S, r]
         work[WK_E_CV, r] = yr
-    # incremental PLS with forgetting (paper Table 3)
+    # incremental PLS with forgetting
     for i in range(n):
         work[WK_XRES, i] = work[WK_XMZ, i]
     yres = ymz
@@ -398,15 +408,18 @@ def _update_rf(k, x, y, w, dx, z, hp, prow, pcol, work, Md, D,
         n_data[k, r] = lr * n_data[k, r] + 1.0
         sum_e_cv2[k, r] = lr * sum_e_cv2[k, r] + w * work[WK_E_CV, r] * work[WK_E_CV, r]
     sum_e2[k] = lam[k, R - 1] * sum_e2[k] + w * e * e
-    # distance metric
-    if hp[HP_UPDATE_D] > 0.0 and n_data[k, 0] > hp[HP_N_TRUST]:
-        _update_metric(k, w, dx, z, R, work[WK_E_CV, R - 1], e, hp, prow, pcol, work, Md, D, M, alpha, log_alpha,
-                       meta_h, SSs2, sum_w, lam, sum_e_cv2, sum_e2, H, rr)
-    # forgetting schedule
+    return e
+
+
+@njit(cache=True)
+def _update_schedule(k, hp, n_reg, U, sum_w, n_data, lam, sum_e_cv2, trust):
+    """After a field's update: anneal its forgetting factors, add a projection when the last one still
+    halves the leave-one-out error, trust it once it has seen n_trust (discounted) samples."""
+    R = n_reg[k]
+    Rmax = U.shape[1]
     tau = hp[HP_TAU_LAMBDA]
     for r in range(R):
         lam[k, r] = tau * lam[k, r] + hp[HP_FINAL_LAMBDA] * (1.0 - tau)
-    # add a projection when the last one still halves the leave-one-out error
     if R >= 2 and R < Rmax and R < int(hp[HP_MAX_PROJ]):
         mse_r = sum_e_cv2[k, R - 1] / sum_w[k, R - 1] + 1e-10
         mse_r1 = sum_e_cv2[k, R - 2] / sum_w[k, R - 2] + 1e-10
@@ -446,10 +459,19 @@ def _update_sample(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, dx, 
         elif w > w2:
             w2 = w
             i2 = k
-        if w > hp[HP_W_CUTOFF]:
-            _update_rf(k, x, y, w, dx, z, hp, prow, pcol, work, Md, D,
-                       c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2,
-                       SSYres, SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust)
+        if w <= hp[HP_W_CUTOFF]:
+            continue
+        # update field k: means, PLS, metric, schedule (the leaves above, in this order)
+        ymz = _update_means(k, x, y, w, work, mean_x, beta0, sum_w, lam)
+        _project(U, P, k, n_reg[k], work)
+        e = _update_regression(k, w, ymz, work, n_reg, U, P, beta, SXresYres, SSs2, SSYres, SSXres, sum_w, n_data,
+                               lam, sum_e_cv2, sum_e2)
+        if hp[HP_UPDATE_D] > 0.0 and n_data[k, 0] > hp[HP_N_TRUST]:
+            if M.shape[1] != n:
+                _metric_matrices(M, k, prow, pcol, Md, D)
+            _update_metric(k, w, dx, z, n_reg[k], work[WK_E_CV, n_reg[k] - 1], e, hp, prow, pcol, work, Md, D, M,
+                           alpha, log_alpha, meta_h, SSs2, sum_w, lam, sum_e_cv2, sum_e2, H, rr)
+        _update_schedule(k, hp, n_reg, U, sum_w, n_data, lam, sum_e_cv2, trust)
     if w1 <= hp[HP_W_GEN] and n_rf < max_rfs:
         template = -1
         if i1 >= 0 and w1 > 0.1 * hp[HP_W_GEN] and trust[i1]:
@@ -457,12 +479,13 @@ def _update_sample(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, dx, 
         _init_rf(n_rf, x, y, template, hp, initM, initAlpha,
                  c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2, SSYres,
                  SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust)
-        for i in range(n):
-            dx[i] = 0.0
-            z[i] = 0.0
-        _update_rf(n_rf, x, y, 1.0, dx, z, hp, prow, pcol, work, Md, D,
-                   c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2,
-                   SSYres, SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust)
+        # its first sample at weight 1, as any field's update (a new field never adapts its metric yet)
+        k = n_rf
+        ymz = _update_means(k, x, y, 1.0, work, mean_x, beta0, sum_w, lam)
+        _project(U, P, k, n_reg[k], work)
+        _update_regression(k, 1.0, ymz, work, n_reg, U, P, beta, SXresYres, SSs2, SSYres, SSXres, sum_w, n_data,
+                           lam, sum_e_cv2, sum_e2)
+        _update_schedule(k, hp, n_reg, U, sum_w, n_data, lam, sum_e_cv2, trust)
         counts[0] = n_rf + 1
         counts[1] += 1
     elif w2 > hp[HP_W_PRUNE] and i2 >= 0:

@@ -140,10 +140,16 @@ def metric_packing(n: int, diag_only: bool) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ----------------------------------------------------------------------------------- kernels
-@njit(cache=True)
+# Per sample, the cost was numba's reference counting more than the arithmetic: a function that
+# calls another one or can raise increfs and decrefs its array arguments (two atomic operations
+# each), and so does every view (M[k]). So the kernels index in place, the per-field update is a
+# sequence of leaf functions called from _update_sample, and error_model="numpy" drops the
+# zero-divisor checks that could raise (no divisor here can be zero: the sums of weights start at
+# 1e-10 and SS_r at init_S2 > 0, updated fields weigh > w_cutoff ≥ 0, ‖u‖ is tested) — the same
+# arithmetic.
+@njit(cache=True, error_model="numpy")
 def _weight(M, k, prow, pcol, dx, z):
-    """w = exp(−½ ‖M_k dx‖²); z ← M_k dx. (The kernels index M[k], U[k] … in place: a view M[k]
-    costs two atomic reference-count updates, which dominated the scan over the fields.)"""
+    """w = exp(−½ ‖M_k dx‖²); z ← M_k dx."""
     n = dx.shape[0]
     for i in range(n):
         z[i] = 0.0
@@ -155,7 +161,7 @@ def _weight(M, k, prow, pcol, dx, z):
     return math.exp(-0.5 * d2)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _project(U, P, k, R, work):
     """PLS projections s_r (→ work[WK_S]) of x − x̄ (work[WK_XMZ]) with RF k's directions U_k and
     loadings P_k (work[WK_XPROJ]: scratch)."""
@@ -172,7 +178,7 @@ def _project(U, P, k, R, work):
                 work[WK_XPROJ, i] -= acc * P[k, r, i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _init_rf(k, x, y, template, hp, initM, initAlpha,
              c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2, SSYres,
              SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust):
@@ -213,7 +219,7 @@ def _init_rf(k, x, y, template, hp, initM, initAlpha,
     trust[k] = False
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _copy_rf(dst, src, c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2,
              SSYres, SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust):
     c[dst] = c[src]
@@ -241,7 +247,7 @@ def _copy_rf(dst, src, c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, 
     trust[dst] = trust[src]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _metric_matrices(M, k, prow, pcol, Md, D):
     """M_k unpacked into Md and D_k = M_kᵀM_k (a full metric's gradient needs both)."""
     Md[:, :] = 0.0
@@ -250,7 +256,7 @@ def _metric_matrices(M, k, prow, pcol, Md, D):
     np.dot(Md.T, Md, D)  # the same BLAS product as Md.T @ Md, into preallocated D
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _update_metric(k, w, dx, z, R, e_cv, e, hp, prow, pcol, work, Md, D, M, alpha, log_alpha, meta_h,
                    SSs2, sum_w, lam, sum_e_cv2, sum_e2, H, rr):
     """One stochastic leave-one-out gradient step on M_k (paper §3.2, Table 4); the projections s_r
@@ -345,10 +351,7 @@ def _update_metric(k, w, dx, z, R, e_cv, e, hp, prow, pcol, work, Md, D, M, alph
             rr[k, r] = lam[k, r] * rr[k, r] + (w * w * e_cv2 / (1.0 - h)) * work[WK_S, r] * work[WK_S, r] * tm
 
 
-# The per-field update is a sequence of leaf functions called from _update_sample: numba increfs
-# and decrefs every array argument of a function that calls another one (two atomic operations
-# each), which in one nested _update_rf cost more than the arithmetic.
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _update_means(k, x, y, w, work, mean_x, beta0, sum_w, lam):
     """Weighted means x̄_k, β0_k with the sample at weight w; x − x̄ into work[WK_XMZ]; returns y − β0."""
     n = x.shape[0]
@@ -361,7 +364,7 @@ def _update_means(k, x, y, w, work, mean_x, beta0, sum_w, lam):
     return y - beta0[k]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _update_regression(k, w, ymz, work, n_reg, U, P, beta, SXresYres, SSs2, SSYres, SSXres, sum_w, n_data, lam,
                        sum_e_cv2, sum_e2):
     """Incremental PLS of field k (paper Table 3) on x − x̄ (work[WK_XMZ]) and y − β0 (ymz), after
@@ -411,7 +414,7 @@ def _update_regression(k, w, ymz, work, n_reg, U, P, beta, SXresYres, SSs2, SSYr
     return e
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _update_schedule(k, hp, n_reg, U, sum_w, n_data, lam, sum_e_cv2, trust):
     """After a field's update: anneal its forgetting factors, add a projection when the last one still
     halves the leave-one-out error, trust it once it has seen n_trust (discounted) samples."""
@@ -431,7 +434,7 @@ def _update_schedule(k, hp, n_reg, U, sum_w, n_data, lam, sum_e_cv2, trust):
         trust[k] = True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _update_sample(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, dx, z, work, Md, D,
                    c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2, SSYres,
                    SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust):
@@ -447,21 +450,37 @@ def _update_sample(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, dx, 
     i1 = -1
     w2 = 0.0
     i2 = -1
-    for k in range(n_rf):
-        for i in range(n):
-            dx[i] = x[i] - c[k, i]
-        w = _weight(M, k, prow, pcol, dx, z)
-        if w > w1:
-            w2 = w1
-            i2 = i1
-            w1 = w
-            i1 = k
-        elif w > w2:
-            w2 = w
-            i2 = k
-        if w <= hp[HP_W_CUTOFF]:
-            continue
-        # update field k: means, PLS, metric, schedule (the leaves above, in this order)
+    created = False
+    for k in range(n_rf + 1):  # the fields, then (k = n_rf) a new one if none is activated enough
+        if k < n_rf:
+            for i in range(n):
+                dx[i] = x[i] - c[k, i]
+            w = _weight(M, k, prow, pcol, dx, z)
+            if w > w1:
+                w2 = w1
+                i2 = i1
+                w1 = w
+                i1 = k
+            elif w > w2:
+                w2 = w
+                i2 = k
+            if w <= hp[HP_W_CUTOFF]:
+                continue
+        elif w1 <= hp[HP_W_GEN] and n_rf < max_rfs:
+            template = -1
+            if i1 >= 0 and w1 > 0.1 * hp[HP_W_GEN] and trust[i1]:
+                template = i1
+            _init_rf(k, x, y, template, hp, initM, initAlpha,
+                     c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2, SSYres,
+                     SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust)
+            for i in range(n):
+                dx[i] = 0.0
+                z[i] = 0.0
+            w = 1.0
+            created = True
+        else:
+            break
+        # update field k at weight w: means, PLS, metric, schedule (the leaves above, in this order)
         ymz = _update_means(k, x, y, w, work, mean_x, beta0, sum_w, lam)
         _project(U, P, k, n_reg[k], work)
         e = _update_regression(k, w, ymz, work, n_reg, U, P, beta, SXresYres, SSs2, SSYres, SSXres, sum_w, n_data,
@@ -472,20 +491,7 @@ def _update_sample(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, dx, 
             _update_metric(k, w, dx, z, n_reg[k], work[WK_E_CV, n_reg[k] - 1], e, hp, prow, pcol, work, Md, D, M,
                            alpha, log_alpha, meta_h, SSs2, sum_w, lam, sum_e_cv2, sum_e2, H, rr)
         _update_schedule(k, hp, n_reg, U, sum_w, n_data, lam, sum_e_cv2, trust)
-    if w1 <= hp[HP_W_GEN] and n_rf < max_rfs:
-        template = -1
-        if i1 >= 0 and w1 > 0.1 * hp[HP_W_GEN] and trust[i1]:
-            template = i1
-        _init_rf(n_rf, x, y, template, hp, initM, initAlpha,
-                 c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2, SSYres,
-                 SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust)
-        # its first sample at weight 1, as any field's update (a new field never adapts its metric yet)
-        k = n_rf
-        ymz = _update_means(k, x, y, 1.0, work, mean_x, beta0, sum_w, lam)
-        _project(U, P, k, n_reg[k], work)
-        _update_regression(k, 1.0, ymz, work, n_reg, U, P, beta, SXresYres, SSs2, SSYres, SSXres, sum_w, n_data,
-                           lam, sum_e_cv2, sum_e2)
-        _update_schedule(k, hp, n_reg, U, sum_w, n_data, lam, sum_e_cv2, trust)
+    if created:
         counts[0] = n_rf + 1
         counts[1] += 1
     elif w2 > hp[HP_W_PRUNE] and i2 >= 0:
@@ -504,7 +510,7 @@ def _update_sample(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, dx, 
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _update_batch(X, Y, start, hp, initM, initAlpha, prow, pcol, counts, moments,
                   c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2, SSYres,
                   SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust):
@@ -528,7 +534,7 @@ def _update_batch(X, Y, start, hp, initM, initAlpha, prow, pcol, counts, moments
     return X.shape[0]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _update_one(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, dx, z, work, Md, D,
                 c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2, SSYres,
                 SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust):
@@ -538,7 +544,7 @@ def _update_one(x, y, hp, initM, initAlpha, prow, pcol, counts, moments, dx, z, 
                           SSYres, SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _update_stack(X, Y, learn, hp, initM, initAlpha, prow, pcol, counts, moments, dx, z, work, Md, D,
                   c, M, alpha, log_alpha, meta_h, mean_x, beta0, n_reg, U, P, beta, SXresYres, SSs2, SSYres,
                   SSXres, sum_w, n_data, lam, sum_e_cv2, sum_e2, H, rr, trust):
@@ -558,7 +564,7 @@ def _update_stack(X, Y, learn, hp, initM, initAlpha, prow, pcol, counts, moments
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _predict_point(x, hp, prior_var, with_var, prow, pcol, n_rf, dx, z, work,
                    c, M, mean_x, beta0, n_reg, U, P, beta, SSs2, sum_w, sum_e_cv2, trust):
     """(mean, variance) at x: mixture of the trustworthy RFs and the zero-mean prior pseudo-field."""
@@ -600,7 +606,7 @@ def _predict_point(x, hp, prior_var, with_var, prow, pcol, n_rf, dx, z, work,
     return mean, var
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _predict_batch(X, hp, prior_var, with_var, prow, pcol, n_rf,
                    c, M, mean_x, beta0, n_reg, U, P, beta, SSs2, sum_w, sum_e_cv2, trust, out_mean, out_var):
     n = X.shape[1]
@@ -615,14 +621,14 @@ def _predict_batch(X, hp, prior_var, with_var, prow, pcol, n_rf,
             out_var[t] = v
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _predict_one(x, hp, prior_var, prow, pcol, counts, dx, z, work,
                  c, M, mean_x, beta0, n_reg, U, P, beta, SSs2, sum_w, sum_e_cv2, trust):
     return _predict_point(x, hp, prior_var, True, prow, pcol, counts[0], dx, z, work, c, M, mean_x, beta0, n_reg,
                           U, P, beta, SSs2, sum_w, sum_e_cv2, trust)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _predict_stack(X, active, prior_fixed, norm_out, hp, prow, pcol, counts, moments, dx, z, work,
                    c, M, mean_x, beta0, n_reg, U, P, beta, SSs2, sum_w, sum_e_cv2, trust, out_mean, out_std):
     """(mean, std) of each model g of a stack with active[g] at its normalised input X[g], in output
@@ -742,6 +748,7 @@ class LWPR(Learner):
             "final_lambda": 0.0 < self.final_lambda <= 1.0,
             "tau_lambda": 0.0 <= self.tau_lambda <= 1.0,
             "init_alpha": self.init_alpha > 0.0,
+            "init_S2": self.init_S2 > 0.0,
             "penalty": self.penalty >= 0.0,
             "norm_out": self.norm_out > 0.0,
             "max_rfs": int(self.max_rfs) >= 1,

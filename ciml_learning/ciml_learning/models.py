@@ -711,6 +711,7 @@ class ModelSet:
         except (AttributeError, TypeError, ValueError) as err:
             raise ModelFileError(f"{model_dir}: malformed model description ({err})") from None
         ms.training_ = dict(meta.get("training") or {})
+        ms.lwpr_stacks()  # stacked now (~2 ms), not at a served model's first prediction
         return ms
 
 

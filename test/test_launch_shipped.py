@@ -64,22 +64,6 @@ def test_shipped_file_is_the_ros2_yaml_launch_format():
             assert set(p) == {"name", "value"}
 
 
-def test_the_learning_chain_is_off_the_control_paths_shared_memory():
-    """Every node outside the control path runs on loopback UDP by default, so that none can hold
-    a shared-memory port's lock the control path waits on (docs/LIVE_GRAPH.md, Transports); each
-    argument reaches its own nodes only."""
-    control = {"mujoco_bridge", "reference_generator", "id_controller"}
-    for args, expected in (({}, (os.environ.get("FASTDDS_BUILTIN_TRANSPORTS", "DEFAULT"), "UDPv4")),
-                           ({"dds_transports": "UDPv4", "learning_dds_transports": "DEFAULT"}, ("UDPv4", "DEFAULT"))):
-        desc = lf.load(SHIPPED, {"containers": "", **args}, find_share=_share)
-        transports = {p.label: {**desc.environment, **p.environment}["FASTDDS_BUILTIN_TRANSPORTS"]
-                      for p in lf.process_plan(desc)}
-        assert transports == {n: expected[0] if n in control else expected[1] for n in transports}, transports
-        assert len(transports) == 8
-    desc = lf.load(SHIPPED, {}, find_share=_share)  # the file's containers: each group agrees
-    assert [p.environment for p in lf.process_plan(desc)] == [{}] + [{"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}] * 3
-
-
 def test_command_line_of_a_node():
     desc = lf.load(SHIPPED, {"model_dir": "/tmp/m x"}, find_share=_share)
     learner = next(n for n in desc.nodes if n.label == "online_learner")

@@ -361,6 +361,17 @@ def _condition(body: dict, resolve: _Resolver, where: str) -> bool:
     return True
 
 
+def _pairs(body: dict, key: str, fields: tuple[str, str], resolve: _Resolver, where: str) -> list[tuple[str, str]]:
+    """A node's list of two-field mappings (`remap` from/to, `env` name/value), resolved."""
+    out = []
+    for item in body.get(key, None) or []:
+        if not isinstance(item, dict):
+            raise LaunchFileError(f"{where}: each {key} is a mapping with {'/'.join(fields)}")
+        _require(item, fields, where)
+        out.append((resolve(item[fields[0]], where), resolve(item[fields[1]], where)))
+    return out
+
+
 def _node(body: dict, resolve: _Resolver, where: str) -> NodeAction | None:
     unknown = sorted(set(body) - _NODE_KEYS)
     if unknown:
@@ -378,18 +389,8 @@ def _node(body: dict, resolve: _Resolver, where: str) -> NodeAction | None:
             continue
         _require(p, ("name", "value"), where)
         params.append((str(p["name"]), parameter_value(resolve(p["value"], where))))
-    remaps: list[tuple[str, str]] = []
-    for r in body.get("remap", None) or []:
-        if not isinstance(r, dict):
-            raise LaunchFileError(f"{where}: each remap is a mapping with from/to")
-        _require(r, ("from", "to"), where)
-        remaps.append((resolve(r["from"], where), resolve(r["to"], where)))
-    environment: list[tuple[str, str]] = []
-    for e in body.get("env", None) or []:
-        if not isinstance(e, dict):
-            raise LaunchFileError(f"{where}: each env is a mapping with name/value")
-        _require(e, ("name", "value"), where)
-        environment.append((resolve(e["name"], where), resolve(e["value"], where)))
+    remaps = _pairs(body, "remap", ("from", "to"), resolve, where)
+    environment = _pairs(body, "env", ("name", "value"), resolve, where)
     name = resolve(body["name"], where) if "name" in body else None
     namespace = resolve(body["namespace"], where) if "namespace" in body else None
     return NodeAction(pkg=resolve(body["pkg"], where), executable=resolve(body["exec"], where), name=name,

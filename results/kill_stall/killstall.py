@@ -1,5 +1,7 @@
 """Research script (results/LIVE_GRAPH.md, twelfth session), run from the repo with the venv:
-    [DUMP=0] [KILLS=6 DOWN=1.5 UP=5] python killstall.py OUT_DIR DDS_TRANSPORTS LEARNING_DDS_TRANSPORTS
+    [DUMP=0] [KILLS=6 DOWN=1.5 UP=5] [RMW_FASTRTPS_PUBLICATION_MODE=ASYNCHRONOUS] python killstall.py OUT_DIR
+(the A/B runs passed a third argument, the launch file's learning_dds_transports of commits
+75b802c..5ba5efc, since removed: rmw_fastrtps ignores it under LOCALHOST)
 Reproduce the post-SIGKILL stall: default containers, free-running
 kill the online learner 3x.
 While no /base_state arrives for > 0.25 s of wall, py-spy dump (native) the containers (py-spy 0.4.3 at /tmp/py-spy;
@@ -19,13 +21,10 @@ from ciml_learning.launcher import Launcher
 
 out = sys.argv[1]
 os.makedirs(out, exist_ok=True)
-transports = sys.argv[2] if len(sys.argv) > 2 else "DEFAULT"
-learning = sys.argv[3] if len(sys.argv) > 3 else "UDPv4"
 DUMP = os.environ.get("DUMP", "1") == "1"
 probe = rate_probe()
 log = open(f"{out}/launch.log", "w")
-launcher = Launcher(load(shipped_file(), {"model_dir": f"{out}/model", "containers": DEFAULT, "lockstep": "false",
-                                          "dds_transports": transports, "learning_dds_transports": learning}),
+launcher = Launcher(load(shipped_file(), {"model_dir": f"{out}/model", "containers": DEFAULT, "lockstep": "false"}),
                     out=log, log_dir=out)
 launcher.start()
 assert probe.wait_for(lambda: probe.first_torque_stamp is not None, 180)

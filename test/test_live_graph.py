@@ -212,7 +212,8 @@ def test_a_node_killed_and_restarted_does_not_stall_the_control_loop(graph):
     other process dies, and simulated time keeps at least half the wall clock's pace. The target is
     0.9 with no pause, and is not met: a learner killed while it holds its shared-memory port's
     lock blocks every writer to that port for 1 s (Fast DDS's lock timeout; cause caught with
-    py-spy, not fixed: docs/LIVE_GRAPH.md, Transports). Seen: 1.0 s pauses at this test's
+    py-spy: the bridge's /clock publication; not fixable from the launch file under LOCALHOST:
+    docs/LIVE_GRAPH.md, Transports). Seen: 1.0 s pauses at this test's
     subscriber (CI), ~0.36 s stalls of the bridge, and earlier 0.75 of the pace (14.1 s lost in 56 s)."""
     make, probe = graph
     launcher = make(containers=DEFAULT, lockstep="false")

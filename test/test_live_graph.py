@@ -21,7 +21,7 @@ from ciml_learning import realtime, topics
 from ciml_learning.graph_probe import GraphProbe
 from ciml_learning.launch_file import find_package_share, load
 from ciml_learning.launcher import Launcher
-from ciml_sim.live_bench import NOMINAL_RATES_HZ
+from ciml_sim.live_bench import NOMINAL_RATES_HZ, PROBE_PRIORITY
 
 pytestmark = [pytest.mark.slow, pytest.mark.ros]
 
@@ -41,7 +41,9 @@ def shipped_file() -> str:
 
 
 def rate_probe() -> GraphProbe:
-    return GraphProbe({t: topics.TYPES[t] for t in NOMINAL_RATES_HZ})
+    """The tests' probe, SCHED_FIFO below every real-time node where permitted (as live_graph_rates'):
+    what it counts is the graph's delivery, not its own wait for the CPU beside the graph."""
+    return GraphProbe({t: topics.TYPES[t] for t in NOMINAL_RATES_HZ}, priority=PROBE_PRIORITY)
 
 
 def diagnosing(probe: GraphProbe, node: str) -> bool:
@@ -116,8 +118,8 @@ def test_ciml_launch_brings_up_the_graph_and_sigint_stops_it(tmp_path):
     """`ciml launch ciml_sim closed_loop.launch.yaml`: all eight nodes in the graph (in the
     file's two containers, the model server's and the learner's own processes), sensors,
     commands, filtered states and predictions flowing; the control container real-time
-    scheduled where permitted (SCHED_FIFO 50, else it says so), the learning container below it
-    (the state filter's 10); one SIGINT → every process exits 0."""
+    scheduled where permitted (SCHED_FIFO 50, else it says so), the model server below it (20), the
+    learning container normally scheduled; one SIGINT → every process exits 0."""
     probe = rate_probe()
     probe.recording = True
     proc = subprocess.Popen([os.path.join(sys.prefix, "bin", "ciml"), "launch", "ciml_sim", "closed_loop.launch.yaml",
@@ -132,13 +134,14 @@ def test_ciml_launch_brings_up_the_graph_and_sigint_stops_it(tmp_path):
         assert probe.wait_for(lambda: all(diagnosing(probe, n) for n in NODES), 60.0)
         assert probe.first_torque_stamp is not None  # the controller commands torques (not only damping)
         permitted = fifo_permitted()
-        # the control container (thread_priority 50) and the learning container (the state filter's 10)
-        for member, priority in (("mujoco_bridge", 50), ("state_filter", 10)):
+        # the control container (thread_priority 50), the model server (20), the learning container normally
+        for member, priority in (("mujoco_bridge", 50), ("model_server", 20), ("state_filter", 0)):
             group = [pid for pid in children(proc.pid) if member in cmdline(pid)]
             assert len(group) == 1, [cmdline(pid) for pid in children(proc.pid)]
+            fifo = permitted and priority > 0
             policy = realtime.scheduling_policy(group[0])
-            assert policy == (os.SCHED_FIFO if permitted else os.SCHED_OTHER), (member, policy)
-            assert os.sched_getparam(group[0]).sched_priority == (priority if permitted else 0), member
+            assert policy == (os.SCHED_FIFO if fifo else os.SCHED_OTHER), (member, policy)
+            assert os.sched_getparam(group[0]).sched_priority == (priority if fifo else 0), member
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=60)
     finally:
@@ -207,16 +210,19 @@ def test_start_orders_end_standing_then_walking(graph, order):
 
 
 def test_a_node_killed_and_restarted_does_not_stall_the_control_loop(graph):
-    """The file's containers against the wall clock; the online learner is killed with SIGKILL and
-    started again, three times, as a user restarts a crashed node. The robot keeps trotting, no
-    other process dies, and simulated time keeps at least half the wall clock's pace. The target is
-    0.9 with no pause, and is not met: a learner killed while it holds its shared-memory port's
-    lock blocks every writer to that port for 1 s (Fast DDS's lock timeout; cause caught with
-    py-spy: the bridge's /clock publication; not fixable from the launch file under LOCALHOST:
-    docs/LIVE_GRAPH.md, Transports). Seen: 1.0 s pauses at this test's
-    subscriber (CI), ~0.36 s stalls of the bridge, and earlier 0.75 of the pace (14.1 s lost in 56 s)."""
+    """The file's containers as a user starts them (lockstep); the online learner is killed with
+    SIGKILL and started again, three times, as a user restarts a crashed node. The robot keeps
+    trotting, no other process dies, and simulated time keeps at least half the wall clock's pace.
+    The target is 0.9 with no pause, and is not met: a learner killed while it holds its
+    shared-memory port's lock blocks every writer to that port for 1 s (Fast DDS's lock timeout;
+    cause caught with py-spy: the bridge's /clock publication; not fixable from the launch file
+    under LOCALHOST: docs/LIVE_GRAPH.md, Transports). Seen: 1.0 s pauses at this test's
+    subscriber (CI), ~0.36 s stalls of the bridge, and earlier 0.75 of the pace (14.1 s lost in 56 s).
+    Not free-running: on a host where the control container needs ~0.95 of a core (AMD EPYC, 2
+    cores) the kernel's real-time cap (sched_rt_runtime_us, 95 %) stalls it ~50 ms a second and
+    HyQ falls against the wall clock without any kill (results/LIVE_GRAPH.md, fourteenth session)."""
     make, probe = graph
-    launcher = make(containers=DEFAULT, lockstep="false")
+    launcher = make(containers=DEFAULT)
     launcher.start()
     assert probe.wait_for(lambda: probe.first_torque_stamp is not None, STARTUP), "no torque command"
     assert probe.wait_for(lambda: all(diagnosing(probe, n) for n in NODES), STARTUP)

@@ -19,8 +19,10 @@ THREAD_PRIORITY = Param(realtime.THREAD_PRIORITY, 50, "SCHED_FIFO priority of th
                         "", 0, 98)
 """The control path's (bridge, reference generator, controller) at 50; the model server's at 20
 (its predictions feed the controller at the reference's rate; its model loads run normally
-scheduled); the state filter's at 10, below them (the filtered stream at its sensors' rate, the
-control path first): ciml_learning.realtime."""
+scheduled); the state filter's at 0 (normally scheduled, niced by the launch file): the kernel
+lets SCHED_FIFO take at most 95 % of each second (sched_rt_runtime_us), and with the learning
+container real-time too the graph's real-time work on two cores met that cap and stalled for
+0.4–2.4 s (results/LIVE_GRAPH.md): ciml_learning.realtime."""
 
 STATE_PUBLISHER = NodeSchema("ciml_learning", "state_publisher",
                              "/tf, /tf_static and /robot_description from /base_state and /joint_states", (
@@ -39,7 +41,7 @@ STATE_FILTER = NodeSchema("ciml_learning", "state_filter",
     Param("inputs", "profile", "Topics read: the robot profile's input map (a robot's own driver or a replay of "
           "its log) or CIML's own (/joint_states, /base_state, /contact_state, /torque_command, as the simulator "
           "bridge publishes them for any robot)", choices=("profile", "ciml")),
-    replace(THREAD_PRIORITY, default=10),
+    replace(THREAD_PRIORITY, default=0),
     ROBOT,
 ))
 

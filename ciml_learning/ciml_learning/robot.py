@@ -62,6 +62,10 @@ def hyq_urdf_path() -> str:
     return os.path.join(example_robot_data_dir(), "hyq_description", "robots", "hyq_no_sensors.urdf")
 
 
+MAX_PERMUTATIONS = 64
+"""Name orders remembered per robot (a stream whose names change every message is not cached)."""
+
+
 @dataclass(frozen=True)
 class RobotDescription:
     """A floating-base point-foot robot: Pinocchio model plus its names.
@@ -80,6 +84,8 @@ class RobotDescription:
     foot_frames: tuple[str, ...]
     leg_joints: tuple[tuple[int, ...], ...]
     foot_frame_ids: tuple[int, ...] = field(repr=False)
+    _permutations: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    """Permutations already computed, by names: a 250 Hz stream sends the same names every time."""
 
     @property
     def n_joints(self) -> int:
@@ -170,7 +176,19 @@ class RobotDescription:
 
         Raises RobotDescriptionError naming the missing or unknown joints.
         """
-        names = list(names)
+        return self._permutation("joints", names, self._joint_permutation)
+
+    def _permutation(self, kind: str, names, compute) -> np.ndarray:
+        key = (kind, tuple(names))
+        perm = self._permutations.get(key)
+        if perm is None:
+            perm = compute(list(names))
+            perm.flags.writeable = False  # shared by every caller
+            if len(self._permutations) < MAX_PERMUTATIONS:
+                self._permutations[key] = perm
+        return perm
+
+    def _joint_permutation(self, names: list[str]) -> np.ndarray:
         index = {n: i for i, n in enumerate(names)}
         missing = [j for j in self.joint_names if j not in index]
         unknown = [n for n in names if n not in self.joint_names]
@@ -183,7 +201,9 @@ class RobotDescription:
 
     def foot_permutation(self, names: list[str] | tuple[str, ...]) -> np.ndarray:
         """Like joint_permutation, for foot names (frame names or short leg names accepted)."""
-        names = list(names)
+        return self._permutation("feet", names, self._foot_permutation)
+
+    def _foot_permutation(self, names: list[str]) -> np.ndarray:
         canon = [n if n in self.foot_frames else f"{n}_foot" for n in names]
         index = {n: i for i, n in enumerate(canon)}
         missing = [f for f in self.foot_frames if f not in index]

@@ -51,10 +51,10 @@ MAIN_TOPIC = {"mujoco_bridge": topics.JOINT_STATES, "reference_generator": topic
 
 
 PROBE_PRIORITY = 5
-"""SCHED_FIFO priority of live_graph_rates' probe, below every node's (control path 50, state filter
-10): a normally scheduled probe on a machine whose two cores carry ~1.4 cores of graph times its
-own wait for the CPU (~4 ms p99 on every topic, even /joint_states published with 0.1 ms of tick
-error), not the graph's delivery."""
+"""SCHED_FIFO priority of live_graph_rates' probe (and the live tests'), below every real-time
+node's (control path 50, model server 20): a normally scheduled probe on a machine whose two
+cores carry ~1.4 cores of graph times its own wait for the CPU (~4 ms p99 on every topic, even
+/joint_states published with 0.1 ms of tick error), not the graph's delivery."""
 
 EFFORT_PROBE_NICE = 19
 """Nice level of live_online_learning's probe threads. The probe decodes every /joint_states and

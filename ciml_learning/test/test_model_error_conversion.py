@@ -91,3 +91,31 @@ def test_rejects_wrong_sizes(field, match):
     setattr(msg, field, list(getattr(msg, field))[:-1])
     with pytest.raises(ConversionError, match=match):
         model_error_arrays(ROBOT, msg)
+
+
+def test_torque_command_decoded_in_joint_order_and_checked():
+    """conversions.torque_command_arrays (the bridge's and the state filter's reader) on a command
+    whose joints are listed in another order; wrong lengths, non-finite or negative gains rejected."""
+    rng = np.random.default_rng(3)
+    rows = rng.uniform(0.5, 2.0, size=(6, NJ))
+    cmd = cv.TorqueCommandArrays(1, *rows)
+    msg = cv.torque_command_msg(ROBOT, 7, cmd)
+    order = rng.permutation(NJ)
+    msg.joint_names = [msg.joint_names[i] for i in order]
+    for f in cv.TORQUE_COMMAND_FIELDS:
+        setattr(msg, f, np.asarray(getattr(msg, f))[order])
+    out = cv.torque_command_arrays(ROBOT, msg)
+    assert out.mode == 1
+    for f, row in zip(cv.TORQUE_COMMAND_FIELDS, rows):
+        np.testing.assert_array_equal(getattr(out, f), row)
+    for f, value, error in (("damping", -1.0, "negative"), ("feedforward", np.nan, "non-finite")):
+        bad = cv.torque_command_msg(ROBOT, 7, cmd)
+        values = np.asarray(getattr(bad, f)).copy()
+        values[2] = value
+        setattr(bad, f, values)
+        with pytest.raises(ConversionError, match=error):
+            cv.torque_command_arrays(ROBOT, bad)
+    short = cv.torque_command_msg(ROBOT, 7, cmd)
+    short.stiffness = np.asarray(short.stiffness)[:-1]
+    with pytest.raises(ConversionError, match="stiffness: expected"):
+        cv.torque_command_arrays(ROBOT, short)

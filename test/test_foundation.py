@@ -64,6 +64,12 @@ def test_wrong_joint_names_are_rejected():
     assert np.array_equal(np.array(names[::-1])[perm], np.array(names))
     with pytest.raises(RobotDescriptionError, match="missing"):
         robot.joint_permutation(names[:-1] + ["elbow_joint"])
+    # remembered per name order (a 250 Hz stream sends the same names), shared read-only
+    assert robot.joint_permutation(tuple(names[::-1])) is perm and not perm.flags.writeable
+    with pytest.raises(RobotDescriptionError, match="missing"):  # a refused order is refused every time
+        robot.joint_permutation(names[:-1] + ["elbow_joint"])
+    feet = robot.foot_permutation([f.removesuffix("_foot") for f in robot.foot_frames[::-1]])
+    assert list(np.array(robot.foot_frames[::-1])[feet]) == list(robot.foot_frames)
 
 
 # --- messages --------------------------------------------------------------------------

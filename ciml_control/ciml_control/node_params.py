@@ -36,8 +36,12 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
     Param("resume_tolerance", 0.02, "Safe stop: a fresh /reference is tracked again only if its base is within this "
           "of the pose the robot stopped at (else the robot stands until the motion restarts)", "m", 0.0, 1.0),
     Param("wait_for_reference", False, "With a simulator in lockstep: a joint sample whose /reference is older than "
-          "reference_timeout is answered once a fresh one arrives (the simulation waits for the reference node as it "
-          "waits for this one) instead of the safe stop", read_only=False),
+          "reference_timeout, or stamped more than max_reference_lag before it, is answered once a fresh one arrives "
+          "(the simulation waits for the reference node as it waits for this one) instead of the safe stop",
+          read_only=False),
+    Param("max_reference_lag", 0.02, "wait_for_reference: the most a /reference's stamp may lag the joint sample's "
+          "(more than the reference's period; a late reference then costs at most its speed times this, below "
+          "resume_tolerance at trot speed)", "s", 0.004, 1.0, read_only=False),
     Param("reference_hold", 0.5, "Damping when /reference is older than this (≤ reference_timeout: at once)", "s",
           0.0, 10.0, read_only=False),
     Param("model_error_timeout", 0.1, "Nominal model (ε = 0) when the newest prediction is older than this", "s",

@@ -323,6 +323,38 @@ def test_a_late_reference_is_waited_for_in_lockstep_and_held_otherwise(wait):
 
 
 @pytest.mark.ros
+def test_in_lockstep_a_reference_stamped_behind_the_sample_is_waited_for():
+    """wait_for_reference: a /reference received just now but stamped 0.1 s before the joint
+    sample (its node stalled and is catching up) is not used (max_reference_lag 0.02 s): the
+    sample waits; one stamped 4 ms before it is answered at once."""
+    import rclpy
+
+    from ciml_control.nodes.id_controller import IdControllerNode
+
+    node, ctx = _in_process(IdControllerNode, wait_for_reference=True)
+    try:
+        clock = [1.0]
+        node._now = lambda: clock[0]
+        commands = []
+        node.pub.publish = commands.append
+        _feed_standing(node, ROBOT, 10**9)
+        assert len(commands) == 1
+        q_stand = standing_configuration(ROBOT, 0.002)
+        stand = make_reference(ROBOT, "stand", q_stand).sample(0.0)
+        clock[0], ns = 1.1, 11 * 10**8
+        node.on_reference(reference_msg(ROBOT, ns - 10**8, stand))  # received now, stamped 0.1 s behind
+        node.on_base(cv.odometry_msg(ns, q_stand[:3], q_stand[3:7], np.zeros(3), np.zeros(3)))
+        node.on_contacts(cv.contact_state_msg(ROBOT, ns, np.ones(ROBOT.n_feet, bool)))
+        node.on_joints(cv.joint_state_msg(ROBOT, ns, q_stand[7:], np.zeros(12), np.zeros(12)))
+        assert len(commands) == 1 and node.health.counts["reference_waits"] == 1
+        node.on_reference(reference_msg(ROBOT, ns - 4 * 10**6, stand))  # caught up: the sample is answered
+        assert len(commands) == 2 and cv.stamp_to_ns(commands[1].header.stamp) == ns
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+@pytest.mark.ros
 def test_id_controller_publishes_a_ros2_control_effort_array_in_the_profiles_joint_order(tmp_path):
     """effort_command_topic: each command also as std_msgs/Float64MultiArray, the joint-loop law's
     torque at the sample (clipped to the limits) in the order of the profile's effort-array

@@ -24,8 +24,9 @@ Safety once it has commanded torque (counted on /diagnostics):
   only within `resume_tolerance` of the stop's base; otherwise the robot keeps standing on it
   (counted: reference_not_resumed, with a warning) until the motion restarts. With
   `wait_for_reference` (a simulator in lockstep: the launch file's `lockstep`) the joint sample
-  is answered only when a fresh reference arrives (counted: reference_waits): the simulation
-  waits for a stalled reference node as it waits for this one;
+  is answered only when a fresh reference arrives, one stamped at most `max_reference_lag`
+  before the sample (counted: reference_waits): the simulation waits for a stalled reference
+  node as it waits for this one, and a reference held and then caught up cannot leap ahead;
 - non-finite or mismatched inputs are dropped by the conversions (never used);
 - a controller error (ControllerInputError) → damping for that step;
 - QP failures → the controller's documented fallback; counted.
@@ -288,11 +289,15 @@ class IdControllerNode(Node):
             self.publish_damping("stale_state", "base or contact state missing or stale: damping", stamp)
             return
         fresh = self._fresh(reference, self.reference_timeout, now)
-        if not fresh:
+        wait = self.params["wait_for_reference"]
+        # in lockstep a reference for an instant well behind the robot's is late too: held for
+        # reference_timeout and then caught up, it leapt ahead of the robot and stopped it for good
+        behind = wait and reference is not None and stamp - reference[1] > self.params["max_reference_lag"] * 1e9
+        if not fresh or behind:
             if not self._fresh(reference, self.reference_hold, now):
                 self.publish_damping("stale_reference", f"no fresh {topics.REFERENCE}: damping", stamp)
                 return
-            if self.params["wait_for_reference"]:
+            if wait:
                 # in lockstep the simulation waits for this answer: wait for the reference instead
                 self._awaiting_reference = True
                 self.health.counts["reference_waits"] += 1

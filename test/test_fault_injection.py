@@ -24,7 +24,8 @@ import pytest
 from ciml_learning.bagio import BagError, read_messages
 from ciml_learning.fileio import FAULT_ENV
 from ciml_learning.mcap_check import BagCorruptError, check_bag, seal_mcap, verify_mcap
-from ciml_learning.models import MODEL_JSON, MODEL_NPZ, ModelFileError, ModelSet
+from ciml_learning.model_files import MODEL_JSON, MODEL_NPZ, ModelFileError
+from ciml_learning.models import ModelSet
 from ciml_learning.robot import load_robot
 from ciml_learning.synthetic import fit_arguments, synthetic_training_set
 

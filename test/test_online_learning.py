@@ -21,7 +21,8 @@ from synthetic import write_synthetic_bag
 
 from ciml_learning.dynamics import ReferenceState, ReferenceTorque
 from ciml_learning.extraction import learning_inputs
-from ciml_learning.models import ModelSet, read_metadata
+from ciml_learning.model_files import read_metadata
+from ciml_learning.models import ModelSet
 from ciml_learning.pipeline import load_dataset
 from ciml_learning.robot import load_robot
 from ciml_learning.serving import predict_at_reference, served_model

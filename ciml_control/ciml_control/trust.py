@@ -110,7 +110,7 @@ class TrustLaw:
 class TrustedEpsilonFunction:
     """epsilon_fn(ref) → ε after the TrustLaw, for the headless closed loop
     (ciml_sim.recorder.run_headless): wraps an epsilon_fn; if it offers the model set's
-    prediction with variances (models.EpsilonFunction.predict) the gate applies, else the
+    prediction with variances (model_epsilon.EpsilonFunction.predict) the gate applies, else the
     clip only (an identified physical model has no variance). Counts the steps with a gated /
     clipped entry in `counts`."""
 

@@ -73,7 +73,7 @@ def test_epsilon_is_clipped_to_the_robots_physics_and_never_nan():
 
 
 def test_headless_wrapper_applies_the_same_law_and_counts():
-    class Model:  # models.EpsilonFunction's interface: predict(ref) → (Φ̃, var, Γ, var)
+    class Model:  # model_epsilon.EpsilonFunction's interface: predict(ref) → (Φ̃, var, Γ, var)
         model_set = object()
 
         def __init__(self, var):

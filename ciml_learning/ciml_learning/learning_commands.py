@@ -16,7 +16,7 @@ def train(args: argparse.Namespace) -> int:
     from .cliargs import cap_jobs
     from .cluster import joblib_on
     from .fileio import check_out_dir
-    from .models import is_model_dir
+    from .model_files import is_model_dir
     from .training import train_from_bags
 
     if args.jobs == 0 or args.jobs < -1:

@@ -1,4 +1,4 @@
-"""The per-dimension model set of the model error, its file format, and ε at a reference.
+"""The per-dimension model set of the model error.
 
 A ModelSet holds one independent learner per output dimension (paper §III-D):
 
@@ -53,7 +53,7 @@ and its mask; C: leg coupling (N × 6 × n_j); Γ (N × n_j)):
     ms.partial_fit_one(x, rbd, observed, gamma, C)    # one sample, legs before the base
     ms.partial_fit(X, rbd, rbd_observed, Gamma, valid, C)   # = partial_fit_one on each, in order
     rbd, rbd_var, act, act_var = ms.predict_one(x)   # fast single-sample prediction
-    eps = EpsilonFunction(robot, ms); eps(ref)       # ε at a reference point, eq. (17)
+    eps = EpsilonFunction(robot, ms); eps(ref)       # ε at a reference point, eq. (17) (model_epsilon)
     ms.save(model_dir)                               # atomic snapshot (npz + json)
     ms = ModelSet.load(model_dir, robot)             # validated, refuses bad files
 
@@ -61,51 +61,20 @@ partial_fit needs an incremental learner (LWPR); the sparse GP is batch-only (fi
 A ModelSet is not thread-safe: the online learner should save a snapshot from its own
 thread and then announce it (/model_update); the server loads it after the announcement.
 
-File format (model_dir/, the whole directory published in one step: fileio.atomic_dir):
-
-    model.npz   arrays only, read with allow_pickle=False: input_mean, input_scale,
-                output_scale, and "dimNN.<key>" for each learned dimension NN
-                (learner state, see the learners' get_state)
-    model.json  format_version, learner, kernel, hyper-parameters, input/output names,
-                the robot's joint and foot names, training bags and sample counts,
-                per-dimension summaries, the npz's sha256 and size, a `manifest` (sha256
-                and size of every other file of the directory) and a `checksum`: the
-                sha256 of the JSON body itself without the checksum (canonical form,
-                model_checksum) — so the description is covered too
-
-Loading checks the version, the learner against an allow-list, the JSON checksum, every
-manifest file's checksum, the robot's names, then rebuilds each learner from its arrays —
-no pickle, no GPy save/load, no name from the file is ever evaluated. Any mismatch raises
-ModelFileError (one line).
+Files: ms.save / ModelSet.load write and read the format of ciml_learning.model_files
+(npz + JSON, versioned, checksummed as a whole); ε at a reference: ciml_learning.model_epsilon.
 """
 from __future__ import annotations
 
-import hashlib
-import io
-import json
-import os
-import time
-import zipfile
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from .errors import CimlError
-from .extraction import combined_error
 from .learners import LWPR, Learner, LearnerError, LWPRStack, learner_class
+from .model_files import KERNELS, MODEL_JSON, MODEL_NPZ, ModelFileError, read_arrays, read_metadata, write_model_dir
 from .parallel import fit_dimensions
-
-FORMAT_VERSION = 5
-"""5: model.json carries a manifest and its own checksum; 4: the actuation models take τ and τ̇
-too; 3: the rigid-body models learn Φ̃ = J'ᵀΦ̃' (base wrench, leg joints). Other versions are
-refused."""
-MODEL_JSON_MAX_BYTES = 16 * 2**20
-MODEL_JSON = "model.json"
-MODEL_NPZ = "model.npz"
-KIND = "ciml_model_set"
-KERNELS = {"lwpr": "gaussian_receptive_fields", "sgpr": "matern32_ard"}
 
 DEFAULT_PARAMS: dict[str, dict[str, dict[str, Any]]] = {
     # Hyper-parameters per learner and group, in standardised units (unit-variance inputs,
@@ -142,10 +111,6 @@ N_BASE = 6
 
 MIN_SAMPLES = 10
 """A dimension with fewer usable samples than this keeps no model (zero error)."""
-
-
-class ModelFileError(CimlError):
-    """A model directory that cannot be used: missing, truncated, tampered, wrong version or robot."""
 
 
 class ModelSetError(CimlError):
@@ -595,7 +560,8 @@ class ModelSet:
                 raise ModelFileError(f"{where} was trained for a different robot: {what} {list(mine)} "
                                      f"but the robot has {list(theirs)}")
 
-    def metadata(self, npz_sha256: str, npz_bytes: int) -> dict[str, Any]:
+    def description(self) -> dict[str, Any]:
+        """The set's part of model.json (model_files.write_model_dir adds the format's)."""
         dims = []
         for i, model in enumerate(self.models_):
             entry = {"name": self.output_names[i], "kind": self.dimension_kind(i), "samples": int(self.n_samples_[i]),
@@ -604,8 +570,6 @@ class ModelSet:
                 entry["summary"] = model.summary()
             dims.append(entry)
         return {
-            "format_version": FORMAT_VERSION,
-            "kind": KIND,
             "learner": self.learner,
             "kernel": KERNELS[self.learner],
             "params": self.params,
@@ -618,8 +582,6 @@ class ModelSet:
             "robot": {"joint_names": list(self.joint_names), "foot_frames": list(self.foot_frames)},
             "training": self.training_,
             "dimensions": dims,
-            "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-            "npz": {"file": MODEL_NPZ, "sha256": npz_sha256, "bytes": npz_bytes},
         }
 
     def to_arrays(self) -> dict[str, np.ndarray]:
@@ -633,35 +595,14 @@ class ModelSet:
 
     def save(self, model_dir: str, extra_files: dict[str, bytes] | None = None, what: str = "--out") -> dict[str, Any]:
         """Write model_dir (model.npz, model.json and `extra_files`) as one new directory that
-        replaces the old one in one step (fileio.atomic_dir); returns the metadata."""
-        from .fileio import atomic_dir, json_dumps
-
-        buf = io.BytesIO()
-        np.savez(buf, allow_pickle=False, **self.to_arrays())
-        data = buf.getvalue()
-        files = {MODEL_NPZ: data, **(extra_files or {})}
-        meta = self.metadata(hashlib.sha256(data).hexdigest(), len(data))
-        meta["manifest"] = {name: {"sha256": hashlib.sha256(b).hexdigest(), "bytes": len(b)}
-                            for name, b in sorted(files.items())}
-        meta["checksum"] = model_checksum(meta)
-        with atomic_dir(model_dir, is_model_dir, "model", what) as tmp:
-            for name, b in files.items():
-                with open(os.path.join(tmp, name), "xb") as f:
-                    f.write(b)
-            with open(os.path.join(tmp, MODEL_JSON), "x", encoding="utf-8") as f:
-                f.write(json_dumps(meta))
-        return meta
+        replaces the old one in one step (model_files.write_model_dir); returns the metadata."""
+        return write_model_dir(model_dir, self.to_arrays(), self.description(), extra_files, what)
 
     @classmethod
     def load(cls, model_dir: str, robot=None) -> "ModelSet":
         """Read and validate a model directory; with `robot`, also check it was trained for it."""
         meta = read_metadata(model_dir)
-        data = _read_npz_bytes(model_dir, meta)
-        try:
-            with np.load(io.BytesIO(data), allow_pickle=False) as npz:
-                arrays = {k: npz[k] for k in npz.files}
-        except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
-            raise ModelFileError(f"{model_dir}/{MODEL_NPZ} is not a readable npz ({err})") from None
+        arrays = read_arrays(model_dir, meta)
         try:
             ms = cls(meta["learner"], meta["inputs"]["names"], meta["outputs"]["rbd"], meta["outputs"]["actuation"],
                      meta["robot"]["foot_frames"], meta["params"], meta["inputs"]["rbd"])
@@ -713,160 +654,3 @@ class ModelSet:
         ms.training_ = dict(meta.get("training") or {})
         ms.lwpr_stacks()  # stacked now (~2 ms), not at a served model's first prediction
         return ms
-
-
-def model_checksum(meta: dict[str, Any]) -> str:
-    """sha256 of model.json's body without its `checksum` (sorted keys, compact separators)."""
-    body = {k: v for k, v in meta.items() if k != "checksum"}
-    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":"),
-                                     allow_nan=False).encode("utf-8")).hexdigest()
-
-
-def is_model_dir(path: str) -> bool:
-    """Whether `path` holds a CIML model description (what `--out` may replace)."""
-    from .fileio import load_json_bounded
-
-    try:
-        meta = load_json_bounded(os.path.join(path, MODEL_JSON), "model description", MODEL_JSON_MAX_BYTES)
-    except CimlError:
-        return False
-    return isinstance(meta, dict) and meta.get("kind") == KIND
-
-
-def read_metadata(model_dir: str) -> dict[str, Any]:
-    """model.json of a model directory, with its format version, learner and checksum checked."""
-    from .fileio import InputFileError, load_json_bounded
-
-    path = os.path.join(model_dir, MODEL_JSON)
-    if not os.path.isdir(model_dir):
-        raise ModelFileError(f"model directory not found: {model_dir}")
-    if not os.path.lexists(path):
-        raise ModelFileError(f"{path} not found (not a model directory)")
-    try:
-        meta = load_json_bounded(path, "model description", MODEL_JSON_MAX_BYTES)
-    except InputFileError as err:
-        raise ModelFileError(str(err)) from None
-    if not isinstance(meta, dict):
-        raise ModelFileError(f"{path} is not a CIML model description")
-    version = meta.get("format_version")
-    if version != FORMAT_VERSION:
-        raise ModelFileError(f"{path} has format_version {version!r}; this CIML reads version {FORMAT_VERSION} "
-                             "(retrain with `ciml train`)")
-    if meta.get("kind") != KIND:
-        raise ModelFileError(f"{path} is not a CIML model set (kind {meta.get('kind')!r})")
-    if meta.get("learner") not in KERNELS:
-        raise ModelFileError(f"{path} names unknown learner {meta.get('learner')!r}; valid: {sorted(KERNELS)}")
-    try:
-        ok = meta.get("checksum") == model_checksum(meta)
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise ModelFileError(f"{path} does not match its own checksum (modified or corrupt); retrain or restore it")
-    manifest = meta.get("manifest")
-    if not isinstance(manifest, dict) or MODEL_NPZ not in manifest or \
-            not all(isinstance(v, dict) for v in manifest.values()):
-        raise ModelFileError(f"{path} has no valid manifest")
-    return meta
-
-
-def read_model_file(model_dir: str, meta: dict[str, Any], name: str) -> bytes:
-    """One file of a model directory, checked against model.json's manifest."""
-    info = meta["manifest"].get(name)
-    path = os.path.join(model_dir, name)
-    if info is None or os.path.basename(name) != name:
-        raise ModelFileError(f"{model_dir}/{MODEL_JSON}: {name} is not in the manifest")
-    try:
-        with open(path, "rb") as f:
-            data = f.read(int(info.get("bytes", -1)) + 1)
-    except FileNotFoundError:
-        raise ModelFileError(f"{path} not found") from None
-    except (OSError, TypeError, ValueError) as err:
-        raise ModelFileError(f"cannot read {path}: {getattr(err, 'strerror', None) or err}") from None
-    if len(data) != info.get("bytes") or hashlib.sha256(data).hexdigest() != info.get("sha256"):
-        raise ModelFileError(f"{path} does not match the checksum in {MODEL_JSON} (truncated, modified, or "
-                             f"written by a concurrent save: reload after the next /model_update)")
-    return data
-
-
-def verify_model_files(model_dir: str, meta: dict[str, Any]) -> None:
-    """Every file of the manifest present and intact (ModelFileError otherwise)."""
-    for name in meta["manifest"]:
-        read_model_file(model_dir, meta, name)
-
-
-def _read_npz_bytes(model_dir: str, meta: dict[str, Any]) -> bytes:
-    for name in meta["manifest"]:
-        if name != MODEL_NPZ:
-            read_model_file(model_dir, meta, name)
-    return read_model_file(model_dir, meta, MODEL_NPZ)
-
-
-# ---------------------------------------------------------------------- ε at a reference
-class EpsilonFunction:
-    """ε = Φ̃(x) − Sᵀ Γ(x, τ_ref, τ̇_ref), eq. (17) with Φ̃ = J'ᵀΦ̃' learned directly, from a model set.
-
-    Callable with a reference point (anything with .t, .q, .v, .a, .contacts — e.g.
-    ciml_control.references.ReferencePoint, dynamics.ReferenceState): returns ε (nv,)
-    [N, Nm] at the reference, the generalized force the controller adds to M q̈ + h. The
-    actuation models are evaluated at the torque the reference asks for with the learned
-    rigid-body error, and its rate (dynamics.ReferenceTorque: stateful, one per reference
-    stream). Never returns NaN: a non-finite input or prediction gives zeros (the nominal
-    model) and is counted in n_nonfinite.
-    """
-
-    def __init__(self, robot, model_set: ModelSet) -> None:
-        from .dynamics import ReferenceTorque, selection_matrix
-
-        model_set.check_robot(robot)
-        self.robot = robot
-        self.model_set = model_set
-        self.reference_torque = ReferenceTorque(robot)
-        self._S = selection_matrix(robot)
-        index = {n: i for i, n in enumerate(model_set.input_names)}
-        self._torque_columns = np.array([index[f"tau_{j}"] for j in robot.joint_names])
-        self._rate_columns = np.array([index[f"taud_{j}"] for j in robot.joint_names])
-        self.n_nonfinite = 0
-
-    def predict(self, ref, reference_torque=None, foot_jacobians: np.ndarray | None = None
-                ) -> tuple[np.ndarray, ...] | None:
-        """(Φ̃, var, Γ, var) at a reference point, or None if its inputs are not finite (Γ is NaN
-        when Φ̃ is). reference_torque: the stream's ReferenceTorque (default: this function's own);
-        foot_jacobians: at ref.q, if the caller has them (else ReferenceTorque computes them)."""
-        from .extraction import learning_inputs
-
-        q, v, a = (np.asarray(z, dtype=float) for z in (ref.q, ref.v, ref.a))
-        zeros = np.zeros(self.robot.n_joints)
-        x = learning_inputs(q, v, a, zeros, zeros)[0]
-        if not np.all(np.isfinite(x)) or not np.all(np.isfinite(q)):
-            return None
-        rbd, rbd_var = self.model_set.predict_part_one(x, "rbd")
-        if not np.all(np.isfinite(rbd)):
-            nan = np.full(self.robot.n_joints, np.nan)
-            return rbd, rbd_var, nan, nan
-        x[self._torque_columns], x[self._rate_columns] = (reference_torque or self.reference_torque)(
-            ref, rbd, foot_jacobians)
-        return (rbd, rbd_var, *self.model_set.predict_part_one(x, "actuation"))
-
-    def epsilon(self, ref, return_var: bool = False):
-        """ε (nv,) at a reference point; with return_var, also its variance per entry (nv,),
-        from the predicted variances assuming independent dimensions."""
-        nv = self.robot.nv
-        out = self.predict(ref)
-        eps = var = np.zeros(nv)
-        if out is not None:
-            rbd, rbd_var, gamma, gamma_var = out
-            eps = combined_error(None, rbd, gamma, self._S)  # the set learns Φ̃ = J'ᵀΦ̃'
-            var = rbd_var + self._S.T @ gamma_var
-        if out is None or not (np.all(np.isfinite(eps)) and np.all(np.isfinite(var))):
-            self.n_nonfinite += 1
-            eps, var = np.zeros(nv), np.zeros(nv)
-        return (eps, var) if return_var else eps
-
-    def __call__(self, ref) -> np.ndarray:
-        return self.epsilon(ref)
-
-
-def load_epsilon_function(robot, model_dir: str) -> Callable[[Any], np.ndarray]:
-    """epsilon_fn(ref) → ε (nv,) at a reference point from a trained model directory
-    (for `ciml closed-loop --model MODEL_DIR` and ciml_sim.recorder.run_headless)."""
-    return EpsilonFunction(robot, ModelSet.load(model_dir, robot))

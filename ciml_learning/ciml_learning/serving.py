@@ -5,7 +5,7 @@
   carry that checksum; its predictions on its own training inputs stay within the robot's
   physical bounds) — any failure is a ModelFileError.
 - predict_at_reference gives Φ̃' (18) and Γ (n_j) with variances at the reference (qᵈ, q̇ᵈ,
-  q̈ᵈ and the torque it asks for, τ_ref, τ̇_ref: models.EpsilonFunction.predict), or the
+  q̈ᵈ and the torque it asks for, τ_ref, τ̇_ref: model_epsilon.EpsilonFunction.predict), or the
   nominal model (see PredictedError): the set predicts Φ̃ = J'ᵀΦ̃' and the server publishes
   Φ̃' = J'⁻ᵀΦ̃ with the basis at qᵈ, so the message keeps the contact-invariant coordinates
   of /model_error/measured.
@@ -22,7 +22,9 @@ import numpy as np
 
 from .dynamics import ReferenceState, ReferenceTorque, RigidBodyDynamics
 from .extraction import learning_inputs
-from .models import N_BASE, EpsilonFunction, ModelFileError, ModelSet, default_scaling, read_metadata
+from .model_epsilon import EpsilonFunction
+from .model_files import ModelFileError, read_metadata, read_model_file
+from .models import N_BASE, ModelSet, default_scaling
 from .projection import contact_invariant_basis
 from .robot import RobotDescription
 from .snapshots import PROBE_FILE
@@ -85,7 +87,6 @@ def load_served_model(robot: RobotDescription, model_dir: str, checksum: str | N
 
 
 def _read_probe_file(model_dir: str, meta: dict, ms: ModelSet) -> np.ndarray:
-    from .models import read_model_file
 
     try:
         x = np.asarray(np.load(io.BytesIO(read_model_file(model_dir, meta, PROBE_FILE)), allow_pickle=False),

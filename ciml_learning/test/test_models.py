@@ -11,18 +11,9 @@ import pytest
 
 from ciml_learning.dynamics import ReferenceState, ReferenceTorque, RigidBodyDynamics, selection_matrix
 from ciml_learning.extraction import combined_error, learning_inputs
-from ciml_learning.models import (
-    FORMAT_VERSION,
-    MODEL_JSON,
-    MODEL_NPZ,
-    EpsilonFunction,
-    ModelFileError,
-    ModelSet,
-    ModelSetError,
-    load_epsilon_function,
-    model_checksum,
-    rbd_output_names,
-)
+from ciml_learning.model_epsilon import EpsilonFunction, load_epsilon_function
+from ciml_learning.model_files import FORMAT_VERSION, MODEL_JSON, MODEL_NPZ, ModelFileError, model_checksum
+from ciml_learning.models import ModelSet, ModelSetError, rbd_output_names
 from ciml_learning.projection import contact_invariant_basis
 from ciml_learning.robot import example_robot_data_dir, load_robot
 from ciml_learning.synthetic import fit_arguments as fit_args

@@ -15,7 +15,8 @@ from ciml_learning import conversions as cv
 from ciml_learning.conversions import ConversionError
 from ciml_learning.dynamics import ReferenceState, ReferenceTorque
 from ciml_learning.extraction import dynamics_batch, learning_inputs
-from ciml_learning.models import ModelFileError, ModelSet, ModelSetError, read_metadata, read_model_file
+from ciml_learning.model_files import ModelFileError, read_metadata, read_model_file
+from ciml_learning.models import ModelSet, ModelSetError
 from ciml_learning.online import (
     ERROR,
     STATE,
@@ -457,7 +458,7 @@ def test_online_learner_does_not_learn_a_fall_or_targets_beyond_physics():
 
 
 def test_model_server_refuses_unannounced_checksums_and_models_beyond_physical_bounds(tmp_path):
-    from ciml_learning.models import read_metadata
+    from ciml_learning.model_files import read_metadata
     from ciml_learning.snapshots import PROBE_FILE
 
     learner, s = _trained()

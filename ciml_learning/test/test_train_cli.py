@@ -10,7 +10,8 @@ from synthetic import write_synthetic_bag
 
 from ciml_learning.cli import main
 from ciml_learning.dynamics import ReferenceState
-from ciml_learning.models import ModelSet, load_epsilon_function, rbd_output_names
+from ciml_learning.model_epsilon import load_epsilon_function
+from ciml_learning.models import ModelSet, rbd_output_names
 from ciml_learning.robot import load_robot
 
 ROBOT = load_robot()

@@ -30,14 +30,14 @@ def load_epsilon_function(robot: RobotDescription, spec: str) -> Callable | None
     """The model error ε(reference point) the controller uses, from --model.
 
     'nominal' → None (ε = 0); a directory with diagnosis.json → the identified effects
-    (ciml_learning.diagnosis); any other directory → a learned model (ciml_learning.models).
+    (ciml_learning.diagnosis); any other directory → a learned model (ciml_learning.model_epsilon).
     """
     if spec == "nominal":
         return None
     if not os.path.isdir(spec):
         raise ModelDirError(f"--model {spec}: expected 'nominal', a model directory or a diagnosis directory")
     is_diagnosis = os.path.isfile(os.path.join(spec, "diagnosis.json"))
-    module = "ciml_learning.diagnosis" if is_diagnosis else "ciml_learning.models"
+    module = "ciml_learning.diagnosis" if is_diagnosis else "ciml_learning.model_epsilon"
     try:
         import importlib
 

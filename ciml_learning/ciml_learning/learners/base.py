@@ -17,7 +17,7 @@ CLI, the model server and the diagnosis:
 - away from the training data every learner falls back to a zero mean with a large
   std (the prior): a learned model error then reverts to the nominal model;
 - the learned state is exported as plain arrays (``get_state``) and rebuilt from them
-  (``from_state``) — the model files (ciml_learning.models) store nothing else.
+  (``from_state``) — the model files (ciml_learning.model_files) store nothing else.
 
 Inputs X are (N × n_features) float arrays, targets y are (N,) float arrays, both
 finite. Units are whatever the caller uses; the model set standardises them.

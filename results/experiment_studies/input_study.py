@@ -6,7 +6,7 @@ product's `models.rbd_input_names` or a variant), then runs the closed loop of e
 motion of tools/experiment.py (default gap, seed 1001, 10 gait cycles) and prints the
 RMS feedback effort and its reduction vs nominal, per motion and as the two means.
 
-    python tools/input_study.py BAG_DIR VARIANT [--learner lwpr|sgpr] [--work DIR]
+    python results/experiment_studies/input_study.py BAG_DIR VARIANT [--learner lwpr|sgpr] [--work DIR]
 
 BAG_DIR: the training recordings of tools/experiment.py (`<work>/bags`, the *_<rep> ones).
 VARIANT: LEGS+BASE, LEGS one of product, qd, q_qd (a leg joint's own q̇; q and q̇);
@@ -22,10 +22,13 @@ import os
 import sys
 
 import numpy as np
-from experiment import NEW_MOTIONS, ROOT, SCENARIO, TRAIN_MOTIONS  # tools/ is the script's own folder
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "tools"))
+from experiment import NEW_MOTIONS, ROOT, SCENARIO, TRAIN_MOTIONS  # noqa: E402  (tools/experiment.py)
 
 from ciml_control.references import default_duration
-from ciml_learning.models import N_BASE, ModelSet, joint_state_names, load_epsilon_function, rbd_input_names
+from ciml_learning.model_epsilon import load_epsilon_function
+from ciml_learning.models import N_BASE, ModelSet, joint_state_names, rbd_input_names
 from ciml_learning.pipeline import load_dataset
 from ciml_learning.robot import load_robot
 from ciml_sim.recorder import run_headless

@@ -10,7 +10,7 @@ from a learned model set where one part is replaced by the scenario's true effec
                 applied zero-phase over the reference ahead (needs the reference's future:
                 possible headless, not in the live graph)
 
-    python tools/limits_study.py VARIANT MODEL_DIR [MOTION,MOTION,...]
+    python results/experiment_studies/limits_study.py VARIANT MODEL_DIR [MOTION,MOTION,...]
 
 Prints RMS ‖u_fb‖ [Nm] per motion (results/EXPERIMENT.md, "What is left").
 """
@@ -21,14 +21,17 @@ import os
 import sys
 
 import numpy as np
-from experiment import NEW_MOTIONS, ROOT, SCENARIO, TRAIN_MOTIONS  # tools/ is the script's own folder
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "tools"))
+from experiment import NEW_MOTIONS, ROOT, SCENARIO, TRAIN_MOTIONS  # noqa: E402  (tools/experiment.py)
 
 from ciml_control.references import default_duration
 from ciml_learning.diagnosis import load_effect_model
 from ciml_learning.dynamics import ReferenceTorque, selection_matrix
 from ciml_learning.extraction import combined_error
 from ciml_learning.filters import delay_samples, derivative_taps
-from ciml_learning.models import N_BASE, EpsilonFunction, ModelSet
+from ciml_learning.model_epsilon import EpsilonFunction
+from ciml_learning.models import N_BASE, ModelSet
 from ciml_learning.robot import load_robot
 from ciml_sim.plant import Plant
 from ciml_sim.recorder import CONTROL_RATE, make_reference, run_headless

@@ -2,8 +2,11 @@
 `only`) against the wall clock for 30 s after a 5 s warm-up, watched by a SCHED_FIFO 5 probe; prints
 the lowest base height, each process's CPU, the bridge's and controller's counters, the largest
 gaps per topic at the probe (the stalls), and the base height before a fall.
-Run: python free_running_stalls.py all|GROUP,GROUP [launch_arg=value ...]"""
+Run: python free_running_stalls.py all|GROUP,GROUP [launch_arg=value ...]
+Fifteenth session: PIN=1 pins the control container to CPU 1 and the other processes and the probe
+to CPU 0 after start; CFS=NICE sets every real-time thread of the graph to SCHED_OTHER at NICE."""
 import json
+import os
 import sys
 import tempfile
 import time
@@ -24,6 +27,20 @@ launcher, out = live_bench.start_graph({"model_dir": tmp + "/m", "lockstep": "fa
 probe.wait_for(lambda: probe.first_torque_time is not None, 200)
 time.sleep(5)
 pids = {n.label: n.proc.pid for n in launcher.nodes}
+if os.environ.get("CFS"):
+    for k, p in pids.items():
+        for tid in os.listdir(f"/proc/{p}/task"):
+            if os.sched_getscheduler(int(tid)) != os.SCHED_OTHER:
+                os.sched_setscheduler(int(tid), os.SCHED_OTHER, os.sched_param(0))
+                os.setpriority(os.PRIO_PROCESS, int(tid), int(os.environ["CFS"]))
+    print("cfs", pids)
+if os.environ.get("PIN"):
+    for k, p in pids.items():
+        for tid in os.listdir(f"/proc/{p}/task"):
+            os.sched_setaffinity(int(tid), {1} if k == "control" else {0})
+    for tid in os.listdir("/proc/self/task"):
+        os.sched_setaffinity(int(tid), {0})
+    print("pinned", pids)
 c0 = {k: cpu_seconds(p) for k, p in pids.items()}
 t0 = time.monotonic()
 with probe.lock:

@@ -18,12 +18,12 @@ ROBOT = load_robot()
 @pytest.mark.ros
 @pytest.mark.slow
 def test_replayed_bag_through_nodes_matches_offline_extraction(tmp_path):
-    from ciml_msgs.msg import ModelError
+    from ciml_msgs.msg import LearningSample, ModelError
 
     bag = tmp_path / "bag"
     write_synthetic_bag(ROBOT, bag, seconds=4.0)
     offline = load_dataset(ROBOT, [str(bag)], progress=False)
-    listener = Listener({"/model_error/measured": ModelError})
+    listener = Listener({"/model_error/measured": ModelError, "/model_error/learning_samples": LearningSample})
     nodes = [start_node("state_filter"), start_node("error_extractor")]
     try:
         import time
@@ -62,3 +62,18 @@ def test_replayed_bag_through_nodes_matches_offline_extraction(tmp_path):
         np.testing.assert_allclose(msg.actuation_error, offline.targets.actuation_error[k], atol=1e-6)
         matched += 1
     assert matched > 0.3 * offline.n_valid
+
+    # the learner's stream: the valid errors only, each with the state it came from, numbered
+    samples = listener.messages["/model_error/learning_samples"]
+    by_stamp = {m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec: m for m in received}
+    valid = {ns for ns, m in by_stamp.items() if all(m.actuation_observed)}
+    assert samples and np.all(np.diff([m.sequence for m in samples]) > 0)
+    seen = 0
+    for m in samples:
+        ns = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+        assert m.state.valid and m.state.header.stamp == m.header.stamp and all(m.error.actuation_observed)
+        if ns in by_stamp:  # both topics are best effort: either may have lost it
+            assert ns in valid
+            np.testing.assert_array_equal(m.error.rbd_error, by_stamp[ns].rbd_error)
+            seen += 1
+    assert seen >= 0.8 * len(valid) and len(valid) < 0.9 * len(received), (seen, len(valid), len(received))

@@ -107,8 +107,9 @@ def test_replayed_foreign_bag_teaches_the_online_learner_like_train(unitree_bag,
         up = listener.wait_for(lambda: listener.node.count_subscribers("/imu") >= 1
                                and listener.node.count_subscribers("/effort_command") >= 1
                                and listener.node.count_publishers("/model_update") >= 1
-                               and listener.node.count_subscribers("/model_error/measured") >= 1, timeout=90)
-        seen = {t: listener.node.count_subscribers(t) for t in ("/imu", "/effort_command", "/model_error/measured")}
+                               and listener.node.count_subscribers("/model_error/learning_samples") >= 1, timeout=90)
+        seen = {t: listener.node.count_subscribers(t)
+                for t in ("/imu", "/effort_command", "/model_error/learning_samples")}
         assert up, ([p.poll() for p in nodes], seen)
         time.sleep(1.0)
         subprocess.run([os.path.join(BIN, "ciml"), "play", "--bag", bag, "--rate", str(RATE)], check=True,

@@ -235,14 +235,13 @@ def test_model_server_refuses_poisoned_and_unchecksummed_models(tmp_path):
 @pytest.mark.ros
 @pytest.mark.slow
 def test_online_learner_pauses_on_a_fall_and_says_so(tmp_path):
-    from ciml_msgs.msg import ModelError, RobotState
+    from ciml_msgs.msg import LearningSample
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     listener = Listener({"/diagnostics": DiagnosticArray})
     qos = QoSProfile(depth=250, reliability=ReliabilityPolicy.RELIABLE)
-    state_pub = listener.node.create_publisher(RobotState, "/filtered_state", qos)
-    error_pub = listener.node.create_publisher(ModelError, "/model_error/measured", qos)
+    sample_pub = listener.node.create_publisher(LearningSample, "/model_error/learning_samples", qos)
     learner = start_node("online_learner", "-p", f"model_dir:={tmp_path / 'online'}", "-p", "resume_after:=0.2")
     nj, nv = ROBOT.n_joints, ROBOT.nv
     q0 = ROBOT.neutral_configuration().copy()
@@ -257,11 +256,12 @@ def test_online_learner_pauses_on_a_fall_and_says_so(tmp_path):
         q[2] = z
         q[7:] += 0.02 * np.sin(0.1 * k[0] + np.arange(nj))
         zeros = np.zeros(nv)
-        state_pub.publish(cv.robot_state_msg(ROBOT, stamp, q, zeros, zeros, np.zeros(nj), np.zeros(nj), np.zeros(nj),
-                                             np.ones(4, bool), True))
+        state = cv.robot_state_msg(ROBOT, stamp, q, zeros, zeros, np.zeros(nj), np.zeros(nj), np.zeros(nj),
+                                   np.ones(4, bool), True)
         phi = np.zeros(18)
         phi[2] = fz
-        error_pub.publish(cv.model_error_msg(ROBOT, stamp, "measured", phi, observed, np.zeros(nj), np.ones(nj, bool)))
+        error = cv.model_error_msg(ROBOT, stamp, "measured", phi, observed, np.zeros(nj), np.ones(nj, bool))
+        sample_pub.publish(LearningSample(header=error.header, sequence=k[0], state=state, error=error))
 
     def stream(z: float, fz: float, predicate, timeout: float) -> bool:
         deadline = time.monotonic() + timeout
@@ -277,8 +277,7 @@ def test_online_learner_pauses_on_a_fall_and_says_so(tmp_path):
         return _values(listener, "online_learner")
 
     try:
-        assert listener.wait_for(lambda: state_pub.get_subscription_count() >= 1
-                                 and error_pub.get_subscription_count() >= 1
+        assert listener.wait_for(lambda: sample_pub.get_subscription_count() >= 1
                                  and _diag(listener, "online_learner") is not None, timeout=40), stop(learner)
         # standing: learned
         assert stream(0.6, -30.0, lambda: int(values().get("samples_learned", 0)) >= 50, timeout=20), values()

@@ -69,7 +69,7 @@ def _both(pred) -> np.ndarray:
 @pytest.mark.ros
 @pytest.mark.slow
 def test_online_model_from_replay_matches_offline_partial_fit(tmp_path):
-    from ciml_msgs.msg import ModelError, ModelUpdate, RobotState
+    from ciml_msgs.msg import LearningSample, ModelUpdate
     from diagnostic_msgs.msg import DiagnosticArray
 
     from ciml_learning import conversions as cv
@@ -92,8 +92,8 @@ def test_online_model_from_replay_matches_offline_partial_fit(tmp_path):
     try:
         # all three nodes up and discovered (imports and JIT loading take a while) before the replay
         assert listener.wait_for(lambda: listener.node.count_publishers("/model_update") >= 1
-                                 and listener.node.count_subscribers("/filtered_state") >= 2
-                                 and listener.node.count_subscribers("/model_error/measured") >= 1
+                                 and listener.node.count_subscribers("/filtered_state") >= 1
+                                 and listener.node.count_subscribers("/model_error/learning_samples") >= 1
                                  and listener.node.count_subscribers("/joint_states") >= 1, timeout=40)
         time.sleep(1.0)
         subprocess.run([os.path.join(BIN, "ciml"), "play", "--bag", str(bag), "--rate", str(RATE)], check=True,
@@ -108,21 +108,23 @@ def test_online_model_from_replay_matches_offline_partial_fit(tmp_path):
             time.sleep(0.1)
         assert ups, "no /model_update after the replay"
         # bad inputs are rejected and counted (after the replay: they cannot affect the model)
-        state_pub = listener.node.create_publisher(RobotState, "/filtered_state", COMMAND_QOS)
-        error_pub = listener.node.create_publisher(ModelError, "/model_error/measured", COMMAND_QOS)
-        listener.wait_for(lambda: state_pub.get_subscription_count() >= 2 and error_pub.get_subscription_count() >= 1,
-                          timeout=10)
+        sample_pub = listener.node.create_publisher(LearningSample, "/model_error/learning_samples", COMMAND_QOS)
+        listener.wait_for(lambda: sample_pub.get_subscription_count() >= 1, timeout=10)
         time.sleep(0.5)
         bad_state = cv.robot_state_msg(ROBOT, 99 * 10**9, offline.log.q[500], offline.log.v[500], offline.log.a[500],
                                        offline.log.tau[500], offline.log.tau_dot[500], offline.log.u[500],
                                        offline.log.contacts[500], True)
         bad_state.joint_names = ["not_a_joint"] + list(bad_state.joint_names[1:])
+        error = cv.model_error_msg(ROBOT, 99 * 10**9, "measured", np.zeros(18), np.ones(18, bool),
+                                   np.zeros(12), np.ones(12, bool))
         bad_error = cv.model_error_msg(ROBOT, 99 * 10**9, "measured", np.full(18, np.nan), np.ones(18, bool),
                                        np.zeros(12), np.ones(12, bool))
-        state_pub.publish(bad_state)
-        error_pub.publish(bad_error)
-        assert listener.wait_for(lambda: int(_diag_values(listener, "online_learner").get("rejected_states", 0)) >= 1
-                                 and int(_diag_values(listener, "online_learner").get("rejected_errors", 0)) >= 1,
+        good_state = cv.robot_state_msg(ROBOT, 99 * 10**9, offline.log.q[500], offline.log.v[500],
+                                        offline.log.a[500], offline.log.tau[500], offline.log.tau_dot[500],
+                                        offline.log.u[500], offline.log.contacts[500], True)
+        sample_pub.publish(LearningSample(header=error.header, sequence=10**6, state=bad_state, error=error))
+        sample_pub.publish(LearningSample(header=error.header, sequence=10**6 + 1, state=good_state, error=bad_error))
+        assert listener.wait_for(lambda: int(_diag_values(listener, "online_learner").get("rejected_samples", 0)) >= 2,
                                  timeout=5), _diag_values(listener, "online_learner")
         diag = _diag_values(listener, "online_learner")
     finally:

@@ -20,7 +20,7 @@ from .dynamics import ReferenceState
 from .filters import filter_state_log
 from .learners import LWPR
 from .models import ModelSet
-from .online import ERROR, STATE, ErrorSample, OnlineLearner, StampPairer, StateSample
+from .online import ErrorSample, OnlineLearner, StateSample
 from .robot import load_robot
 from .serving import load_served_model, predict_at_reference, served_model
 from .snapshots import SnapshotWriter
@@ -201,7 +201,7 @@ def lwpr_cross_benchmark(n_samples: int = 20_000, seed: int = 0) -> dict:
 def online_nodes_benchmark(n_warmup: int = 20_000, n_samples: int = 2_000, seed: int = 0) -> dict:
     """Per-sample cost of the two nodes' algorithms, after n_warmup learned samples:
 
-    - learner path: StampPairer (both sides) + OnlineLearner.learn (learning_inputs +
+    - learner path: OnlineLearner.learn of one learning sample (learning_inputs +
       partial_fit_one of all 30 dimensions), then predict_at_reference (the 18 rigid-body
       models, τ_ref and τ̇_ref, the 12 actuation models, the basis) — the online cost per
       250 Hz sample; target ≤ 4 ms;
@@ -219,7 +219,6 @@ def online_nodes_benchmark(n_warmup: int = 20_000, n_samples: int = 2_000, seed:
     ms.calibrate(*warmup[:5])
     ms.partial_fit(*warmup)
     learner = OnlineLearner(robot, ms)
-    pairer = StampPairer(max_age_ns=500_000_000)
     served = served_model(robot, ms, "lwpr:bench")
     t_learn = np.empty(n_samples)
     t_pred = np.empty(n_samples)
@@ -227,10 +226,8 @@ def online_nodes_benchmark(n_warmup: int = 20_000, n_samples: int = 2_000, seed:
         k = n_warmup + s
         stamp = k * 4_000_000
         t0 = time.perf_counter()
-        pairer.add(STATE, stamp, StateSample(q[k], v[k], a[k], tau[k], tau_dot[k], bool(V[k])))
-        pair = pairer.add(ERROR, stamp, ErrorSample(R[k], M[k], A[k], np.ones(nj, bool)))
-        assert pair is not None  # the state of this stamp is pending
-        learner.learn(pair[0], pair[1], pair[2])
+        learner.learn(stamp, StateSample(q[k], v[k], a[k], tau[k], tau_dot[k], bool(V[k])),
+                      ErrorSample(R[k], M[k], A[k], np.ones(nj, bool)))
         t1 = time.perf_counter()
         predict_at_reference(robot, served, ReferenceState(stamp * 1e-9, q[k], v[k], a[k], contacts[k]))
         t_pred[s] = time.perf_counter() - t1

@@ -46,7 +46,8 @@ STATE_FILTER = NodeSchema("ciml_learning", "state_filter",
 ))
 
 ERROR_EXTRACTOR = NodeSchema("ciml_learning", "error_extractor",
-                             "/filtered_state → /model_error/measured (eq. 11 and 14)", (
+                             "/filtered_state → /model_error/measured (eq. 11 and 14) and, for valid states, "
+                             "/model_error/learning_samples", (
     Param("gamma", 0.02, "Regularisation of near-singular leg blocks", "m/rad", 1e-4, 0.2, read_only=False),
     Param("batch_period", 0.02, "Filtered states are extracted together every this often (wall clock); one state "
           "costs ~0.7 ms alone, ~0.2 ms in a batch of 5 (0: each state at once)", "s", 0.0, 0.5, read_only=False),
@@ -64,7 +65,7 @@ MODEL_SERVER = NodeSchema("ciml_learning", "model_server",
 _GATE = GateConfig()
 _VALIDATION = ValidationConfig()
 ONLINE_LEARNER = NodeSchema("ciml_learning", "online_learner",
-                            "learns the model error from /filtered_state + /model_error/measured; "
+                            "learns the model error from /model_error/learning_samples; "
                             "snapshots announced on /model_update", (
     Param("model_dir", "", "Snapshot folder ('' = ~/.ros/ciml/online_model; snapshot-NNNNNN/, latest -> newest)"),
     Param("snapshot_period", 5.0, "Seconds between model snapshots (only when something new was learned)", "s",
@@ -75,8 +76,10 @@ ONLINE_LEARNER = NodeSchema("ciml_learning", "online_learner",
     Param("initial_model", "", "Model folder to continue learning from ('' = empty model set)"),
     Param("calibration_samples", 0, "Valid samples buffered to calibrate input/output scaling first "
           "(0 = default scaling)", "", 0, 100000),
-    Param("max_pair_age", 0.5, "Longest wait for the partner (same stamp) of a state or error", "s", 0.004, 10.0),
-    Param("queue_depth", 250, "Subscription queue depth (absorbs snapshot stalls; 1 s at 250 Hz)", "", 10, 10000),
+    Param("max_pair_age", 0.5, "Longest wait of a learning sample for the /reference of its instant (in stamps "
+          "behind the newest sample)", "s", 0.004, 10.0),
+    Param("queue_depth", 250, "Subscription queue depth (absorbs snapshot stalls; 1 s of /reference at 250 Hz, "
+          "longer of learning samples)", "", 10, 10000),
     Param("record_stamps", False, "Write the learned samples' stamps (learned_stamps.npy) into each snapshot"),
     Param("min_height_ratio", _GATE.min_height_ratio, "Pause learning (fall) below this fraction of the standing "
           "base height", "", 0.05, 1.0),
@@ -95,7 +98,7 @@ ONLINE_LEARNER = NodeSchema("ciml_learning", "online_learner",
           "m·g, base torque m·g·leg span, joint torques their limits)", "", 0.1, 100.0),
     Param("require_reference", _GATE.require_reference, "Learn only with a /reference at the state's stamp (false: "
           "a log replayed without /reference is learned without the tracking check)"),
-    Param("input_timeout", 2.0, "No state or error this long after the first: WARN on /diagnostics", "s", 0.1,
+    Param("input_timeout", 2.0, "No learning sample this long after the first: WARN on /diagnostics", "s", 0.1,
           3600.0),
     Param("validate_snapshots", True, "Hold samples back and announce a snapshot only where it beats the nominal "
           "model on them (false: learn every sample and announce every snapshot whole, e.g. to compare with an "

@@ -1,10 +1,11 @@
 """Online learning without ROS: the algorithms of the `online_learner` node
 (docs/ARCHITECTURE.md §3), testable without rclpy (paper §III-D, LWPR learning at 250 Hz).
 
-- StampPairer pairs each filtered state (/filtered_state: q, q̇, q̈ of eq. 12, τ, τ̇) with the
-  measured error of the same header stamp (/model_error/measured: Φ̃' of eq. 11 and
-  Γ of eq. 14). Topics are not ordered relative to each other over DDS, so either may
-  come first; an item without a partner after `max_age` is dropped and counted.
+- learning_sample decodes what error_extractor sends the learner: a valid filtered state
+  (q, q̇, q̈ of eq. 12, τ, τ̇) with its measured error (Φ̃' of eq. 11, Γ of eq. 14) in one
+  message (/model_error/learning_samples), so no pairing of two streams is needed;
+  SequenceGaps counts the samples lost on the way, AwaitReference holds a sample until the
+  /reference of its instant is in.
 - OnlineLearner feeds each valid pair, in increasing stamp order, to
   ModelSet.partial_fit_one with x = learning_inputs(q, q̇, q̈, τ, τ̇) and the measured Φ̃'
   turned into the set's targets Φ̃ = J'ᵀΦ̃' and leg coupling C with the contact-invariant
@@ -26,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from .conversions import model_error_arrays
+from .conversions import model_error_arrays, robot_state_arrays, stamp_to_ns
 from .dynamics import RigidBodyDynamics
 from .extraction import learning_inputs
 from .learners import learner_class
@@ -37,8 +38,6 @@ from .serving import probe_inputs
 from .snapshot_gate import HELD_BACK, HeldBackWindow, ValidationConfig
 from .snapshots import Snapshot
 
-STATE, ERROR = 0, 1
-"""The two sides of a StampPairer: /filtered_state and /model_error/measured."""
 N_PROBES = 64
 """Learned inputs kept (reservoir sampling) for a snapshot's probe file (snapshots.PROBE_FILE)."""
 
@@ -66,89 +65,30 @@ class ErrorSample:
     actuation_observed: np.ndarray
 
 
-def model_error_sample(robot: RobotDescription, msg) -> ErrorSample:
-    """A ciml_msgs/ModelError as the learner's ErrorSample (robot.rbd_error_names / robot.joint_names
-    order): conversions.model_error_arrays decodes and checks it (ConversionError)."""
-    e = model_error_arrays(robot, msg)
-    return ErrorSample(e.rbd_error, e.rbd_observed, e.actuation_error, e.actuation_observed)
+def learning_sample(robot: RobotDescription, msg) -> tuple[int, StateSample, ErrorSample]:
+    """A ciml_msgs/LearningSample as (stamp [ns], StateSample, ErrorSample) in the robot's orders
+    (joint_names, rbd_error_names): the conversions decode and check both parts (ConversionError)."""
+    q, v, a, tau, tau_dot, _u, _contacts, valid = robot_state_arrays(robot, msg.state)
+    e = model_error_arrays(robot, msg.error)
+    return (stamp_to_ns(msg.header.stamp), StateSample(q, v, a, tau, tau_dot, valid),
+            ErrorSample(e.rbd_error, e.rbd_observed, e.actuation_error, e.actuation_observed))
 
 
 # ---------------------------------------------------------------------- pairing by stamp
-class StampPairer:
-    """Pairs items of two streams that carry the same header stamp [ns].
+class SequenceGaps:
+    """Samples lost between a publisher's running `sequence` numbers (LearningSample): a step of k
+    lost k − 1. Counts what a full subscription queue overwrote or DDS dropped — losses it does not
+    report. A sequence that goes back is a restarted publisher: counting starts over."""
 
-    add(side, stamp, item) returns (stamp, state_item, error_item) once both sides of a
-    stamp are in, else None. Items wait at most max_age_ns behind the newest stamp seen
-    on either side; older ones are dropped (counts["unmatched_states"/"unmatched_errors"]),
-    as are items that arrive already that late. A second item of the same side and stamp
-    is dropped (counts["duplicate_stamps"]). Memory is bounded by max_pending per side.
-    """
-
-    def __init__(self, max_age_ns: int, max_pending: int = 4096) -> None:
-        if max_age_ns <= 0 or max_pending < 1:
-            raise ValueError("max_age_ns and max_pending must be positive")
-        self.max_age_ns = int(max_age_ns)
-        self.max_pending = int(max_pending)
-        self.pending: tuple[dict[int, Any], dict[int, Any]] = ({}, {})
-        self.newest: int | None = None
-        self.counts: Counter[str] = Counter()
-
-    _NAMES = ("states", "errors")
-
-    def add(self, side: int, stamp: int, item: Any) -> tuple[int, Any, Any] | None:
-        stamp = int(stamp)
-        mine, other = self.pending[side], self.pending[1 - side]
-        if self.newest is not None and stamp < self.newest - self.max_age_ns:
-            self.counts[f"unmatched_{self._NAMES[side]}"] += 1
-            return None
-        if stamp in mine:
-            self.counts["duplicate_stamps"] += 1
-            return None
-        if self.newest is None or stamp > self.newest:
-            self.newest = stamp
-            self._evict(stamp - self.max_age_ns)
-        if stamp in other:
-            partner = other.pop(stamp)
-            return (stamp, item, partner) if side == STATE else (stamp, partner, item)
-        mine[stamp] = item
-        while len(mine) > self.max_pending:  # dicts keep insertion order: drop the oldest
-            mine.pop(next(iter(mine)))
-            self.counts[f"unmatched_{self._NAMES[side]}"] += 1
-        return None
-
-    def _evict(self, limit: int) -> None:
-        for side, pending in enumerate(self.pending):
-            old = [s for s in pending if s < limit]
-            for s in old:
-                del pending[s]
-            if old:
-                self.counts[f"unmatched_{self._NAMES[side]}"] += len(old)
-
-    def flush(self) -> None:
-        """Drop everything pending (counted as unmatched)."""
-        for side, pending in enumerate(self.pending):
-            self.counts[f"unmatched_{self._NAMES[side]}"] += len(pending)
-            pending.clear()
-
-
-class LostSamples:
-    """Samples missing from a stream at a steady rate, from its stamps: a step of k periods lost
-    k − 1 (period: the smallest step among the last `memory`). Counts what a full subscription
-    queue overwrote or the publisher never sent — losses DDS does not report."""
-
-    def __init__(self, memory: int = 250) -> None:
-        self._steps: deque[int] = deque(maxlen=memory)
+    def __init__(self) -> None:
         self.last: int | None = None
         self.lost = 0
 
-    def add(self, stamp_ns: int) -> None:
-        stamp_ns = int(stamp_ns)
-        if self.last is not None and stamp_ns > self.last:
-            self._steps.append(stamp_ns - self.last)
-            self.lost += max(int(round(self._steps[-1] / min(self._steps))) - 1, 0)
-        elif self.last is not None:  # a restarted stream: start over
-            self._steps.clear()
-        self.last = stamp_ns
+    def add(self, sequence: int) -> None:
+        sequence = int(sequence)
+        if self.last is not None and sequence > self.last:
+            self.lost += sequence - self.last - 1
+        self.last = sequence
 
 
 class AwaitReference:

@@ -12,6 +12,8 @@ TORQUE_COMMAND = "/torque_command"
 CLOCK = "/clock"
 FILTERED_STATE = "/filtered_state"
 MODEL_ERROR_MEASURED = "/model_error/measured"
+LEARNING_SAMPLES = "/model_error/learning_samples"
+"""error_extractor → online_learner: the valid states with their measured errors, nothing else."""
 MODEL_ERROR_PREDICTED = "/model_error/predicted"
 MODEL_ERROR_FEEDFORWARD = "/model_error/feedforward"
 """id_controller with feedforward_only: the learned joint-torque correction (sensor_msgs/JointState effort)."""
@@ -41,6 +43,7 @@ TYPES: dict[str, str] = {
     CLOCK: "rosgraph_msgs/msg/Clock",
     FILTERED_STATE: "ciml_msgs/msg/RobotState",
     MODEL_ERROR_MEASURED: "ciml_msgs/msg/ModelError",
+    LEARNING_SAMPLES: "ciml_msgs/msg/LearningSample",
     MODEL_ERROR_PREDICTED: "ciml_msgs/msg/ModelError",
     MODEL_ERROR_FEEDFORWARD: "sensor_msgs/msg/JointState",
     MODEL_UPDATE: "ciml_msgs/msg/ModelUpdate",

@@ -14,20 +14,11 @@ import pytest
 from ciml_learning import conversions as cv
 from ciml_learning.conversions import ConversionError
 from ciml_learning.dynamics import ReferenceState, ReferenceTorque
+from ciml_learning.errors import CimlError
 from ciml_learning.extraction import dynamics_batch, learning_inputs
 from ciml_learning.model_files import ModelFileError, read_metadata, read_model_file
 from ciml_learning.models import ModelSet, ModelSetError
-from ciml_learning.online import (
-    ERROR,
-    STATE,
-    AwaitReference,
-    ErrorSample,
-    LostSamples,
-    OnlineLearner,
-    StampPairer,
-    StateSample,
-    model_error_sample,
-)
+from ciml_learning.online import AwaitReference, ErrorSample, OnlineLearner, SequenceGaps, StateSample, learning_sample
 from ciml_learning.projection import contact_invariant_bases, generalized_rbd_error, leg_coupling
 from ciml_learning.robot import load_robot
 from ciml_learning.serving import NOMINAL, load_served_model, nominal_prediction, predict_at_reference
@@ -91,65 +82,59 @@ def error_sample(s, k, act_obs=None) -> ErrorSample:
                        np.ones(ROBOT.n_joints, bool) if act_obs is None else act_obs)
 
 
-# ---------------------------------------------------------------------- pairing
-def test_pairer_pairs_by_stamp_in_either_order_and_counts_unmatched():
-    p = StampPairer(max_age_ns=10)
-    assert p.add(STATE, 100, "s100") is None
-    assert p.add(ERROR, 100, "e100") == (100, "s100", "e100")
-    assert p.add(ERROR, 104, "e104") is None          # error first
-    assert p.add(STATE, 104, "s104") == (104, "s104", "e104")
-    assert p.add(STATE, 106, "s106") is None          # never gets an error
-    assert p.add(STATE, 106, "again") is None
-    assert p.counts["duplicate_stamps"] == 1
-    assert p.add(ERROR, 120, "e120") is None          # 106 is now older than 120 - 10: evicted
-    assert p.counts["unmatched_states"] == 1 and 106 not in p.pending[STATE]
-    assert p.add(STATE, 105, "late") is None          # arrives already too late
-    assert p.counts["unmatched_states"] == 2
-    assert p.add(STATE, 120, "s120") == (120, "s120", "e120")
-    assert p.pending == ({}, {})
-
-
-def test_pairer_memory_is_bounded():
-    p = StampPairer(max_age_ns=10**12, max_pending=5)
-    for s in range(20):
-        p.add(ERROR, s, s)
-    assert len(p.pending[ERROR]) == 5 and p.counts["unmatched_errors"] == 15
-    assert min(p.pending[ERROR]) == 15
-
-
 # ---------------------------------------------------------------------- conversions
-def test_model_error_sample_matches_by_name_and_rejects_bad_messages():
+def _learning_sample_msg(phi, obs, gamma, state=None):
+    from ciml_msgs.msg import LearningSample
+
+    error = cv.model_error_msg(ROBOT, 5, "measured", phi, obs, gamma, np.ones(12, bool))
+    if state is None:
+        s = stream(2)
+        state = cv.robot_state_msg(ROBOT, 5, s["q"][1], s["v"][1], s["a"][1], s["tau"][1], s["tau_dot"][1],
+                                   s["tau"][1], s["contacts"][1], True)
+    return LearningSample(header=error.header, sequence=1, state=state, error=error)
+
+
+def test_learning_sample_matches_by_name_and_rejects_bad_messages():
     rng = np.random.default_rng(1)
     phi, gamma = rng.normal(size=18), rng.normal(size=12)
     obs = rng.uniform(size=18) > 0.5
-    msg = cv.model_error_msg(ROBOT, 5, "measured", phi, obs, gamma, np.ones(12, bool))
+    msg = _learning_sample_msg(phi, obs, gamma)
+    q, v, a, tau, tau_dot, _u, _c, valid = cv.robot_state_arrays(ROBOT, msg.state)
     # reorder every named array consistently: the result must not change
     pr, pa = rng.permutation(18), rng.permutation(12)
-    msg.rbd_names = [msg.rbd_names[i] for i in pr]
-    msg.rbd_error = [msg.rbd_error[i] for i in pr]
-    msg.rbd_observed = [msg.rbd_observed[i] for i in pr]
-    msg.actuation_names = [msg.actuation_names[i] for i in pa]
-    msg.actuation_error = [msg.actuation_error[i] for i in pa]
-    s = model_error_sample(ROBOT, msg)
+    e = msg.error
+    e.rbd_names = [e.rbd_names[i] for i in pr]
+    e.rbd_error = [e.rbd_error[i] for i in pr]
+    e.rbd_observed = [e.rbd_observed[i] for i in pr]
+    e.actuation_names = [e.actuation_names[i] for i in pa]
+    e.actuation_error = [e.actuation_error[i] for i in pa]
+    stamp, st, s = learning_sample(ROBOT, msg)
+    assert stamp == 5 and st.valid and valid
+    np.testing.assert_array_equal(st.q, q)
+    np.testing.assert_array_equal(st.tau_dot, tau_dot)
     np.testing.assert_array_equal(s.rbd_error, phi)
     np.testing.assert_array_equal(s.rbd_observed, obs)
     np.testing.assert_array_equal(s.actuation_error, gamma)
-    bad = cv.model_error_msg(ROBOT, 5, "measured", phi, obs, gamma, np.ones(12, bool))
-    bad.rbd_error = [float("nan")] + list(bad.rbd_error[1:])
+    bad = _learning_sample_msg(phi, obs, gamma)
+    bad.error.rbd_error = [float("nan")] + list(bad.error.rbd_error[1:])
     with pytest.raises(ConversionError, match="non-finite"):
-        model_error_sample(ROBOT, bad)
-    bad = cv.model_error_msg(ROBOT, 5, "measured", phi, obs, gamma, np.ones(12, bool))
-    bad.rbd_names = ["nope"] + list(bad.rbd_names[1:])
+        learning_sample(ROBOT, bad)
+    bad = _learning_sample_msg(phi, obs, gamma)
+    bad.error.rbd_names = ["nope"] + list(bad.error.rbd_names[1:])
     with pytest.raises(ConversionError, match="names"):
-        model_error_sample(ROBOT, bad)
-    bad = cv.model_error_msg(ROBOT, 5, "measured", phi, obs, gamma, np.ones(12, bool))
-    bad.actuation_names = list(bad.actuation_names[:-1]) + ["lf_haa_joint"]
+        learning_sample(ROBOT, bad)
+    bad = _learning_sample_msg(phi, obs, gamma)
+    bad.error.actuation_names = list(bad.error.actuation_names[:-1]) + ["lf_haa_joint"]
     with pytest.raises(ConversionError, match="joint names"):
-        model_error_sample(ROBOT, bad)
-    bad = cv.model_error_msg(ROBOT, 5, "measured", phi, obs, gamma, np.ones(12, bool))
-    bad.actuation_observed = [True] * 11
+        learning_sample(ROBOT, bad)
+    bad = _learning_sample_msg(phi, obs, gamma)
+    bad.error.actuation_observed = [True] * 11
     with pytest.raises(ConversionError, match="observed"):
-        model_error_sample(ROBOT, bad)
+        learning_sample(ROBOT, bad)
+    bad = _learning_sample_msg(phi, obs, gamma)
+    bad.state.joint_names = ["not_a_joint"] + list(bad.state.joint_names[1:])
+    with pytest.raises(CimlError, match="joint names"):  # what the node catches
+        learning_sample(ROBOT, bad)
 
 
 def test_robot_reference_arrays_by_name_and_rejects_nan():
@@ -551,13 +536,13 @@ def test_snapshot_writer_writes_only_accepted_snapshots_with_their_accepted_outp
     assert [o["accepted"] for o in record["outputs"].values()] == saved.validation.accepted.tolist()
 
 
-def test_lost_samples_are_counted_from_stamp_steps():
-    lost = LostSamples()
-    for k in [0, 1, 2, 5, 6, 7, 9]:          # 3 and 4 missing, then 8
-        lost.add(1_000_000_000 + 4_000_000 * k)
+def test_lost_samples_are_counted_from_sequence_gaps():
+    lost = SequenceGaps()
+    for k in [1, 2, 3, 6, 7, 8, 10]:          # 4 and 5 missing, then 9
+        lost.add(k)
     assert lost.lost == 3
-    lost.add(0)                               # a restarted stream is not a loss
-    lost.add(4_000_000)
+    lost.add(1)                               # a restarted extractor is not a loss
+    lost.add(2)
     assert lost.lost == 3
 
 

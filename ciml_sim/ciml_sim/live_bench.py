@@ -217,9 +217,9 @@ def _rates_run(arguments: dict[str, str], duration: float, warmup: float, startu
 
 
 LEARNING_COUNTERS = {
-    "online_learner": ("samples_learned", "held_back_samples", "invalid_samples", "states_lost", "paused_fall",
-                       "paused_tracking_error", "paused_no_reference", "paused_recovering",
-                       "paused_target_beyond_bounds", "unmatched_states", "unmatched_errors", "snapshots_accepted",
+    "online_learner": ("samples_received", "samples_lost", "samples_learned", "held_back_samples", "invalid_samples",
+                       "paused_fall", "paused_tracking_error", "paused_no_reference", "paused_recovering",
+                       "paused_target_beyond_bounds", "snapshots_accepted",
                        "snapshots_refused_too_few_samples", "snapshots_refused_not_better_than_nominal",
                        "outputs_served", "learn_us_mean"),
     "model_server": ("model_swaps", "load_ms", "rollbacks", "refused_models", "predictions"),

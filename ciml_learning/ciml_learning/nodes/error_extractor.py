@@ -1,16 +1,20 @@
-"""`error_extractor`: /filtered_state → /model_error/measured (eq. 11 and 14).
+"""`error_extractor`: /filtered_state → /model_error/measured (eq. 11 and 14) + /model_error/learning_samples.
 
 Thin adapter around ciml_learning.extraction.extract; rejected inputs are counted on
-/diagnostics and never produce an output. States are extracted in batches, every
-`batch_period` of wall-clock time: extract is vectorised, and one state alone costs ~4×
-its share of a batch of 5 (results/LIVE_GRAPH.md, third session), which on a 2-core machine is the
-difference between keeping up at 250 Hz and not. The outputs are the same, in order,
+/diagnostics and never produce an output. Every extracted error goes to /model_error/measured
+(for plots and recording); each valid one (its state valid: not near a contact change, filter
+warmed up) also goes, with the state it came from, to /model_error/learning_samples as one
+ciml_msgs/LearningSample with a running `sequence`: the online learner then takes only what it
+can learn (most states of a trot are not valid) and counts a sequence gap as lost samples.
+States are extracted in batches, every `batch_period` of wall-clock time: extract is vectorised,
+and one state alone costs ~4× its share of a batch of 5 (results/LIVE_GRAPH.md, third session),
+which on a 2-core machine is the difference between keeping up at 250 Hz and not. The outputs are the same, in order,
 at most `batch_period` later.
 """
 from __future__ import annotations
 
 import numpy as np
-from ciml_msgs.msg import ModelError, RobotState
+from ciml_msgs.msg import LearningSample, ModelError, RobotState
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.timer import Timer
@@ -31,10 +35,12 @@ class ErrorExtractorNode(Node):
         self.gamma = p["gamma"]
         self.robot = load_profile(p["robot"]).robot()
         self.health = Health(self)
-        self.pending: list[tuple] = []  # (stamp ns, q, v, q̈, τ, τ̇, u, contacts, valid) awaiting the next batch
+        self.pending: list[tuple] = []  # (state msg, stamp ns, q, v, q̈, τ, τ̇, u, contacts, valid) awaiting a batch
+        self.sequence = 0               # learning samples published
         self.timer: Timer | None = None
         self._set_batch_period(p["batch_period"])
         self.pub = self.create_publisher(ModelError, topics.MODEL_ERROR_MEASURED, STREAM_QOS)
+        self.sample_pub = self.create_publisher(LearningSample, topics.LEARNING_SAMPLES, STREAM_QOS)
         self.create_subscription(RobotState, topics.FILTERED_STATE, self.on_state, STREAM_QOS)
 
     def _apply_parameters(self, changes: dict) -> str | None:
@@ -58,7 +64,7 @@ class ErrorExtractorNode(Node):
         except CimlError as err:
             self.health.count("rejected_states", f"filtered_state rejected: {err}")
             return
-        self.pending.append((cv.stamp_to_ns(msg.header.stamp), *arrays))
+        self.pending.append((msg, cv.stamp_to_ns(msg.header.stamp), *arrays))
         if self.batch_period <= 0:
             self.flush()
 
@@ -67,7 +73,7 @@ class ErrorExtractorNode(Node):
         if not self.pending:
             return
         batch, self.pending = self.pending, []
-        stamps, q, v, a, tau, tau_dot, u, contacts, valid = (list(x) for x in zip(*batch))
+        states, stamps, q, v, a, tau, tau_dot, u, contacts, valid = (list(x) for x in zip(*batch))
         res = extract(self.robot, np.array(q), np.array(v), np.array(a), np.array(tau), np.array(u),
                       np.array(contacts), gamma=self.gamma, tau_dot=np.array(tau_dot))
         for i, ns in enumerate(stamps):
@@ -75,8 +81,13 @@ class ErrorExtractorNode(Node):
                 self.health.count("non_finite_extraction", "extraction produced a non-finite value")
                 continue
             observed_act = np.full(self.robot.n_joints, bool(valid[i]))
-            self.pub.publish(cv.model_error_msg(self.robot, ns, "measured", res.rbd_error[i],
-                                                res.rbd_observed[i] & valid[i], res.actuation_error[i], observed_act))
+            error = cv.model_error_msg(self.robot, ns, "measured", res.rbd_error[i], res.rbd_observed[i] & valid[i],
+                                       res.actuation_error[i], observed_act)
+            self.pub.publish(error)
+            if valid[i]:
+                self.sequence += 1
+                self.sample_pub.publish(LearningSample(header=error.header, sequence=self.sequence,
+                                                       state=states[i], error=error))
         self.health.counts["batch_max"] = max(self.health.counts["batch_max"], len(batch))
 
 

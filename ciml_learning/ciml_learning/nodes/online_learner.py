@@ -1,24 +1,27 @@
-"""`online_learner`: /filtered_state + /model_error/measured → LWPR snapshots + /model_update.
+"""`online_learner`: /model_error/learning_samples → LWPR snapshots + /model_update.
 
-Thin adapter around ciml_learning.online (StampPairer, OnlineLearner) and snapshots (SnapshotWriter):
-each filtered state (q, q̇, q̈ → x of eq. 12) is paired by header stamp with the measured
-error of eq. (11)/(14) and learned at once with ModelSet.partial_fit_one (all 30
-dimensions, ~0.5 ms per sample: real time at 250 Hz). Every `snapshot_period` seconds,
-if something new was learned, the model set is deep-copied on this thread (the only
+Thin adapter around ciml_learning.online (learning_sample, OnlineLearner) and snapshots
+(SnapshotWriter): each learning sample — a valid filtered state (q, q̇, q̈ → x of eq. 12) and
+its measured error of eq. (11)/(14), sent together by error_extractor for valid states only —
+is learned at once with ModelSet.partial_fit_one (all 30 dimensions, ~0.5 ms per sample).
+The extractor sends only what can be learned: most states of a trot are near a contact change,
+and a learner niced below every other job, taking every state and error to drop most of them,
+got through a third of the stream on a full 2-core machine and learned a fraction of what it
+could (results/LIVE_GRAPH.md, fifteenth and sixteenth sessions). Every `snapshot_period`
+seconds, if something new was learned, the model set is deep-copied on this thread (the only
 stall; its duration is reported on /diagnostics as snapshot_copy_ms) and written by a
 worker thread to model_dir/snapshot-NNNNNN (model_dir/latest → newest); once on disk, a
 ciml_msgs/ModelUpdate is published (model_dir = the snapshot directory, learner, samples
 learned, the whole-model checksum: model.json's `checksum`, which the model server
 requires). Snapshots also carry probe_inputs.npy (64 learned inputs, in the manifest) for
-the server's bounds check. Subscription queues of `queue_depth` absorb the copy's stall.
+the server's bounds check. The subscription queue of `queue_depth` absorbs the copy's stall.
 
-Where the samples go, on /diagnostics: states_received, states_lost (missing stamps: a full
-queue while this node was behind, or never sent), then per pair one of samples_learned,
-held_back_samples, invalid_samples, paused_* (the gate below), unmatched_* (no partner).
-Rejected inputs are counted on /diagnostics and never learned: states or errors that do
-not convert (non-finite values, wrong joint/foot/error names, wrong sizes), states and
-errors without a partner of the same stamp within `max_pair_age` (unmatched_*), pairs
-out of stamp order, and invalid samples (filter warm-up, near a contact change).
+Where the samples go, on /diagnostics: samples_received, samples_lost (gaps in the extractor's
+sequence: a full queue while this node was behind, or DDS), then per sample one of
+samples_learned, held_back_samples, invalid_samples, paused_* (the gate below).
+Rejected inputs are counted on /diagnostics and never learned: samples that do not convert
+(non-finite values, wrong joint/foot/error names, wrong sizes: rejected_samples), samples out
+of stamp order, and invalid samples (a state not valid: filter warm-up, near a contact change).
 At shutdown a last snapshot of unsaved samples is written (not announced).
 
 Learning that cannot poison the loop (ciml_learning.learning_gate, docs/LIVE_GRAPH.md):
@@ -36,7 +39,7 @@ samples it was not trained on (ciml_learning.snapshot_gate: one block of stamps 
 squared error ≤ (1 − `validation_margin`) × the nominal model's on ≥ `min_heldout` held-back
 samples); it is announced with its accepted outputs only. Decisions are counted on /diagnostics
 (snapshots_accepted, snapshots_refused_too_few_samples, snapshots_refused_not_better_than_nominal;
-outputs_served: the newest accepted snapshot's). No state or error for `input_timeout` seconds
+outputs_served: the newest accepted snapshot's). No learning sample for `input_timeout` seconds
 (node clock) after the first: WARN "no samples …" until they come back.
 """
 from __future__ import annotations
@@ -45,7 +48,7 @@ import dataclasses
 import os
 import time
 
-from ciml_msgs.msg import ModelError, ModelUpdate, RobotReference, RobotState
+from ciml_msgs.msg import LearningSample, ModelUpdate, RobotReference
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
@@ -55,17 +58,7 @@ from ..errors import CimlError
 from ..learning_gate import NO_REFERENCE, GateConfig, LearningGate
 from ..models import ModelSet
 from ..node_params import ONLINE_LEARNER
-from ..online import (
-    ERROR,
-    STATE,
-    AwaitReference,
-    LostSamples,
-    OnlineLearner,
-    StampPairer,
-    StateSample,
-    model_error_sample,
-    warm_up,
-)
+from ..online import AwaitReference, OnlineLearner, SequenceGaps, learning_sample, warm_up
 from ..profile import load_profile
 from ..ros_common import COMMAND_QOS, OK, WARN, Health, declare_schema, run_node
 from ..ros_common import ERROR as DIAG_ERROR
@@ -98,11 +91,9 @@ class OnlineLearnerNode(Node):
         self.learner = OnlineLearner(self.robot, ms, calibration_samples=calib, record_stamps=record, gate=self.gate,
                                      validation=validation)
         self.get_logger().info(f"learner code ready in {warm_up(self.robot, ms.learner):.2f} s")
-        self.pairer = StampPairer(int(max_age * 1e9))
-        self._items_recent = self._unmatched_recent = 0  # for the unmatched share (_sync_counts)
-        self._loss_mark: tuple[float, float] = (0, 0)  # (states received + lost, lost) at the last loss check
+        self._loss_mark: tuple[float, float] = (0, 0)  # (samples received + lost, lost) at the last loss check
         self.waiting = AwaitReference(int(gate.max_reference_age * 1e9), int(max_age * 1e9))
-        self.lost_states = LostSamples()
+        self.lost_samples = SequenceGaps()
         self.writer = SnapshotWriter(model_dir or DEFAULT_MODEL_DIR, keep, validation)
         self.worker = LatestOnlyWorker(self.writer.write, name="snapshot-writer")
         self.snapshot_samples = 0   # samples in the newest snapshot submitted
@@ -114,29 +105,29 @@ class OnlineLearnerNode(Node):
         self._paused = False
         self.pub = self.create_publisher(ModelUpdate, topics.MODEL_UPDATE, COMMAND_QOS)
         qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
-        self.create_subscription(RobotState, topics.FILTERED_STATE, self.on_state, qos)
-        self.create_subscription(ModelError, topics.MODEL_ERROR_MEASURED, self.on_error, qos)
+        self.create_subscription(LearningSample, topics.LEARNING_SAMPLES, self.on_sample, qos)
         self.create_subscription(RobotReference, topics.REFERENCE, self.on_reference, qos)
         self.create_timer(self.snapshot_period, self.snapshot)
         self.create_timer(0.05, self.announce)
         self.input_timeout = p["input_timeout"]
-        self._last_input: float | None = None  # node clock [s] of the newest state or error
+        self._last_input: float | None = None  # node clock [s] of the newest learning sample
         self.create_timer(1.0, self.watch_inputs)
 
     # --- inputs ------------------------------------------------------------------------
-    def on_state(self, msg) -> None:
+    def on_sample(self, msg) -> None:
+        self._last_input = self.get_clock().now().nanoseconds * 1e-9
         try:
-            q, v, a, tau, tau_dot, _u, _contacts, valid = cv.robot_state_arrays(self.robot, msg)
+            stamp, state, error = learning_sample(self.robot, msg)
         except CimlError as err:
-            self.health.count("rejected_states", f"filtered_state rejected: {err}")
+            self.health.count("rejected_samples", f"learning sample rejected: {err}")
             return
-        stamp = cv.stamp_to_ns(msg.header.stamp)
-        self.lost_states.add(stamp)
+        self.lost_samples.add(msg.sequence)
         c = self.health.counts
-        c["states_received"] += 1
-        c["states_lost"] = self.lost_states.lost
-        self._watch_losses(c["states_received"], c["states_lost"])
-        self._pair(STATE, stamp, StateSample(q, v, a, tau, tau_dot, valid))
+        c["samples_received"] += 1
+        c["samples_lost"] = self.lost_samples.lost
+        self._watch_losses(c["samples_received"], c["samples_lost"])
+        self.waiting.push((stamp, state, error))
+        self._learn_ready()
 
     def on_reference(self, msg) -> None:
         try:
@@ -147,44 +138,29 @@ class OnlineLearnerNode(Node):
         self.gate.add_reference(cv.stamp_to_ns(msg.header.stamp), q)
         self._learn_ready()
 
-    def on_error(self, msg) -> None:
-        try:
-            sample = model_error_sample(self.robot, msg)
-        except CimlError as err:
-            self.health.count("rejected_errors", f"model_error/measured rejected: {err}")
-            return
-        self._pair(ERROR, cv.stamp_to_ns(msg.header.stamp), sample)
-
     def watch_inputs(self) -> None:
         """A learner whose inputs stopped says so (the chain upstream died or stalls)."""
         if self._last_input is None:
             return
         silent = self.get_clock().now().nanoseconds * 1e-9 - self._last_input
         self.health.condition("no_samples", silent > self.input_timeout, WARN,
-                              f"no samples: no /filtered_state or /model_error/measured for {silent:.1f} s")
-
-    def _pair(self, side: int, stamp: int, item) -> None:
-        self._last_input = self.get_clock().now().nanoseconds * 1e-9
-        pair = self.pairer.add(side, stamp, item)
-        self._sync_counts(self.pairer.counts)
-        if pair is not None:
-            self.waiting.push(pair)
-            self._learn_ready()
+                              f"no samples: no {topics.LEARNING_SAMPLES} for {silent:.1f} s (no valid state upstream, "
+                              "or the chain stopped)")
 
     def _learn_ready(self) -> None:
-        for pair in self.waiting.ready(self.gate.newest_reference):
-            self._learn(pair)
+        for sample in self.waiting.ready(self.gate.newest_reference):
+            self._learn(sample)
 
-    def _learn(self, pair) -> None:
+    def _learn(self, sample) -> None:
         t0 = time.perf_counter()
-        reason = self.learner.learn(*pair)
+        reason = self.learner.learn(*sample)
         dt = time.perf_counter() - t0
         self._sync_gate()
         if reason is not None:
             if reason.startswith("paused_"):
                 self.health.counts[reason] = self.learner.counts[reason]
             elif reason not in ("invalid_samples", HELD_BACK):  # expected (contact changes, validation): counted
-                self.health.count(reason, f"pair at stamp {pair[0]} not learned: {reason}")
+                self.health.count(reason, f"sample at stamp {sample[0]} not learned: {reason}")
             else:
                 self.health.count(reason)
             return
@@ -217,42 +193,18 @@ class OnlineLearnerNode(Node):
         return f"learning paused: {self.gate.reason}"
 
     LOST_WARN = 0.2
-    """WARN when more than this share of /filtered_state was lost over the last ~1,000 states: the
+    """WARN when more than this share of the learning samples was lost over the last ~250: the
     learner (niced below every other job) does not get the CPU to keep up, and learns little."""
 
     def _watch_losses(self, received: float, lost: float) -> None:
         seen = received + lost
-        if seen - self._loss_mark[0] < 1000:
+        if seen - self._loss_mark[0] < 250:
             return
         share = (lost - self._loss_mark[1]) / (seen - self._loss_mark[0])
         self.health.condition("starved", share > self.LOST_WARN, WARN,
-                              f"learning starved: {100 * share:.0f} % of /filtered_state lost (the learner falls "
+                              f"learning starved: {100 * share:.0f} % of the learning samples lost (the learner falls "
                               "behind: the machine is too loaded)")
         self._loss_mark = (seen, lost)
-
-    UNMATCHED_WARN = 0.1
-    """WARN when more than this share of the last ~1,000 states and errors found no partner: a few at
-    start (the extractor's first errors follow the filter's first states) or after a restart are
-    expected and only counted; a steady share means a stream is lost or a stamp rewritten."""
-
-    def _sync_counts(self, counts) -> None:
-        """Mirror the pairer's counters on /diagnostics; WARN on a steady share of unmatched items."""
-        for key, value in counts.items():
-            delta = value - self.health.counts[key]
-            if delta <= 0:
-                continue
-            if key == "duplicate_stamps":
-                self.health.counts[key] += delta - 1
-                self.health.count(key, "duplicate stamp dropped")
-            else:
-                self.health.counts[key] += delta
-                self._unmatched_recent += delta
-        self._items_recent += 1
-        if self._items_recent >= 1000:
-            share = self._unmatched_recent / self._items_recent
-            self.health.condition("unmatched", share > self.UNMATCHED_WARN, WARN,
-                                  f"{100 * share:.0f} % of states and errors without a partner of the same stamp")
-            self._items_recent = self._unmatched_recent = 0
 
     # --- snapshots ---------------------------------------------------------------------
     def snapshot(self) -> None:

@@ -1,7 +1,7 @@
 """Fifteenth session: why some runs' learner falls behind. The shipped graph (lockstep, HyQ,
 default_gap, trot_35, online learning, seed SEED) for DURATION s of wall clock after the first
 command; every 10 s: each process's CPU (cores over the interval, from /proc), the online
-learner's CPU per thread, and its counters (states received/lost, samples learned, invalid,
+learner's CPU per thread, and its counters (samples received/lost, samples learned, invalid,
 learn_us_mean) from /diagnostics, watched by a SCHED_FIFO 5 probe.
 Run: python trace.py SEED [DURATION] > trace_SEED.json"""
 import json
@@ -21,8 +21,8 @@ probe = GraphProbe({topics.JOINT_STATES: topics.TYPES[topics.JOINT_STATES]}, pri
 launcher, out = live_bench.start_graph({"model_dir": tmp + "/m", "seed": seed}, tmp)
 probe.wait_for(lambda: probe.first_torque_time is not None, 200)
 pids = {n.label: n.proc.pid for n in launcher.nodes}
-KEYS = ("states_received", "states_lost", "samples_learned", "invalid_samples", "unmatched_states",
-        "learn_us_mean", "snapshots_accepted")
+KEYS = ("samples_received", "samples_lost", "samples_learned", "invalid_samples", "learn_us_mean",
+        "snapshots_accepted")  # before the learning-sample topic (trace_7x.json): states_received, states_lost, ...
 
 
 def thread_cpu(pid: int) -> dict[str, float]:

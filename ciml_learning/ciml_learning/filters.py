@@ -17,7 +17,7 @@ version of the low-pass convolved with [1, 0, −1]/(2Δt): n taps, antisymmetri
 """
 from __future__ import annotations
 
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -363,6 +363,8 @@ class OnlineStateFilter:
         self.delay = delay_samples(len(self._lp))
         self.filled = 0  # raw samples interpolated into short gaps (never output)
         self.restarts = 0  # warm-ups restarted by a long gap or a non-increasing stamp
+        # outputs, and why outputs are not valid (filter_state_log's invalid_counts names)
+        self.counts: Counter[str] = Counter()
         self.reset()
 
     def reset(self) -> None:
@@ -415,7 +417,11 @@ class OnlineStateFilter:
             return  # filled instants are never output
         flags = np.array([c for _, c, _ in self._history])
         # no contact change and no interpolated input within ±delay
-        valid = bool(np.all(flags == flags[0])) and not any(f for _, _, f in self._history)
+        changed = not bool(np.all(flags == flags[0]))
+        near_fill = any(f for _, _, f in self._history)
+        valid = not changed and not near_fill
+        self.counts["outputs"] += 1
+        self.counts["valid" if valid else "contact_change" if changed else "bridged_gap_window"] += 1
         qf = low[:nq].copy()
         qf[3:7] /= np.linalg.norm(qf[3:7])
         out.append(FilteredSample(t=t_out, q=qf, v=low[nq:nq + nv], a=der[:nv], tau=low[nq + nv:nq + nv + nj],

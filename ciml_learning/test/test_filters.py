@@ -104,7 +104,12 @@ def _online(t, q, v, tau, u, c):
     from ciml_learning.filters import OnlineStateFilter
 
     f = OnlineStateFilter(FS)
-    return [s for k in range(len(t)) for s in f.push(t[k], q[k], v[k], tau[k], u[k], c[k])]
+    outs = [s for k in range(len(t)) for s in f.push(t[k], q[k], v[k], tau[k], u[k], c[k])]
+    # every output is counted once, valid or with the reason it is not (state_filter's /diagnostics)
+    assert f.counts["outputs"] == len(outs) == f.counts["valid"] + f.counts["contact_change"] \
+        + f.counts["bridged_gap_window"]
+    assert f.counts["valid"] == sum(s.valid for s in outs)
+    return outs, f.counts
 
 
 def _assert_online_equals_offline(outs, off):
@@ -122,9 +127,10 @@ def test_online_state_filter_matches_offline_log():
     n = 300
     t, q, v, tau, u, c = _state_log(n)
     off = filter_state_log(t, q, v, tau, u, c)
-    outs = _online(t, q, v, tau, u, c)
+    outs, counts = _online(t, q, v, tau, u, c)
     assert [s.t for s in outs] == list(t[15:n - 15])
     _assert_online_equals_offline(outs, off)
+    assert counts["contact_change"] == off.invalid_counts["contact_change"] > 0  # the same reasons as offline
 
 
 def test_dropped_samples_are_bridged_alike_online_and_offline():
@@ -139,8 +145,9 @@ def test_dropped_samples_are_bridged_alike_online_and_offline():
     assert off.invalid_counts["filled_samples"] == 3
     assert off.invalid_counts["time_gap_segments"] == 1
     assert len(off.t) == keep.sum() and np.all(np.isfinite(off.a))
-    outs = _online(t, q, v, tau, u, c)
+    outs, counts = _online(t, q, v, tau, u, c)
     _assert_online_equals_offline(outs, off)
+    assert counts["bridged_gap_window"] == off.invalid_counts["bridged_gap_window"] > 0
     out_t = {round(s.t * 1e9) for s in outs}
     # the samples around the bridged gaps are output; the filled instants are not
     assert round(99 / FS * 1e9) in out_t and round(101 / FS * 1e9) in out_t and round(100 / FS * 1e9) not in out_t

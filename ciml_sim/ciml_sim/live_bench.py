@@ -217,6 +217,8 @@ def _rates_run(arguments: dict[str, str], duration: float, warmup: float, startu
 
 
 LEARNING_COUNTERS = {
+    "state_filter": ("states_valid", "states_contact_change", "states_bridged_gap_window", "joint_samples_filled",
+                     "filter_restarts"),
     "online_learner": ("samples_received", "samples_lost", "samples_learned", "held_back_samples", "invalid_samples",
                        "paused_fall", "paused_tracking_error", "paused_no_reference", "paused_recovering",
                        "paused_target_beyond_bounds", "snapshots_accepted",

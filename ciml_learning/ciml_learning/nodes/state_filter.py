@@ -134,6 +134,9 @@ class StateFilterNode(Node):
         # joint samples lost upstream: bridged by interpolation, or a restarted warm-up
         self.health.counts["joint_samples_filled"] = self.filter.filled
         self.health.counts["filter_restarts"] = self.filter.restarts
+        # the share the learning chain can use: states away from contact changes and bridged gaps
+        for key in ("valid", "contact_change", "bridged_gap_window"):
+            self.health.counts[f"states_{key}"] = self.filter.counts[key]
         for out in ready:
             ns = int(round(out.t * 1e9))
             self.pub.publish(cv.robot_state_msg(self.robot, ns, out.q, out.v, out.a, out.tau, out.tau_dot, out.u,

@@ -51,6 +51,7 @@ while time.monotonic() - start < duration:
                  "learner_threads": {k: round((v - th0.get(k, 0.0)) / dt, 3) for k, v in th1.items()
                                      if v - th0.get(k, 0.0) > 0.01 * dt},
                  "learner": {k: probe.counter("online_learner", k) for k in KEYS},
+                 "filter": {k: probe.counter("state_filter", k) for k in live_bench.LEARNING_COUNTERS["state_filter"]},
                  "load": os.getloadavg()[0]})
     print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
     c0, t0, th0 = c1, t1, th1

@@ -39,7 +39,7 @@ from .loginputs import (
     odometry_reading,
     twist_in_body,
 )
-from .pairing import is_strict, partner
+from .pairing import add_to_history, is_strict, partner
 from .profile import CONTACT_STATE, RobotProfile
 from .robot import RobotDescription
 
@@ -162,12 +162,12 @@ class LiveInputs:
             raise ValueError(f"field {self.con_spec.get('field')}: non-finite value")
         else:
             flags = self.hysteresis.step(values) if self.hysteresis is not None else values != 0
-        self.history["contacts"].append((stamp, np.asarray(flags, dtype=bool)))
+        add_to_history(self.history["contacts"], stamp, np.asarray(flags, dtype=bool))
 
     def _on_imu(self, stamp: int, msg: Any) -> None:
         quat, gyro, accel = imu_reading(msg)
         if quat is not None and not self.estimate_orientation:
-            self.history["imu"].append((stamp, (quat, gyro)))
+            add_to_history(self.history["imu"], stamp, (quat, gyro))
             return
         # no quaternion (auto: from this message on) or `orientation: estimate`: gyro and accelerometer
         self.estimate_orientation = True
@@ -179,17 +179,17 @@ class LiveInputs:
             raise
         for _, q in out:
             s, g = self._imu_held.popleft()
-            self.history["imu"].append((s, (q, g)))
+            add_to_history(self.history["imu"], s, (q, g))
 
     def _on_base(self, stamp: int, msg: Any) -> None:
         pos, quat, twist = odometry_reading(msg)
         if self.base_spec["twist_frame"] == "world":
             twist = twist_in_body(quat, twist)
-        self.history["base"].append((stamp, (pos, quat, twist)))
+        add_to_history(self.history["base"], stamp, (pos, quat, twist))
 
     def _on_command(self, stamp: int, msg: Any) -> None:
         assert self.command is not None
-        self.history["command"].append((stamp, self.command.read(msg)))
+        add_to_history(self.history["command"], stamp, self.command.read(msg))
 
     # --- pairing ------------------------------------------------------------------------------
     def _drain(self) -> list[tuple]:

@@ -8,10 +8,12 @@ AGE_PERIODS periods of that role's topic (a topic slower than the joint states i
 paired with every joint sample between two of its messages).
 
 The one home of this rule: loginputs.load_log applies it to a whole log (partner_indices),
-the state_filter node to one joint sample at a time (partner). Pure module: numpy only.
+the state_filter node to one joint sample at a time (add_to_history, partner). Pure module: numpy only.
 """
 from __future__ import annotations
 
+import bisect
+from collections import deque
 from collections.abc import Sequence
 
 import numpy as np
@@ -47,21 +49,36 @@ def partner_indices(partner_t: np.ndarray, t: np.ndarray, max_age_ns: int, stric
     return idx
 
 
-def partner(history: Sequence[tuple[int, object]], stamp: int, max_age_s: float, strict: bool = False):
-    """The (stamp, value) of `history` (a role's recent samples, in stamp order) that pairs with
-    the joint sample stamped `stamp` [ns], or None: partner_indices for one sample, the age limit
-    measured from the history's stamps (only when the partner is older than max_age_s)."""
-    if not history:
+def _stamp(entry: tuple[int, object]) -> int:
+    return entry[0]
+
+
+def add_to_history(history: deque[tuple[int, object]], stamp: int, value: object) -> None:
+    """Append (stamp, value) to a role's history, which partner() needs in stamp order: a message
+    that arrives after a later-stamped one is inserted where its stamp belongs (after any of the
+    same stamp, as a stable sort of the log would place it). A full history drops its oldest."""
+    if not history or stamp >= history[-1][0]:
+        history.append((stamp, value))
+        return
+    i = bisect.bisect_right(history, stamp, key=_stamp)
+    if history.maxlen is not None and len(history) == history.maxlen:
+        if i == 0:  # older than everything kept
+            return
+        history.popleft()
+        i -= 1
+    history.insert(i, (stamp, value))
+
+
+def partner(history: deque[tuple[int, object]], stamp: int, max_age_s: float, strict: bool = False):
+    """The (stamp, value) of `history` (a role's recent samples in stamp order: add_to_history) that
+    pairs with the joint sample stamped `stamp` [ns], or None: partner_indices for one sample, by
+    bisection (the state_filter calls this for every joint sample and role), the age limit measured
+    from the history's stamps only when the partner is older than max_age_s."""
+    i = (bisect.bisect_left if strict else bisect.bisect_right)(history, stamp, key=_stamp) - 1
+    if i < 0:
         return None
+    age = stamp - history[i][0]
+    if age <= int(max_age_s * 1e9):
+        return history[i]
     stamps = np.fromiter((s for s, _ in history), dtype=np.int64, count=len(history))
-    order = None
-    if np.any(stamps[1:] < stamps[:-1]):  # arrived out of order: pair by stamp, as a log is read
-        order = np.argsort(stamps, kind="stable")
-        stamps = stamps[order]
-    t = np.array([stamp], dtype=np.int64)
-    i = int(partner_indices(stamps, t, int(max_age_s * 1e9), strict)[0])
-    if i < 0:
-        i = int(partner_indices(stamps, t, age_limit_ns(max_age_s, stamps), strict)[0])
-    if i < 0:
-        return None
-    return history[i if order is None else int(order[i])]
+    return history[i] if age <= age_limit_ns(max_age_s, stamps) else None

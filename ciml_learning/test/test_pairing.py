@@ -6,7 +6,7 @@ from collections import deque
 
 import numpy as np
 
-from ciml_learning.pairing import AGE_PERIODS, age_limit_ns, is_strict, partner, partner_indices
+from ciml_learning.pairing import AGE_PERIODS, add_to_history, age_limit_ns, is_strict, partner, partner_indices
 
 MS = 1_000_000
 
@@ -39,7 +39,7 @@ def test_one_sample_at_a_time_equals_the_whole_log():
         k = 0
         for i, stamp in enumerate(tj):
             while k < len(src) and src[k] <= stamp + 2 * period:  # messages that have arrived
-                history.append((int(src[k]), k))
+                add_to_history(history, int(src[k]), k)
                 k += 1
             got = partner(history, int(stamp), 0.02, strict)
             expect = offline[i]
@@ -48,8 +48,17 @@ def test_one_sample_at_a_time_equals_the_whole_log():
 
 
 def test_history_out_of_arrival_order_is_paired_by_stamp():
-    history = deque([(0, "a"), (8 * MS, "c"), (4 * MS, "b")])
+    history: deque = deque(maxlen=4)
+    for stamp, value in ((0, "a"), (8 * MS, "c"), (4 * MS, "b")):
+        add_to_history(history, stamp, value)
+    assert [v for _, v in history] == ["a", "b", "c"]
     assert partner(history, 5 * MS, 0.02) == (4 * MS, "b")
     assert partner(history, 8 * MS, 0.02, strict=True) == (4 * MS, "b")
     assert partner(deque(), 5 * MS, 0.02) is None
     assert partner(history, 100 * MS, 0.02) is None  # older than max(20 ms, 2.5 periods)
+    add_to_history(history, 8 * MS, "c2")          # the same stamp again: after the first, as a stable sort
+    add_to_history(history, 6 * MS, "d")           # full (4): the oldest goes, the late one is inserted
+    assert [v for _, v in history] == ["b", "d", "c", "c2"]
+    assert partner(history, 9 * MS, 0.02) == (8 * MS, "c2")
+    add_to_history(history, 1 * MS, "e")           # older than everything kept: dropped
+    assert [v for _, v in history] == ["b", "d", "c", "c2"]

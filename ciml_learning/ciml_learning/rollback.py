@@ -6,14 +6,22 @@ module watches it while it is served. The controller feeds every step's feedback
 EffortWatch together with the `source` of the model error it used. When a new model starts to
 serve, the RMS of each signal over the `baseline` seconds before it is frozen; for the next
 `probation` seconds the RMS over the last `window` seconds of the new model is compared with it,
-and a rise beyond rise × baseline + margin on either signal names the model to roll back. A model
-that has served its probation becomes the last safe one.
+and a rise beyond rise × baseline + margin on either signal names the model to roll back (a
+sudden rise: safety). Then, `assess` seconds after it served, the RMS effort of all its steps so
+far is compared with the baseline's, and a model more than `worse` above it goes too (worse than
+the model before it: online learning must keep helping, and a snapshot that predicts held-back
+data better than nominal can still cost effort in the loop — results/LIVE_GRAPH.md, thirteenth
+and sixteenth sessions). A model that has served its probation becomes the last safe one.
 
 Why these defaults: a model that is wrong where the robot is raises the effort from its first
 command on, and detection takes one `window` after it serves (measured live: 252 ms,
 test_live_safety); the one learned fall seen live took ~1 s from the served model to the ground
 (docs/LIVE_GRAPH.md). The margins (15 Nm, 3 cm) and the factor 1.5 leave room for a healthy
-trot's spread of the 0.25 s RMS between windows (results/LIVE_GRAPH.md).
+trot's spread of the 0.25 s RMS between windows (results/LIVE_GRAPH.md). `worse` 8 %: under one
+model the RMS effort of the 10 s after an instant is within 1.024 × (p95; 1.04 at most) of the 5 s
+before it (trot_35, 97 instants; results/LIVE_GRAPH.md, sixteenth session), and a served snapshot
+that made a run worse raised the effort by 14–24 % from one minute to the next; `assess` 5 s: new
+snapshots are served every 6–15 s, and a model replaced before it is assessed is not judged.
 """
 from __future__ import annotations
 
@@ -44,11 +52,18 @@ class RollbackConfig:
     probation: float = 10.0                   # [s] a new model is watched this long
     rise: float = 1.5                         # × the baseline RMS …
     margins: tuple[float, float] = (15.0, 0.03)  # … + these, per signal of SIGNALS [Nm, m]
+    assess: float = 5.0                       # [s] after serving, the model's whole RMS effort …
+    worse: float = 0.08                       # … may exceed the baseline's by this share at most
 
     def __post_init__(self) -> None:
         if not (self.window > 0 and self.baseline >= self.window and self.probation >= self.window
-                and self.rise >= 1.0 and len(self.margins) == len(SIGNALS) and min(self.margins) >= 0):
+                and self.rise >= 1.0 and len(self.margins) == len(SIGNALS) and min(self.margins) >= 0
+                and self.window <= self.assess <= self.probation and self.worse >= 0):
             raise ValueError(f"invalid rollback settings {self}")
+
+
+SUDDEN_RISE, WORSE_THAN_BEFORE = "sudden_rise", "worse_than_before"
+"""The two reasons of a Rollback (its `kind`)."""
 
 
 @dataclass
@@ -58,6 +73,7 @@ class Rollback:
     rms: float
     limit: float
     detected_after: float   # [s] since the model first served
+    kind: str = SUDDEN_RISE
 
 
 class _Window:
@@ -97,7 +113,10 @@ class EffortWatch:
         self.safe: str = NOMINAL_SOURCE
         self.rolled_back: set[str] = set()
         self._since = 0.0
-        self._limit: np.ndarray | None = None  # per signal; None: no baseline, not watched
+        self._baseline: np.ndarray | None = None  # RMS per signal before the current model; None: not watched
+        self._limit: np.ndarray | None = None     # sudden-rise limit per signal
+        self._sum = np.zeros(len(SIGNALS))        # squares of the current model's steps until assessed
+        self._steps = 0
 
     def update(self, t: float, source: str, signals) -> Rollback | None:
         c = self.config
@@ -110,9 +129,10 @@ class EffortWatch:
             self.current, self._since = source, t
             enough = self._before.covered() >= 0.5 * c.baseline
             # the last safe model back (after a rollback) has served its probation already
-            self._limit = (c.rise * self._before.rms() + np.asarray(c.margins)
-                           if enough and source != self.safe else None)
+            self._baseline = self._before.rms() if enough and source != self.safe else None
+            self._limit = c.rise * self._baseline + np.asarray(c.margins) if self._baseline is not None else None
             self._served.clear()
+            self._sum[:], self._steps = 0.0, 0
         squares = values * values
         self._before.add(t, squares)
         if source != self.current or source in self.rolled_back or self._limit is None:
@@ -122,6 +142,12 @@ class EffortWatch:
             self._promote(t)
             return None
         self._served.add(t, squares)
+        if self._steps >= 0:  # not assessed yet
+            self._sum += squares
+            self._steps += 1
+            back = self._assess(source, age) if age >= c.assess else None
+            if back is not None:
+                return back
         if age < c.window:
             return None
         rms = self._served.rms()
@@ -131,6 +157,17 @@ class EffortWatch:
         i = int(over[0])
         self.rolled_back.add(source)
         return Rollback(source, SIGNALS[i], float(rms[i]), float(self._limit[i]), age)
+
+    def _assess(self, source: str, age: float) -> Rollback | None:
+        """`assess` seconds in: the model's RMS effort so far against (1 + worse) × the baseline's."""
+        assert self._baseline is not None
+        rms = float(np.sqrt(self._sum[0] / self._steps))
+        limit = (1.0 + self.config.worse) * float(self._baseline[0])
+        self._steps = -1
+        if rms <= limit:
+            return None
+        self.rolled_back.add(source)
+        return Rollback(source, SIGNALS[0], rms, limit, age, WORSE_THAN_BEFORE)
 
     def _promote(self, t: float) -> None:
         """The current model becomes the last safe one once it has served its probation unharmed."""

@@ -4,7 +4,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ciml_learning.rollback import NOMINAL_SOURCE, EffortWatch, RollbackConfig, feedback_effort
+from ciml_learning.rollback import (
+    NOMINAL_SOURCE,
+    SUDDEN_RISE,
+    WORSE_THAN_BEFORE,
+    EffortWatch,
+    RollbackConfig,
+    feedback_effort,
+)
 
 DT = 0.004  # 250 Hz
 
@@ -35,6 +42,7 @@ def test_a_model_that_raises_the_effort_is_rolled_back_within_the_window_and_a_g
     assert back.source == "lwpr:snapshot-000002" and back.signal == "feedback_effort"
     assert back.limit == pytest.approx(1.5 * 30.0 + 15.0, rel=0.1)    # the RMS of the 5 s before it
     assert at - t_bad == pytest.approx(back.detected_after) and back.detected_after <= 0.25 + DT
+    assert back.kind == SUDDEN_RISE
     assert "lwpr:snapshot-000002" in w.rolled_back and w.safe == "lwpr:snapshot-000001"
     # the last safe model back: served again without a new probation against the bad seconds
     backs, t = run(w, t, 3.0, "lwpr:snapshot-000001", 60.0, seed=3)
@@ -44,10 +52,34 @@ def test_a_model_that_raises_the_effort_is_rolled_back_within_the_window_and_a_g
 def test_the_base_tracking_error_rolls_back_too_and_a_modest_rise_does_not():
     w = EffortWatch()
     _, t = run(w, 0.0, 6.0, NOMINAL_SOURCE, 45.0, error=0.01)
-    backs, t = run(w, t, 10.5, "m1", 50.0, error=0.02, seed=1)        # +10 %, +1 cm: within noise and margins
+    backs, t = run(w, t, 10.5, "m1", 46.5, error=0.02, seed=1)        # +3 %, +1 cm: within noise and margins
     assert backs == [] and w.safe == "m1"
     backs, _ = run(w, t, 1.0, "m2", 50.0, error=0.12, seed=2)         # sagging 12 cm
     assert [b.signal for _, b in backs] == ["base_position_error"]
+
+
+def test_a_model_worse_than_the_one_before_it_is_rolled_back_once_assessed():
+    """A snapshot that makes the loop 15 % worse — no sudden rise — goes `assess` seconds after it
+    served; one 3 % worse (within a trot's spread) and a better one stay; one replaced before its
+    assessment is not judged."""
+    w = EffortWatch()                                                  # assess 5 s, worse 8 %
+    _, t = run(w, 0.0, 6.0, NOMINAL_SOURCE, 50.0)
+    backs, t = run(w, t, 6.0, "m1", 35.0, seed=1)                      # better: stays
+    assert backs == []
+    t_swap = t
+    backs, t = run(w, t, 6.0, "m2", 40.25, seed=2)                     # +15 % over m1's 35 Nm
+    assert [(b.source, b.kind, b.signal) for _, b in backs] == [("m2", WORSE_THAN_BEFORE, "feedback_effort")]
+    at, back = backs[0]
+    assert at - t_swap == pytest.approx(5.0, abs=2 * DT) and back.limit == pytest.approx(1.08 * 35.0, rel=0.03)
+    assert "m2" in w.rolled_back
+    backs, t = run(w, t, 6.0, "m1", 35.0, seed=3)                      # the server serves m1 again
+    backs, t = run(w, t, 6.0, "m3", 36.0, seed=4)                      # +3 %: stays
+    assert backs == []
+    backs, t = run(w, t, 3.0, "m4", 45.0, seed=5)                      # replaced after 3 s: not judged
+    backs2, t = run(w, t, 6.0, "m5", 36.0, seed=6)
+    assert backs == [] and backs2 == []
+    with pytest.raises(ValueError):
+        RollbackConfig(assess=20.0)                                    # after the probation
 
 
 def test_without_a_baseline_nothing_is_judged_and_bad_values_are_ignored():

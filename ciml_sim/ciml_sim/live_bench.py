@@ -225,9 +225,9 @@ LEARNING_COUNTERS = {
                        "snapshots_refused_too_few_samples", "snapshots_refused_not_better_than_nominal",
                        "outputs_served", "learn_us_mean"),
     "model_server": ("model_swaps", "load_ms", "rollbacks", "refused_models", "predictions"),
-    "id_controller": ("commands", "rollbacks", "rollback_detect_ms", "epsilon_gated", "qp_failures",
-                      "reference_held", "stale_reference", "prediction_behind_reference", "prediction_lag_p50_ms",
-                      "prediction_lag_p99_ms"),
+    "id_controller": ("commands", "rollbacks", "rollbacks_worse_than_before", "rollback_detect_ms", "epsilon_gated",
+                      "qp_failures", "reference_held", "stale_reference", "prediction_behind_reference",
+                      "prediction_lag_p50_ms", "prediction_lag_p99_ms"),
 }
 """The counters `live_online_learning` samples from /diagnostics at the end of every period."""
 

@@ -53,9 +53,11 @@ served or trusted; not published after a QP failure, counted feedforward_skipped
 Rollback (`rollback`): every step's feedback effort and base position error go to an
 EffortWatch (ciml_learning.rollback) with the `source` of the prediction used; when a newly
 served model makes either rise beyond `rollback_rise` × the RMS of the seconds before it (RMS
-over `rollback_window`, during `rollback_probation`), its predictions are no longer used (ε = 0)
-and /model_rollback asks the model server to serve the model before it (counted: rollbacks,
-rollback_detect_ms, with a warning).
+over `rollback_window`, during `rollback_probation`), or its RMS effort over its first
+`rollback_assess` seconds exceeds that of the seconds before it by more than `rollback_worse`,
+its predictions are no longer used (ε = 0) and /model_rollback asks the model server to serve
+the model before it (counted: rollbacks, rollbacks_worse_than_before, rollback_detect_ms, with a
+warning).
 """
 from __future__ import annotations
 
@@ -77,7 +79,13 @@ from ciml_learning import topics
 from ciml_learning.errors import CimlError
 from ciml_learning.profile import load_profile
 from ciml_learning.projection import contact_invariant_basis
-from ciml_learning.rollback import NOMINAL_SOURCE, EffortWatch, RollbackConfig, feedback_effort
+from ciml_learning.rollback import (
+    NOMINAL_SOURCE,
+    WORSE_THAN_BEFORE,
+    EffortWatch,
+    RollbackConfig,
+    feedback_effort,
+)
 from ciml_learning.ros_common import COMMAND_QOS, LATEST_QOS, OK, WARN, Health, PublishPeriods, declare_schema, run_node
 
 from ..controller import ControlOutput, IdController
@@ -110,7 +118,8 @@ class IdControllerNode(Node):
         self.reference_hold = p["reference_hold"]
         self.model_error_timeout, self.use_model_error = p["model_error_timeout"], p["use_model_error"]
         self.watch = EffortWatch(RollbackConfig(window=p["rollback_window"], probation=p["rollback_probation"],
-                                                rise=p["rollback_rise"]))
+                                                rise=p["rollback_rise"], assess=p["rollback_assess"],
+                                                worse=p["rollback_worse"]))
         profile = load_profile(p["robot"])
         self.robot = profile.robot()
         self.feedforward_only = p["feedforward_only"]
@@ -352,8 +361,11 @@ class IdControllerNode(Node):
             return
         self.rollback_pub.publish(String(data=back.source))
         self.health.counts["rollback_detect_ms"] = int(round(1e3 * back.detected_after))
-        self.health.count("rollbacks", f"model {back.source} rolled back: {back.signal} RMS {back.rms:.3g} above "
-                                       f"{back.limit:.3g} {1e3 * back.detected_after:.0f} ms after it served")
+        if back.kind == WORSE_THAN_BEFORE:
+            self.health.counts["rollbacks_worse_than_before"] += 1
+        self.health.count("rollbacks", f"model {back.source} rolled back ({back.kind.replace('_', ' ')}): "
+                                       f"{back.signal} RMS {back.rms:.3g} above {back.limit:.3g} "
+                                       f"{1e3 * back.detected_after:.0f} ms after it served")
 
     def send(self, stamp: int, cmd: cv.TorqueCommandArrays) -> None:
         """A command to the robot: /torque_command, and the ros2_control effort array if asked."""

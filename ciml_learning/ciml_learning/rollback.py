@@ -94,6 +94,11 @@ class _Window:
         self.items.clear()
         self.total = np.zeros(len(SIGNALS))
 
+    def drop_since(self, t0: float) -> None:
+        """Forget the steps at or after t0 (the newest first)."""
+        while self.items and self.items[-1][0] >= t0:
+            self.total = self.total - self.items.pop()[1]
+
     def covered(self) -> float:
         return self.items[-1][0] - self.items[0][0] if self.items else 0.0
 
@@ -117,6 +122,7 @@ class EffortWatch:
         self._limit: np.ndarray | None = None     # sudden-rise limit per signal
         self._sum = np.zeros(len(SIGNALS))        # squares of the current model's steps until assessed
         self._steps = 0
+        self._after_rollback: np.ndarray | None = None  # the reference of the model restored by a rollback
 
     def update(self, t: float, source: str, signals) -> Rollback | None:
         c = self.config
@@ -129,12 +135,14 @@ class EffortWatch:
             self.current, self._since = source, t
             enough = self._before.covered() >= 0.5 * c.baseline
             # the last safe model back (after a rollback) has served its probation already
-            self._baseline = self._before.rms() if enough and source != self.safe else None
+            reference = self._before.rms() if enough else self._after_rollback
+            self._baseline = reference if source != self.safe else None
             self._limit = c.rise * self._baseline + np.asarray(c.margins) if self._baseline is not None else None
             self._served.clear()
             self._sum[:], self._steps = 0.0, 0
         squares = values * values
-        self._before.add(t, squares)
+        if source not in self.rolled_back:  # a rolled-back model's last steps are no reference either
+            self._before.add(t, squares)
         if source != self.current or source in self.rolled_back or self._limit is None:
             return None
         age = t - self._since
@@ -155,8 +163,7 @@ class EffortWatch:
         if not len(over):
             return None
         i = int(over[0])
-        self.rolled_back.add(source)
-        return Rollback(source, SIGNALS[i], float(rms[i]), float(self._limit[i]), age)
+        return self._roll_back(Rollback(source, SIGNALS[i], float(rms[i]), float(self._limit[i]), age))
 
     def _assess(self, source: str, age: float) -> Rollback | None:
         """`assess` seconds in: the model's RMS effort so far against (1 + worse) × the baseline's."""
@@ -165,9 +172,19 @@ class EffortWatch:
         limit = (1.0 + self.config.worse) * float(self._baseline[0])
         self._steps = -1
         if rms <= limit:
+            self._after_rollback = None  # a model has served long enough since: its steps are the reference
             return None
-        self.rolled_back.add(source)
-        return Rollback(source, SIGNALS[0], rms, limit, age, WORSE_THAN_BEFORE)
+        return self._roll_back(Rollback(source, SIGNALS[0], rms, limit, age, WORSE_THAN_BEFORE))
+
+    def _roll_back(self, back: Rollback) -> Rollback:
+        """The model goes; its steps are no reference for the next model (else a model as bad as it
+        would pass against it)."""
+        self.rolled_back.add(back.source)
+        self._before.drop_since(self._since)
+        # the model before it serves again; until its own steps cover the baseline, the reference of
+        # the next model is the one the rolled-back model was judged against
+        self._after_rollback = self._baseline
+        return back
 
     def _promote(self, t: float) -> None:
         """The current model becomes the last safe one once it has served its probation unharmed."""

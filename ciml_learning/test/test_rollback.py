@@ -72,7 +72,10 @@ def test_a_model_worse_than_the_one_before_it_is_rolled_back_once_assessed():
     at, back = backs[0]
     assert at - t_swap == pytest.approx(5.0, abs=2 * DT) and back.limit == pytest.approx(1.08 * 35.0, rel=0.03)
     assert "m2" in w.rolled_back
-    backs, t = run(w, t, 6.0, "m1", 35.0, seed=3)                      # the server serves m1 again
+    backs, t = run(w, t, 1.0, "m1", 35.0, seed=3)                      # the server serves m1 again …
+    backs, t = run(w, t, 6.0, "m2b", 40.25, seed=7)                    # … and as bad a model comes 1 s later:
+    assert [b.source for _, b in backs] == ["m2b"]                     # judged against m1, not against m2
+    backs, t = run(w, t, 6.0, "m1", 35.0, seed=3)
     backs, t = run(w, t, 6.0, "m3", 36.0, seed=4)                      # +3 %: stays
     assert backs == []
     backs, t = run(w, t, 3.0, "m4", 45.0, seed=5)                      # replaced after 3 s: not judged

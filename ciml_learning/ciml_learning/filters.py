@@ -363,7 +363,7 @@ class OnlineStateFilter:
         self.delay = delay_samples(len(self._lp))
         self.filled = 0  # raw samples interpolated into short gaps (never output)
         self.restarts = 0  # warm-ups restarted by a long gap or a non-increasing stamp
-        # outputs, and why outputs are not valid (filter_state_log's invalid_counts names)
+        # outputs that are valid, and why the others are not (filter_state_log's invalid_counts names)
         self.counts: Counter[str] = Counter()
         self.reset()
 
@@ -420,7 +420,6 @@ class OnlineStateFilter:
         changed = not bool(np.all(flags == flags[0]))
         near_fill = any(f for _, _, f in self._history)
         valid = not changed and not near_fill
-        self.counts["outputs"] += 1
         self.counts["valid" if valid else "contact_change" if changed else "bridged_gap_window"] += 1
         qf = low[:nq].copy()
         qf[3:7] /= np.linalg.norm(qf[3:7])

@@ -120,7 +120,7 @@ class EffortWatch:
         self._since = 0.0
         self._baseline: np.ndarray | None = None  # RMS per signal before the current model; None: not watched
         self._limit: np.ndarray | None = None     # sudden-rise limit per signal
-        self._sum = np.zeros(len(SIGNALS))        # squares of the current model's steps until assessed
+        self._sum = 0.0                           # squared efforts of the current model's steps until assessed
         self._steps = 0
         self._after_rollback: np.ndarray | None = None  # the reference of the model restored by a rollback
 
@@ -139,7 +139,7 @@ class EffortWatch:
             self._baseline = reference if source != self.safe else None
             self._limit = c.rise * self._baseline + np.asarray(c.margins) if self._baseline is not None else None
             self._served.clear()
-            self._sum[:], self._steps = 0.0, 0
+            self._sum, self._steps = 0.0, 0
         squares = values * values
         if source not in self.rolled_back:  # a rolled-back model's last steps are no reference either
             self._before.add(t, squares)
@@ -151,7 +151,7 @@ class EffortWatch:
             return None
         self._served.add(t, squares)
         if self._steps >= 0:  # not assessed yet
-            self._sum += squares
+            self._sum += float(squares[0])
             self._steps += 1
             back = self._assess(source, age) if age >= c.assess else None
             if back is not None:
@@ -168,7 +168,7 @@ class EffortWatch:
     def _assess(self, source: str, age: float) -> Rollback | None:
         """`assess` seconds in: the model's RMS effort so far against (1 + worse) × the baseline's."""
         assert self._baseline is not None
-        rms = float(np.sqrt(self._sum[0] / self._steps))
+        rms = math.sqrt(self._sum / self._steps)
         limit = (1.0 + self.config.worse) * float(self._baseline[0])
         self._steps = -1
         if rms <= limit:

@@ -58,6 +58,8 @@ MODEL_SERVER = NodeSchema("ciml_learning", "model_server",
                           "/reference → /model_error/predicted (ε of eq. 17) from the served model", (
     Param("model_dir", "", "Model folder served at start ('' = nominal model until a /model_update)"),
     Param("swap_check_period", 0.02, "How often a model loaded in the background is swapped in", "s", 0.001, 1.0),
+    Param("min_serve_time", 6.0, "A loaded model waits until the one serving has served this long (reference stamps; "
+          "≥ the controller's rollback_assess, so every served model is assessed; 0 = at once)", "s", 0.0, 600.0),
     replace(THREAD_PRIORITY, default=20),
     ROBOT,
 ))

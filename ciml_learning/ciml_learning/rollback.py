@@ -20,8 +20,9 @@ test_live_safety); the one learned fall seen live took ~1 s from the served mode
 trot's spread of the 0.25 s RMS between windows (results/LIVE_GRAPH.md). `worse` 8 %: under one
 model the RMS effort of the 10 s after an instant is within 1.024 × (p95; 1.04 at most) of the 5 s
 before it (trot_35, 97 instants; results/LIVE_GRAPH.md, sixteenth session), and a served snapshot
-that made a run worse raised the effort by 14–24 % from one minute to the next; `assess` 5 s: new
-snapshots are served every 6–15 s, and a model replaced before it is assessed is not judged.
+that made a run worse raised the effort by 14–24 % from one minute to the next; `assess` 5 s: the model
+server serves each model at least `min_serve_time` (6 s, serving.SwapHold), so every model is
+assessed; a model replaced before its assessment (another server setting) is not judged.
 """
 from __future__ import annotations
 

@@ -10,7 +10,7 @@
   Φ̃' = J'⁻ᵀΦ̃ with the basis at qᵈ, so the message keeps the contact-invariant coordinates
   of /model_error/measured.
 - The node loads on a workers.LatestOnlyWorker thread and swaps the served model in its own
-  thread, so the old model serves until the new one is ready (no gap).
+  thread, so the old model serves until the new one is ready (no gap); SwapHold says when.
 """
 from __future__ import annotations
 
@@ -125,6 +125,36 @@ def served_model(robot: RobotDescription, ms: ModelSet, name: str, model_dir: st
     return ServedModel(name=name, model_dir=model_dir, model_set=ms, checksum=checksum, rbd_learned=rbd,
                        actuation_learned=learned[ms.n_rbd:], dynamics=RigidBodyDynamics(robot),
                        epsilon=EpsilonFunction(robot, ms))
+
+
+class SwapHold:
+    """When a loaded model may replace the one serving: the first at once, each later one only
+    after the current choice (a model, or the model put back by a rollback) has served `hold`
+    seconds of reference stamps. With `hold` ≥ the controller's rollback assessment
+    (rollback.RollbackConfig.assess) every served model is assessed; without it, snapshots
+    arriving every ~5 s replaced at least a quarter of them before their assessment, and a model
+    judged against an unjudged predecessor could carry a rise on (results/LIVE_GRAPH.md, seventeenth
+    session)."""
+
+    def __init__(self, hold: float) -> None:
+        self.hold_ns = int(round(hold * 1e9))
+        self.since_ns: int | None = None  # first reference stamp served by the current choice
+        self.now_ns: int | None = None
+        self.changed_once = False          # the nominal model at start is not held
+
+    def reference(self, stamp_ns: int) -> None:
+        if self.since_ns is None or stamp_ns < self.since_ns:  # a stamp back in time (a reset) restarts it
+            self.since_ns = stamp_ns
+        self.now_ns = stamp_ns
+
+    def may_swap(self) -> bool:
+        if not self.changed_once or self.hold_ns <= 0:
+            return True
+        return self.since_ns is not None and self.now_ns is not None and self.now_ns - self.since_ns >= self.hold_ns
+
+    def changed(self) -> None:
+        """A model was swapped in or rolled back: the hold starts again at the next reference."""
+        self.changed_once, self.since_ns = True, None
 
 
 @dataclass

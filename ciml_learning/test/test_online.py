@@ -21,7 +21,7 @@ from ciml_learning.models import ModelSet, ModelSetError
 from ciml_learning.online import AwaitReference, ErrorSample, OnlineLearner, SequenceGaps, StateSample, learning_sample
 from ciml_learning.projection import contact_invariant_bases, generalized_rbd_error, leg_coupling
 from ciml_learning.robot import load_robot
-from ciml_learning.serving import NOMINAL, load_served_model, nominal_prediction, predict_at_reference
+from ciml_learning.serving import NOMINAL, SwapHold, load_served_model, nominal_prediction, predict_at_reference
 from ciml_learning.snapshot_gate import (
     ACCEPTED,
     HELD_BACK,
@@ -303,6 +303,30 @@ def test_nominal_when_no_model_or_non_finite_prediction(tmp_path):
 
 
 # ---------------------------------------------------------------------- worker
+def test_swap_hold_serves_the_first_model_at_once_and_each_later_one_after_the_hold():
+    s = int(1e9)
+    hold = SwapHold(6.0)
+    assert hold.may_swap()                      # the nominal model at start is not held
+    hold.changed()                              # model A serves
+    assert not hold.may_swap()                  # no reference served by it yet
+    for t in (10 * s, 13 * s, 15 * s + s // 2):
+        hold.reference(t)
+        assert not hold.may_swap()
+    hold.reference(16 * s)
+    assert hold.may_swap()                      # A has served 6 s of reference stamps
+    hold.changed()                              # a rollback puts A's predecessor back: held again
+    hold.reference(17 * s)
+    assert not hold.may_swap()
+    hold.reference(2 * s)                       # stamps back in time (a reset): the hold restarts there
+    hold.reference(7 * s)
+    assert not hold.may_swap()
+    hold.reference(8 * s)
+    assert hold.may_swap()
+    no_hold = SwapHold(0.0)
+    no_hold.changed()
+    assert no_hold.may_swap()
+
+
 def test_latest_only_worker_skips_stale_items_and_reports_errors():
     gate = threading.Event()
     seen = []

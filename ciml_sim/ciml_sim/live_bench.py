@@ -224,7 +224,7 @@ LEARNING_COUNTERS = {
                        "paused_target_beyond_bounds", "snapshots_accepted",
                        "snapshots_refused_too_few_samples", "snapshots_refused_not_better_than_nominal",
                        "outputs_served", "learn_us_mean"),
-    "model_server": ("model_swaps", "load_ms", "rollbacks", "refused_models", "predictions"),
+    "model_server": ("model_swaps", "models_superseded", "load_ms", "rollbacks", "refused_models", "predictions"),
     "id_controller": ("commands", "rollbacks", "rollbacks_worse_than_before", "rollback_detect_ms", "epsilon_gated",
                       "qp_failures", "reference_held", "stale_reference", "prediction_behind_reference",
                       "prediction_lag_p50_ms", "prediction_lag_p99_ms"),
@@ -333,6 +333,19 @@ def plot_learning_runs(result: dict, path: str) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
+SLICE = 5.0
+"""[s] of simulated time per entry of a period's `effort_rms_slices_nm` (a model is served ≥ 6 s)."""
+
+
+def _slice_rms(timed: list[tuple[float, float]], t0: float, start: float, length: float) -> list[float | None]:
+    """RMS effort per `length` seconds from `start` (seconds after t0) of (t, effort) samples."""
+    bins: dict[int, list[float]] = {}
+    for t, e in timed:
+        bins.setdefault(int((t - t0 - start) // length), []).append(e)
+    n = max(bins, default=-1) + 1
+    return [round(float(np.sqrt(np.mean(np.square(bins[k])))), 2) if k in bins else None for k in range(n)]
+
+
 def _effort_run(robot, arguments: dict[str, str], duration: float, period: float, startup_timeout: float) -> dict:
     from ciml_learning.physical_bounds import physical_bounds
 
@@ -359,11 +372,13 @@ def _effort_run(robot, arguments: dict[str, str], duration: float, period: float
                     break  # the deadline: the graph stopped advancing
                 time.sleep(1.1)  # the counters of this period (/diagnostics at 1 Hz of wall clock)
                 with probe.lock:
-                    efforts = [e for t, e in probe.efforts[start:] if t - t0 < end]
-                    start += len(efforts)
+                    timed = [(t, e) for t, e in probe.efforts[start:] if t - t0 < end]
+                    start += len(timed)
+                    efforts = [e for _, e in timed]
                     z = [v for t, v in probe.base_z if end - period <= t - t0 < end]
                 periods.append({"t_end_s": end, "effort_rms_nm": round(float(np.sqrt(np.mean(np.square(efforts)))), 2)
                                 if efforts else None, "commands": len(efforts),
+                                "effort_rms_slices_nm": _slice_rms(timed, t0, end - period, SLICE),
                                 "base_height_min_m": round(min(z), 3) if z else None,
                                 **{f"{node}.{key}": probe.counter(node, key)
                                    for node, keys in LEARNING_COUNTERS.items() for key in keys}})

@@ -17,8 +17,11 @@ validated on a worker thread (serving.load_served_model: ModelSet.load's checks 
 whole-model checksum; an announcement must carry that checksum; predictions on the model's
 own training inputs within the robot's physical bounds); the node swaps its served model
 in its own thread between two references, so the old model serves until the new one is
-ready. A refused model (announced without or with another checksum, tampered, truncated,
-wrong version or robot, predicting beyond physical bounds, e.g. scaled ×1e6) is logged,
+ready. A loaded model waits until the one serving has served `min_serve_time` of reference
+stamps (serving.SwapHold), so the controller assesses every model it serves; a newer one
+loaded meanwhile takes its place (counted: models_superseded).
+A refused model (announced without or with another checksum, tampered, truncated, wrong version
+or robot, predicting beyond physical bounds, e.g. scaled ×1e6) is logged,
 counted (refused_models) and the old model keeps serving. Rejected references
 (non-finite, wrong names) are counted and produce no output: NaN never reaches /model_error/predicted.
 
@@ -40,7 +43,7 @@ from ..errors import CimlError
 from ..node_params import MODEL_SERVER
 from ..profile import load_profile
 from ..ros_common import COMMAND_QOS, Health, declare_schema, run_node
-from ..serving import ServedModel, load_served_model, predict_at_reference
+from ..serving import ServedModel, SwapHold, load_served_model, predict_at_reference
 from ..workers import LatestOnlyWorker
 
 MAX_PREVIOUS = 3
@@ -56,6 +59,8 @@ class ModelServerNode(Node):
         self.served: ServedModel | None = None
         self.previous: list[ServedModel] = []   # served before the current one, newest last (rollback)
         self.rolled_back: set[str] = set()
+        self.hold = SwapHold(p["min_serve_time"])
+        self.loaded: ServedModel | None = None  # validated, waiting for the hold to end
         self.reference_torque = ReferenceTorque(self.robot)  # τ̇_ref of the stream, across model swaps
         self.health = Health(self)
         self.health.set(0, "serving the nominal model")
@@ -90,13 +95,19 @@ class ModelServerNode(Node):
             if result.value.name in self.rolled_back:
                 self.health.count("refused_models", f"model {model_dir} was rolled back: not served again")
                 continue
-            if self.served is not None:
-                self.previous = [*self.previous, self.served][-MAX_PREVIOUS:]
-            self.served = result.value
-            self.health.counts["model_swaps"] += 1
+            if self.loaded is not None:
+                self.health.counts["models_superseded"] += 1
+            self.loaded = result.value
             self.health.counts["load_ms"] = int(round(1e3 * result.seconds))
-            self.health.set(0, f"serving {self.served.name}")
-            self.get_logger().info(f"serving {self.served.model_dir} (loaded in {1e3 * result.seconds:.0f} ms)")
+        if self.loaded is None or not self.hold.may_swap():
+            return
+        if self.served is not None:
+            self.previous = [*self.previous, self.served][-MAX_PREVIOUS:]
+        self.served, self.loaded = self.loaded, None
+        self.hold.changed()
+        self.health.counts["model_swaps"] += 1
+        self.health.set(0, f"serving {self.served.name}")
+        self.get_logger().info(f"serving {self.served.model_dir} (loaded in {self.health.counts['load_ms']} ms)")
 
     def on_rollback(self, msg) -> None:
         """Stop serving the named model; the one served before it takes over (module docstring)."""
@@ -107,6 +118,7 @@ class ModelServerNode(Node):
             self.health.counts["rollbacks_not_serving"] += 1  # already replaced: nothing to undo
             return
         self.served = self.previous.pop() if self.previous else None
+        self.hold.changed()
         back = self.served.name if self.served is not None else "the nominal model"
         self.health.count("rollbacks", f"model {name} rolled back by the controller; serving {back}")
         self.health.set(0, f"serving {back}")
@@ -118,6 +130,7 @@ class ModelServerNode(Node):
             self.health.count("rejected_references", f"reference rejected: {err}")
             return
         stamp = cv.stamp_to_ns(msg.header.stamp)
+        self.hold.reference(stamp)
         ref = ReferenceState(stamp * 1e-9, q, v, a, contacts)
         pred = predict_at_reference(self.robot, self.served, ref, self.reference_torque)
         if pred.fallback == "no_model":

@@ -85,6 +85,22 @@ def test_a_model_worse_than_the_one_before_it_is_rolled_back_once_assessed():
         RollbackConfig(assess=20.0)                                    # after the probation
 
 
+def test_a_drift_of_small_steps_stops_at_worse_above_the_best_model_kept():
+    """Each model 5 % worse than the one before it passes against its predecessor alone; against
+    the best level kept (m1's) the second such step goes."""
+    w = EffortWatch()                                                  # worse 8 %
+    _, t = run(w, 0.0, 6.0, NOMINAL_SOURCE, 50.0)
+    backs, t = run(w, t, 6.0, "m1", 35.0, seed=1)
+    assert backs == [] and w.best == pytest.approx(35.0, rel=0.03)
+    backs, t = run(w, t, 6.0, "m2", 35.0 * 1.05, seed=2)               # +5 %: within 8 % of m1
+    assert backs == []
+    backs, t = run(w, t, 6.0, "m3", 35.0 * 1.05 ** 2, seed=3)          # +5 % over m2, +10 % over m1
+    assert [(b.source, b.kind) for _, b in backs] == [("m3", WORSE_THAN_BEFORE)]
+    assert backs[0][1].limit == pytest.approx(1.08 * w.best)
+    backs, t = run(w, t, 6.0, "m4", 34.0, seed=4)                      # better than the best: stays, the new best
+    assert backs == [] and w.best == pytest.approx(34.0, rel=0.03)
+
+
 def test_without_a_baseline_nothing_is_judged_and_bad_values_are_ignored():
     w = EffortWatch()
     backs, t = run(w, 0.0, 1.0, "m1", 300.0)                          # served from the start: no reference

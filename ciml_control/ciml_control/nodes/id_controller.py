@@ -54,7 +54,8 @@ Rollback (`rollback`): every step's feedback effort and base position error go t
 EffortWatch (ciml_learning.rollback) with the `source` of the prediction used; when a newly
 served model makes either rise beyond `rollback_rise` × the RMS of the seconds before it (RMS
 over `rollback_window`, during `rollback_probation`), or its RMS effort over its first
-`rollback_assess` seconds exceeds that of the seconds before it by more than `rollback_worse`,
+`rollback_assess` seconds exceeds the lower of that of the seconds before it and the best level
+of a model kept so far by more than `rollback_worse`,
 its predictions are no longer used (ε = 0) and /model_rollback asks the model server to serve
 the model before it (counted: rollbacks, rollbacks_worse_than_before, rollback_detect_ms, with a
 warning).

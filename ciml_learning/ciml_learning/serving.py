@@ -134,27 +134,49 @@ class SwapHold:
     (rollback.RollbackConfig.assess) every served model is assessed; without it, snapshots
     arriving every ~5 s replaced at least a quarter of them before their assessment, and a model
     judged against an unjudged predecessor could carry a rise on (results/LIVE_GRAPH.md, seventeenth
-    session)."""
+    session).
+
+    After a rollback the model put back serves hold × 2^k (k consecutive rollbacks, at most
+    MAX_BACKOFF) before the next one is tried: a learner whose snapshots keep failing then costs
+    one trial (≤ `hold` of a worse model) per doubling wait, not one per snapshot. k returns to 0
+    once a model has served `hold` without being rolled back."""
+
+    MAX_BACKOFF = 4
 
     def __init__(self, hold: float) -> None:
         self.hold_ns = int(round(hold * 1e9))
         self.since_ns: int | None = None  # first reference stamp served by the current choice
         self.now_ns: int | None = None
         self.changed_once = False          # the nominal model at start is not held
+        self.backoff = 0                   # consecutive rollbacks (k)
+        self.on_trial = False              # a swapped-in model that has not served `hold` yet
 
     def reference(self, stamp_ns: int) -> None:
         if self.since_ns is None or stamp_ns < self.since_ns:  # a stamp back in time (a reset) restarts it
             self.since_ns = stamp_ns
         self.now_ns = stamp_ns
+        if self.on_trial and stamp_ns - self.since_ns >= self.hold_ns:
+            self.on_trial, self.backoff = False, 0  # served its hold without a rollback
+
+    def hold_s(self) -> float:
+        """The current choice's hold [s]."""
+        return self.hold_ns * 2 ** (0 if self.on_trial else self.backoff) * 1e-9
 
     def may_swap(self) -> bool:
         if not self.changed_once or self.hold_ns <= 0:
             return True
-        return self.since_ns is not None and self.now_ns is not None and self.now_ns - self.since_ns >= self.hold_ns
+        if self.since_ns is None or self.now_ns is None:
+            return False
+        return self.now_ns - self.since_ns >= self.hold_ns * 2 ** (0 if self.on_trial else self.backoff)
 
-    def changed(self) -> None:
-        """A model was swapped in or rolled back: the hold starts again at the next reference."""
-        self.changed_once, self.since_ns = True, None
+    def swapped(self) -> None:
+        """A model was swapped in: on trial; the hold starts again at the next reference."""
+        self.changed_once, self.since_ns, self.on_trial = True, None, True
+
+    def rolled_back(self) -> None:
+        """The serving model was rolled back: the one put back serves a doubled hold."""
+        self.changed_once, self.since_ns, self.on_trial = True, None, False
+        self.backoff = min(self.backoff + 1, self.MAX_BACKOFF)
 
 
 @dataclass

@@ -307,23 +307,42 @@ def test_swap_hold_serves_the_first_model_at_once_and_each_later_one_after_the_h
     s = int(1e9)
     hold = SwapHold(6.0)
     assert hold.may_swap()                      # the nominal model at start is not held
-    hold.changed()                              # model A serves
+    hold.swapped()                              # model A serves
     assert not hold.may_swap()                  # no reference served by it yet
     for t in (10 * s, 13 * s, 15 * s + s // 2):
         hold.reference(t)
         assert not hold.may_swap()
     hold.reference(16 * s)
     assert hold.may_swap()                      # A has served 6 s of reference stamps
-    hold.changed()                              # a rollback puts A's predecessor back: held again
+    hold.swapped()                              # B serves …
     hold.reference(17 * s)
+    hold.rolled_back()                          # … and is rolled back: A serves again, 12 s
+    assert hold.hold_s() == 12.0
+    hold.reference(18 * s)
+    hold.reference(29 * s)
     assert not hold.may_swap()
-    hold.reference(2 * s)                       # stamps back in time (a reset): the hold restarts there
-    hold.reference(7 * s)
-    assert not hold.may_swap()
-    hold.reference(8 * s)
+    hold.reference(30 * s)
     assert hold.may_swap()
+    hold.swapped()                              # C, rolled back too: A serves 24 s
+    hold.reference(31 * s)
+    hold.rolled_back()
+    assert hold.hold_s() == 24.0
+    hold.reference(32 * s)
+    hold.reference(2 * s)                       # stamps back in time (a reset): the hold restarts there
+    hold.reference(25 * s)
+    assert not hold.may_swap()
+    hold.reference(26 * s)
+    assert hold.may_swap()
+    hold.swapped()                              # D serves its 6 s unharmed: back to 6 s
+    hold.reference(27 * s)
+    hold.reference(33 * s)
+    assert hold.may_swap() and hold.hold_s() == 6.0 and hold.backoff == 0
+    for _ in range(10):
+        hold.swapped()
+        hold.rolled_back()
+    assert hold.hold_s() == 6.0 * 2 ** SwapHold.MAX_BACKOFF
     no_hold = SwapHold(0.0)
-    no_hold.changed()
+    no_hold.swapped()
     assert no_hold.may_swap()
 
 

@@ -224,7 +224,7 @@ LEARNING_COUNTERS = {
                        "paused_target_beyond_bounds", "snapshots_accepted",
                        "snapshots_refused_too_few_samples", "snapshots_refused_not_better_than_nominal",
                        "outputs_served", "learn_us_mean"),
-    "model_server": ("model_swaps", "models_superseded", "load_ms", "rollbacks", "refused_models", "predictions"),
+    "model_server": ("model_swaps", "models_superseded", "swap_hold_ms", "load_ms", "rollbacks", "refused_models", "predictions"),
     "id_controller": ("commands", "rollbacks", "rollbacks_worse_than_before", "rollback_detect_ms", "epsilon_gated",
                       "qp_failures", "reference_held", "stale_reference", "prediction_behind_reference",
                       "prediction_lag_p50_ms", "prediction_lag_p99_ms"),

@@ -18,8 +18,9 @@ whole-model checksum; an announcement must carry that checksum; predictions on t
 own training inputs within the robot's physical bounds); the node swaps its served model
 in its own thread between two references, so the old model serves until the new one is
 ready. A loaded model waits until the one serving has served `min_serve_time` of reference
-stamps (serving.SwapHold), so the controller assesses every model it serves; a newer one
-loaded meanwhile takes its place (counted: models_superseded).
+stamps (serving.SwapHold), so the controller assesses every model it serves, doubled after
+each rollback in a row (swap_hold_ms); a newer one loaded meanwhile takes its place (counted:
+models_superseded).
 A refused model (announced without or with another checksum, tampered, truncated, wrong version
 or robot, predicting beyond physical bounds, e.g. scaled ×1e6) is logged,
 counted (refused_models) and the old model keeps serving. Rejected references
@@ -104,7 +105,8 @@ class ModelServerNode(Node):
         if self.served is not None:
             self.previous = [*self.previous, self.served][-MAX_PREVIOUS:]
         self.served, self.loaded = self.loaded, None
-        self.hold.changed()
+        self.hold.swapped()
+        self.health.counts["swap_hold_ms"] = int(round(1e3 * self.hold.hold_s()))
         self.health.counts["model_swaps"] += 1
         self.health.set(0, f"serving {self.served.name}")
         self.get_logger().info(f"serving {self.served.model_dir} (loaded in {self.health.counts['load_ms']} ms)")
@@ -118,7 +120,8 @@ class ModelServerNode(Node):
             self.health.counts["rollbacks_not_serving"] += 1  # already replaced: nothing to undo
             return
         self.served = self.previous.pop() if self.previous else None
-        self.hold.changed()
+        self.hold.rolled_back()
+        self.health.counts["swap_hold_ms"] = int(round(1e3 * self.hold.hold_s()))
         back = self.served.name if self.served is not None else "the nominal model"
         self.health.count("rollbacks", f"model {name} rolled back by the controller; serving {back}")
         self.health.set(0, f"serving {back}")

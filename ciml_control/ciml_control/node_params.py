@@ -83,6 +83,8 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
           "the seconds before it (≤ rollback_probation)", "s", 0.1, 600.0),
     Param("rollback_worse", _ROLLBACK.worse, "Rollback when that RMS effort is more than this share above the "
           "lower of the seconds before the model and the best model kept so far", "", 0.0, 10.0),
+    Param("rollback_best_horizon", _ROLLBACK.best_horizon, "A kept model's assessed effort counts as the best "
+          "level this long (a motion's effort varies from minute to minute)", "s", 1.0, 86400.0),
     Param("effort_command_topic", "", "Also publish each command as the joint torque u of the joint-loop law at "
           "its sample [Nm], clipped to the limits, in a std_msgs/Float64MultiArray on this topic, for a ros2_control "
           "effort forward_command_controller ('<controller>/commands'); joint order: the profile's command joints "

@@ -131,15 +131,17 @@ def live_online_learning(seeds: str = "0,1,2,3,4", scenarios: str = "default_gap
     """Online learning on the live graph, with and without, per seed and scenario, per period
     (ciml_sim.live_bench.online_learning_runs); `plot`: also a PNG of the effort per period.
     Options (ciml bench --set NAME=VALUE): seeds, baseline_seeds (the runs without learning;
-    default: seeds) and scenarios comma-separated (a scenario: a shipped name or a YAML file),
+    default: seeds; `none`: no such run, e.g. to add runs to a baseline measured before) and
+    scenarios comma-separated (a scenario: a shipped name or a YAML file),
     duration and period in simulated seconds, robot (a shipped name or a profile; the scenarios
     must be its own, e.g. go1_gap for go1), launch (more launch arguments, NAME:=VALUE
     comma-separated, e.g. learner_nice:=0)."""
     def ints(text: str) -> tuple[int, ...]:
         return tuple(int(s) for s in text.split(","))
 
+    baseline = None if not baseline_seeds else () if baseline_seeds == "none" else ints(baseline_seeds)
     result = live_bench.online_learning_runs(ints(seeds), tuple(scenarios.split(",")), float(duration),
-                                             float(period), ints(baseline_seeds) if baseline_seeds else None, robot,
+                                             float(period), baseline, robot,
                                              dict(a.split(":=", 1) for a in launch.split(",")) if launch else None)
     if plot:
         live_bench.plot_learning_runs(result, plot)

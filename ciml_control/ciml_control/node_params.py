@@ -71,8 +71,7 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
     Param("max_variance_ratio", DEFAULT_MAX_VARIANCE_RATIO, "Use a predicted model-error entry only if its variance "
           "is at most this × the nominal prior variance", "", 1e-3, 1e3, read_only=False),
     Param("rollback", True, "Roll back a newly served model whose feedback effort or base position error rises "
-          "beyond rollback_rise × its predecessor's, or whose effort is more than rollback_worse above it or the best "
-          "model kept "
+          "beyond rollback_rise × its predecessor's, or whose effort is more than rollback_worse above it "
           "(ciml_learning.rollback)", read_only=False),
     Param("rollback_window", _ROLLBACK.window, "RMS window of a newly served model's effort and error", "s", 0.02,
           5.0),
@@ -82,9 +81,7 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
     Param("rollback_assess", _ROLLBACK.assess, "A newly served model's RMS effort over this long is compared with "
           "the seconds before it (≤ rollback_probation)", "s", 0.1, 600.0),
     Param("rollback_worse", _ROLLBACK.worse, "Rollback when that RMS effort is more than this share above the "
-          "lower of the seconds before the model and the best model kept so far", "", 0.0, 10.0),
-    Param("rollback_best_horizon", _ROLLBACK.best_horizon, "A kept model's assessed effort counts as the best "
-          "level this long (a motion's effort varies from minute to minute)", "s", 1.0, 86400.0),
+          "seconds before the model", "", 0.0, 10.0),
     Param("effort_command_topic", "", "Also publish each command as the joint torque u of the joint-loop law at "
           "its sample [Nm], clipped to the limits, in a std_msgs/Float64MultiArray on this topic, for a ros2_control "
           "effort forward_command_controller ('<controller>/commands'); joint order: the profile's command joints "

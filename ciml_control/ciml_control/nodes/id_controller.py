@@ -54,8 +54,8 @@ Rollback (`rollback`): every step's feedback effort and base position error go t
 EffortWatch (ciml_learning.rollback) with the `source` of the prediction used; when a newly
 served model makes either rise beyond `rollback_rise` × the RMS of the seconds before it (RMS
 over `rollback_window`, during `rollback_probation`), or its RMS effort over its first
-`rollback_assess` seconds exceeds the lower of that of the seconds before it and the best level
-of a model kept within `rollback_best_horizon` by more than `rollback_worse`,
+`rollback_assess` seconds exceeds that of the seconds before it by more than `rollback_worse`
+(a model that passed is not judged again when a rollback puts it back),
 its predictions are no longer used (ε = 0) and /model_rollback asks the model server to serve
 the model before it (counted: rollbacks, rollbacks_worse_than_before, rollback_detect_ms, with a
 warning).
@@ -120,8 +120,7 @@ class IdControllerNode(Node):
         self.model_error_timeout, self.use_model_error = p["model_error_timeout"], p["use_model_error"]
         self.watch = EffortWatch(RollbackConfig(window=p["rollback_window"], probation=p["rollback_probation"],
                                                 rise=p["rollback_rise"], assess=p["rollback_assess"],
-                                                worse=p["rollback_worse"],
-                                                best_horizon=p["rollback_best_horizon"]))
+                                                worse=p["rollback_worse"]))
         profile = load_profile(p["robot"])
         self.robot = profile.robot()
         self.feedforward_only = p["feedforward_only"]

@@ -159,7 +159,7 @@ class SwapHold:
             self.on_trial, self.backoff = False, 0  # served its hold without a rollback
 
     def hold_s(self) -> float:
-        """The current choice's hold [s]."""
+        """The current choice's hold [s]: `hold`, doubled per rollback in a row for a model put back."""
         return self.hold_ns * 2 ** (0 if self.on_trial else self.backoff) * 1e-9
 
     def may_swap(self) -> bool:
@@ -167,7 +167,7 @@ class SwapHold:
             return True
         if self.since_ns is None or self.now_ns is None:
             return False
-        return self.now_ns - self.since_ns >= self.hold_ns * 2 ** (0 if self.on_trial else self.backoff)
+        return (self.now_ns - self.since_ns) * 1e-9 >= self.hold_s()
 
     def swapped(self) -> None:
         """A model was swapped in: on trial; the hold starts again at the next reference."""

@@ -1,6 +1,7 @@
 """Headless closed loop (ciml_sim.recorder.run_headless: deterministic, no ROS) with one fixed snapshot of the
-live learner, and for BAD_LEN seconds from BAD_FROM its ε × K (K = 1: no perturbation). Prints the RMS feedback
-effort per 5 s: is a fixed model's effort stationary, and does it return to its level after a bad model's seconds?
+live learner under the controller's trust law, and for BAD_LEN seconds from BAD_FROM its predictions × K
+(K = 1: no perturbation). Prints the RMS feedback effort per 5 s: is a fixed model's effort stationary, and
+does it return to its level after a bad model's seconds?
 usage: hyst.py SNAPSHOT DURATION BAD_FROM BAD_LEN K (results/LIVE_GRAPH.md, seventeenth session)"""
 import json
 import os
@@ -23,18 +24,30 @@ def main() -> None:
     good = load_epsilon_function(robot, snap)
     start: list[float] = []
 
-    def eps(ref):
-        if not start:
-            start.append(float(ref.t))
-        e = good(ref)
-        return k * e if t_bad <= float(ref.t) - start[0] < t_bad + n_bad else e
+    class Perturbed:
+        """The snapshot's predictions, their means × K in the bad seconds; with `model_set` and
+        `predict`, so run_headless applies the live controller's trust law (variance gate, clip)."""
 
-    r = run_headless(robot, resolve_scenario("default_gap", robot), "trot_35", duration, 0, epsilon_fn=eps,
+        model_set = good.model_set
+
+        def predict(self, ref):
+            if not start:
+                start.append(float(ref.t))
+            out = good.predict(ref)
+            if out is None or not t_bad <= float(ref.t) - start[0] < t_bad + n_bad:
+                return out
+            rbd, rbd_var, gamma, gamma_var = out
+            return k * rbd, rbd_var, k * gamma, gamma_var
+
+        def __call__(self, ref):
+            raise AssertionError("run_headless calls predict() through the trust law")
+
+    r = run_headless(robot, resolve_scenario("default_gap", robot), "trot_35", duration, 0, epsilon_fn=Perturbed(),
                      writer=None, ground_truth=False, progress=False)
     e = np.asarray(r.feedback_effort)
     rms = [round(float(np.sqrt(np.mean(e[i:i + PER] ** 2))), 1) for i in range(0, len(e), PER)]
     print(json.dumps({"snapshot": os.path.basename(snap), "bad_from_s": t_bad, "bad_len_s": n_bad, "k": k,
-                      "fell": bool(r.fell), "rms_per_5s": rms}))
+                      "fell": bool(r.fell), "trust": r.epsilon_trust, "rms_per_5s": rms}))
 
 
 if __name__ == "__main__":

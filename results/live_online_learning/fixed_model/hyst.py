@@ -1,7 +1,7 @@
 """Headless closed loop (ciml_sim.recorder.run_headless: deterministic, no ROS) with one fixed snapshot of the
 live learner under the controller's trust law, and for BAD_LEN seconds from BAD_FROM its predictions × K
-(K = 1: no perturbation). Prints the RMS feedback effort per 5 s: is a fixed model's effort stationary, and
-does it return to its level after a bad model's seconds?
+(K = 1: no perturbation). Prints the RMS feedback effort and tracking errors per 5 s: is a fixed model's
+effort stationary, and does it return to its level after a bad model's seconds?
 usage: hyst.py SNAPSHOT DURATION BAD_FROM BAD_LEN K (results/LIVE_GRAPH.md, seventeenth session)"""
 import json
 import os
@@ -44,10 +44,15 @@ def main() -> None:
 
     r = run_headless(robot, resolve_scenario("default_gap", robot), "trot_35", duration, 0, epsilon_fn=Perturbed(),
                      writer=None, ground_truth=False, progress=False)
-    e = np.asarray(r.feedback_effort)
-    rms = [round(float(np.sqrt(np.mean(e[i:i + PER] ** 2))), 1) for i in range(0, len(e), PER)]
+    def per_5s(x, digits: int) -> list[float]:
+        x = np.asarray(x)
+        return [round(float(np.sqrt(np.mean(x[i:i + PER] ** 2))), digits) for i in range(0, len(x), PER)]
+
     print(json.dumps({"snapshot": os.path.basename(snap), "bad_from_s": t_bad, "bad_len_s": n_bad, "k": k,
-                      "fell": bool(r.fell), "trust": r.epsilon_trust, "rms_per_5s": rms}))
+                      "fell": bool(r.fell), "trust": r.epsilon_trust, "rms_per_5s": per_5s(r.feedback_effort, 1),
+                      "attitude_error_rad_per_5s": per_5s(r.attitude_error, 4),
+                      "joint_error_rad_per_5s": per_5s(r.joint_error, 4),
+                      "base_position_error_m_per_5s": per_5s(r.base_position_error, 4)}))
 
 
 if __name__ == "__main__":

@@ -2,7 +2,8 @@
 live learner under the controller's trust law, and for BAD_LEN seconds from BAD_FROM its predictions × K
 (K = 1: no perturbation). Prints the RMS feedback effort and tracking errors per 5 s: is a fixed model's
 effort stationary, and does it return to its level after a bad model's seconds?
-usage: hyst.py SNAPSHOT DURATION BAD_FROM BAD_LEN K (results/LIVE_GRAPH.md, seventeenth session)"""
+usage: hyst.py SNAPSHOT DURATION BAD_FROM BAD_LEN K [OUTSIDE] (OUTSIDE: the factor outside those seconds, default 1;
+0: the nominal model with a kick of the snapshot; results/LIVE_GRAPH.md, seventeenth session)"""
 import json
 import os
 import sys
@@ -21,6 +22,7 @@ def main() -> None:
     robot = load_profile("hyq").robot()
     snap = sys.argv[1]
     duration, t_bad, n_bad, k = (float(a) for a in sys.argv[2:6])
+    outside = float(sys.argv[6]) if len(sys.argv) > 6 else 1.0
     good = load_epsilon_function(robot, snap)
     start: list[float] = []
 
@@ -34,10 +36,11 @@ def main() -> None:
             if not start:
                 start.append(float(ref.t))
             out = good.predict(ref)
-            if out is None or not t_bad <= float(ref.t) - start[0] < t_bad + n_bad:
+            if out is None:
                 return out
+            f = k if t_bad <= float(ref.t) - start[0] < t_bad + n_bad else outside
             rbd, rbd_var, gamma, gamma_var = out
-            return k * rbd, rbd_var, k * gamma, gamma_var
+            return f * rbd, rbd_var, f * gamma, gamma_var
 
         def __call__(self, ref):
             raise AssertionError("run_headless calls predict() through the trust law")
@@ -49,6 +52,7 @@ def main() -> None:
         return [round(float(np.sqrt(np.mean(x[i:i + PER] ** 2))), digits) for i in range(0, len(x), PER)]
 
     print(json.dumps({"snapshot": os.path.basename(snap), "bad_from_s": t_bad, "bad_len_s": n_bad, "k": k,
+                      "outside": outside,
                       "fell": bool(r.fell), "trust": r.epsilon_trust, "rms_per_5s": per_5s(r.feedback_effort, 1),
                       "attitude_error_rad_per_5s": per_5s(r.attitude_error, 4),
                       "joint_error_rad_per_5s": per_5s(r.joint_error, 4),

@@ -132,7 +132,7 @@ class EffortWatch:
         self._sum = 0.0                           # squared efforts of the current model's steps until assessed
         self._steps = 0
         self._after_rollback: np.ndarray | None = None  # the reference of the model restored by a rollback
-        self.kept: set[str] = set()  # models that passed their assessment
+        self.kept: set[str] = set()  # models that passed their assessment or served their probation
 
     def update(self, t: float, source: str, signals) -> Rollback | None:
         c = self.config
@@ -144,9 +144,9 @@ class EffortWatch:
             self._promote(t)
             self.current, self._since = source, t
             enough = self._before.covered() >= 0.5 * c.baseline
-            # the last safe model back (after a rollback) has served its probation already
+            # a model put back by a rollback was judged in its own time (kept: assessed or served its probation)
             reference = self._before.rms() if enough else self._after_rollback
-            self._baseline = reference if source != self.safe and source not in self.kept else None
+            self._baseline = reference if source not in self.kept else None
             self._limit = c.rise * self._baseline + np.asarray(c.margins) if self._baseline is not None else None
             self._served.clear()
             self._sum, self._steps = 0.0, 0
@@ -202,6 +202,7 @@ class EffortWatch:
         if (self.current is not None and self.current not in self.rolled_back and self._limit is not None
                 and t - self._since >= self.config.probation):
             self.safe = self.current
+            self.kept.add(self.current)
 
     @staticmethod
     def base_position_error(q: np.ndarray, q_ref: np.ndarray) -> float:

@@ -6,6 +6,7 @@ from ciml_learning.node_params import ROBOT, THREAD_PRIORITY
 from ciml_learning.params import NodeSchema, Param
 from ciml_learning.rollback import RollbackConfig
 
+from .feedback import BASE_ANGULAR_KD, BASE_ANGULAR_KP, BASE_LINEAR_KD, BASE_LINEAR_KP
 from .references import MOTIONS
 from .trust import DEFAULT_MAX_VARIANCE_RATIO
 
@@ -55,12 +56,13 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
           "mass, feedback.joint_gain_scale)", "Nm/rad", 0.0, 2000.0, read_only=False),
     Param("kd", 0.0, "Joint PD damping of the 1 kHz loop (0 = derived, as kp: 8 Nm s/rad scaled)", "Nm s/rad", 0.0,
           200.0, read_only=False),
-    Param("base_kp_linear", 200.0, "Feedback linearisation gain, base position (eq. 24)", "1/s²", 0.0, 2000.0,
+    Param("base_kp_linear", BASE_LINEAR_KP, "Feedback linearisation gain, base position (eq. 24)", "1/s²", 0.0, 2000.0,
           read_only=False),
-    Param("base_kp_angular", 200.0, "Feedback linearisation gain, base orientation", "1/s²", 0.0, 2000.0,
+    Param("base_kp_angular", BASE_ANGULAR_KP, "Feedback linearisation gain, base orientation", "1/s²", 0.0, 2000.0,
           read_only=False),
-    Param("base_kd_linear", 25.0, "Feedback linearisation gain, base velocity", "1/s", 0.0, 200.0, read_only=False),
-    Param("base_kd_angular", 25.0, "Feedback linearisation gain, base angular velocity", "1/s", 0.0, 200.0,
+    Param("base_kd_linear", BASE_LINEAR_KD, "Feedback linearisation gain, base velocity", "1/s", 0.0, 200.0,
+          read_only=False),
+    Param("base_kd_angular", BASE_ANGULAR_KD, "Feedback linearisation gain, base angular velocity", "1/s", 0.0, 200.0,
           read_only=False),
     Param("joint_lin_kp", 0.0, "Feedback linearisation gain, joints", "1/s²", 0.0, 2000.0, read_only=False),
     Param("joint_lin_kd", 0.0, "Feedback linearisation gain, joint velocities", "1/s", 0.0, 200.0, read_only=False),

@@ -117,7 +117,9 @@ class _Window:
 
 class EffortWatch:
     """update(t, source, signals) per control step → a Rollback when the model serving now must
-    go (once per model), else None. `safe` is the last model that served its probation."""
+    go (once per model), else None. `safe` is the last model that served its probation.
+    `judged` counts the new models assessed or rolled back, `unjudged` those that were not (no
+    reference before them, or replaced before their assessment); a kept model put back is neither."""
 
     def __init__(self, config: RollbackConfig | None = None) -> None:
         self.config = config or RollbackConfig()
@@ -133,6 +135,9 @@ class EffortWatch:
         self._steps = 0
         self._after_rollback: np.ndarray | None = None  # the reference of the model restored by a rollback
         self.kept: set[str] = set()  # models that passed their assessment or served their probation
+        self.judged = 0
+        self.unjudged = 0
+        self._pending = False  # the current model awaits its judgement
 
     def update(self, t: float, source: str, signals) -> Rollback | None:
         c = self.config
@@ -147,6 +152,9 @@ class EffortWatch:
             # a model put back by a rollback was judged in its own time (kept: assessed or served its probation)
             reference = self._before.rms() if enough else self._after_rollback
             self._baseline = reference if source not in self.kept else None
+            self.unjudged += self._pending  # the model it replaces was never judged
+            self._pending = self._baseline is not None
+            self.unjudged += self._baseline is None and source not in self.kept
             self._limit = c.rise * self._baseline + np.asarray(c.margins) if self._baseline is not None else None
             self._served.clear()
             self._sum, self._steps = 0.0, 0
@@ -182,6 +190,8 @@ class EffortWatch:
         limit = (1.0 + self.config.worse) * float(self._baseline[0])
         self._steps = -1
         if rms <= limit:
+            self.judged += 1
+            self._pending = False
             self._after_rollback = None  # a model has served long enough since: its steps are the reference
             self.kept.add(source)
             return None
@@ -190,6 +200,8 @@ class EffortWatch:
     def _roll_back(self, back: Rollback) -> Rollback:
         """The model goes; its steps are no reference for the next model (else a model as bad as it
         would pass against it)."""
+        self.judged += self._pending
+        self._pending = False
         self.rolled_back.add(back.source)
         self._before.drop_since(self._since)
         # the model before it serves again; until its own steps cover the baseline, the reference of

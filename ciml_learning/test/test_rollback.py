@@ -111,6 +111,22 @@ def test_without_a_baseline_nothing_is_judged_and_bad_values_are_ignored():
         RollbackConfig(window=0.0)
 
 
+def test_every_new_model_is_counted_judged_or_unjudged():
+    w = EffortWatch()
+    assert run(w, 0.0, 3.0, "m1", 40.0)[0] == []                # no 5 s before it: no reference
+    assert (w.judged, w.unjudged) == (0, 1)
+    _, t = run(w, 3.0, 6.0, NOMINAL_SOURCE, 45.0)
+    _, t = run(w, t, 6.0, "m2", 44.0, seed=1)                   # assessed at 5 s, passes
+    _, t = run(w, t, 3.0, "m3", 44.0, seed=2)                   # replaced at 3 s, before its assessment
+    backs, t = run(w, t, 6.0, "m4", 60.0, seed=3)               # assessed at 5 s: worse, rolled back
+    assert [b.kind for _, b in backs] == [WORSE_THAN_BEFORE]
+    backs, t = run(w, t, 1.0, "m5", 150.0, seed=4)              # a sudden rise
+    assert [b.kind for _, b in backs] == [SUDDEN_RISE]
+    assert (w.judged, w.unjudged) == (3, 2)
+    _, t = run(w, t, 6.0, "m2", 44.0, seed=5)                   # a kept model put back: not judged again
+    assert (w.judged, w.unjudged) == (3, 2)
+
+
 def test_feedback_effort_is_the_joint_loops_pd_plus_linearization():
     kp, kd = np.full(3, 300.0), np.full(3, 8.0)
     q, qd = np.array([0.1, 0.2, 0.3]), np.array([1.0, 0.0, -1.0])

@@ -226,7 +226,8 @@ LEARNING_COUNTERS = {
                        "outputs_served", "learn_us_mean"),
     "model_server": ("model_swaps", "models_superseded", "swap_hold_ms", "load_ms", "rollbacks", "refused_models",
                      "predictions"),
-    "id_controller": ("commands", "rollbacks", "rollbacks_worse_than_before", "rollback_detect_ms", "epsilon_gated",
+    "id_controller": ("commands", "rollbacks", "rollbacks_worse_than_before", "rollback_detect_ms", "models_judged",
+                      "models_unjudged", "epsilon_gated",
                       "qp_failures", "reference_held", "stale_reference", "prediction_behind_reference",
                       "prediction_lag_p50_ms", "prediction_lag_p99_ms"),
 }

@@ -58,7 +58,8 @@ over `rollback_window`, during `rollback_probation`), or its RMS effort over its
 (a model that passed is not judged again when a rollback puts it back),
 its predictions are no longer used (ε = 0) and /model_rollback asks the model server to serve
 the model before it (counted: rollbacks, rollbacks_worse_than_before, rollback_detect_ms, with a
-warning).
+warning). models_judged / models_unjudged: the new models the watch assessed or rolled back, and
+those it could not judge (no reference before them, or replaced before their assessment).
 """
 from __future__ import annotations
 
@@ -358,6 +359,8 @@ class IdControllerNode(Node):
         effort = feedback_effort(cmd.stiffness, cmd.damping, cmd.position_target, cmd.velocity_target,
                                  cmd.feedback_linearization, qj, qdj)
         back = self.watch.update(now, source, (effort, EffortWatch.base_position_error(q, q_ref)))
+        counts = self.health.counts
+        counts["models_judged"], counts["models_unjudged"] = self.watch.judged, self.watch.unjudged
         if back is None:
             return
         self.rollback_pub.publish(String(data=back.source))

@@ -26,12 +26,12 @@ setup(
             "reference_generator = ciml_control.nodes.reference_generator:main",
             "id_controller = ciml_control.nodes.id_controller:main",
         ],
-        # node classes by executable name, for ciml_container (composition; ciml_learning.container)
+        # node classes by executable name, for ciml_container (composition; ciml_learning.ros.container)
         "ciml.nodes": [
             "reference_generator = ciml_control.nodes.reference_generator:ReferenceGeneratorNode",
             "id_controller = ciml_control.nodes.id_controller:IdControllerNode",
         ],
-        # `ciml bench` benchmarks of this package (ciml_learning.bench)
+        # `ciml bench` benchmarks of this package (ciml_learning.cli.bench)
         "ciml.benchmarks": [
             "id_controller_step = ciml_control.benchmarks:id_controller_step",
             "id_controller_dds_latency = ciml_control.benchmarks:dds_latency_benchmark",

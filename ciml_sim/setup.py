@@ -26,11 +26,11 @@ setup(
         "console_scripts": [
             "mujoco_bridge = ciml_sim.bridge_node:main",
         ],
-        # node classes by executable name, for ciml_container (composition; ciml_learning.container)
+        # node classes by executable name, for ciml_container (composition; ciml_learning.ros.container)
         "ciml.nodes": [
             "mujoco_bridge = ciml_sim.bridge_node:MujocoBridge",
         ],
-        # `ciml` verbs and benchmarks of this package (ciml_learning.cliargs.Verb; ciml_learning.bench)
+        # `ciml` verbs and benchmarks of this package (ciml_learning.cli.args.Verb; ciml_learning.cli.bench)
         "ciml.verbs": [
             "record = ciml_sim.verbs:RECORD",
             "closed-loop = ciml_sim.verbs:CLOSED_LOOP",

@@ -13,9 +13,10 @@ import os
 import numpy as np
 import pinocchio as pin
 
-from ciml_learning import bagio, topics
-from ciml_learning import conversions as cv
-from ciml_learning.robot import RobotDescription
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.robot import RobotDescription
+from ciml_learning.logs import bagio
 
 FS = 250.0
 STEPS_PER_TICK = 4
@@ -101,7 +102,7 @@ def record_plant_bag(robot: RobotDescription, scenario: dict, path: str | os.Pat
     Returns {"samples", "fell", "ground_truth_topics"}.
     """
     from ciml_control.standing import gravity_compensation
-    from ciml_learning.dynamics import RigidBodyDynamics
+    from ciml_learning.core.dynamics import RigidBodyDynamics
     from ciml_sim.plant import Plant
     from ciml_sim.scenario import parse_scenario
 

@@ -50,9 +50,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ciml_learning import bagio
-from ciml_learning.loginputs import load_log
-from ciml_learning.robot import RobotDescription
+from ciml_learning.core.robot import RobotDescription
+from ciml_learning.logs import bagio
+from ciml_learning.logs.loginputs import load_log
 
 STORAGES = ("mcap", "sqlite3", "ros1")
 UNITREE_LEG_ORDER = ("FR", "FL", "RR", "RL")
@@ -336,7 +336,7 @@ def native_profile(robot: RobotDescription) -> dict:
 
 
 def _profile(robot: RobotDescription, name: str, inputs: dict, ignore: list[str] | None = None) -> dict:
-    from ciml_learning.robot import example_robot_data_dir
+    from ciml_learning.core.robot import example_robot_data_dir
 
     urdf = os.path.abspath(robot.urdf_path)
     erd = example_robot_data_dir()
@@ -363,7 +363,7 @@ def without_command(profile: dict) -> dict:
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
-    from ciml_learning.profile import load_profile, with_overrides
+    from ciml_learning.core.profile import load_profile, with_overrides
 
     ap = argparse.ArgumentParser(description="Rewrite a native CIML recording in another robot's layout.")
     ap.add_argument("layout", choices=("unitree", "ros2_control"))

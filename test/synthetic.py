@@ -4,8 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from ciml_learning import bagio, topics
-from ciml_learning import conversions as cv
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.logs import bagio
 
 
 def write_synthetic_bag(robot, path, seconds: float = 3.0, fs: float = 250.0, seed: int = 0,

@@ -175,12 +175,12 @@ def _layer(name: str) -> int | None:
 def test_the_import_scanner_sees_statements_strings_and_context(tmp_path):
     """The scanner itself: a check that finds nothing must be able to find something."""
     probe = tmp_path / "probe.py"
-    probe.write_text("import importlib\nfrom . import topics\nfrom .diagnosis import run\n"
+    probe.write_text("import importlib\nfrom . import topics\nfrom ..diagnosis import run\n"
                      "def f():\n    import ciml_sim.plant\n    importlib.import_module('ciml_control.qp')\n"
                      "    return 'ciml_sim.commands:record'\n"
                      "try:\n    import lz4\nexcept ImportError:\n    pass\n")
-    got = {(i.target, i.kind, i.local, i.optional) for i in imports_of(str(probe), me="ciml_learning.probe")}
-    assert got == {("importlib", "statement", False, False), ("ciml_learning.topics", "statement", False, False),
+    got = {(i.target, i.kind, i.local, i.optional) for i in imports_of(str(probe), me="ciml_learning.core.probe")}
+    assert got == {("importlib", "statement", False, False), ("ciml_learning.core.topics", "statement", False, False),
                    ("ciml_learning.diagnosis.run", "statement", False, False),
                    ("ciml_sim.plant", "statement", True, False), ("ciml_control.qp", "string", True, False),
                    ("ciml_sim.commands", "string", True, False), ("lz4", "statement", False, True)}
@@ -245,10 +245,68 @@ def private_imports(path: str) -> list[str]:
 
 def test_no_module_imports_a_private_name_of_another(tmp_path):
     f = tmp_path / "m.py"
-    f.write_text("from .report import _where\nfrom ciml_learning.cli import main, _join\nfrom os import _exit\n")
-    assert [h.split(": ", 1)[1] for h in private_imports(str(f))] == [".report _where", "ciml_learning.cli _join"]
+    f.write_text("from .report import _where\nfrom ciml_learning.cli.main import main, _join\nfrom os import _exit\n")
+    assert [h.split(": ", 1)[1] for h in private_imports(str(f))] == [".report _where", "ciml_learning.cli.main _join"]
     found = [hit for pkg in LAYERS for path in package_files(pkg)["modules"] for hit in private_imports(path)]
     assert not found, "\n".join(found)
+
+
+FLOORS = ("core", "effects", "logs", "learning", "diagnosis", "ros", "nodes", "cli")
+"""ciml_learning's floors (subpackages), lowest first (docs/ARCHITECTURE.md §3): a module imports
+only its own floor and those below it (the package's own __init__ is below all of them)."""
+
+
+def _floor(module: str) -> int | None:
+    """Floor index of a ciml_learning module (−1: the package itself; None: another package)."""
+    parts = module.split(".")
+    if parts[0] != "ciml_learning":
+        return None
+    return -1 if len(parts) == 1 else FLOORS.index(parts[1]) if parts[1] in FLOORS else len(FLOORS)
+
+
+def floor_violations(path: str, me: str) -> list[str]:
+    """Imports (statements anywhere, import and entry-point strings) and string constants (not
+    docstrings) of module `me` that name a ciml_learning floor above its own."""
+    mine = _floor(me)
+    assert mine is not None and mine < len(FLOORS), f"{me} sits in no floor of {FLOORS}"
+    rel = os.path.relpath(path, ROOT)
+    out = [f"{imp.where()}: {me} → {imp.target} ({imp.kind}{', in a function' if imp.local else ''})"
+           for imp in imports_of(path, me=me) if (_floor(imp.target) or 0) > mine]
+    above = FLOORS[mine + 1:]
+    if above:
+        out += [f"{rel}:{hit.split(':', 2)[1]}: {me} names {hit.split(': ', 1)[1]}"
+                for hit in names_of_packages_above(path, tuple(f"ciml_learning[.]{f}" for f in above))]
+    return out
+
+
+def test_the_floor_rule_finds_an_import_and_a_string_from_above(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text('"""Not ciml_learning.cli: a docstring."""\nfrom ciml_learning.core import robot\n'
+                 'def g():\n    from ciml_learning.learning.models import ModelSet\n'
+                 '    return "ciml_learning.cli.commands:extract", "ciml_learning.ros.launcher"\n')
+    found = floor_violations(str(f), "ciml_learning.core.m")
+    assert len(found) == 4 and "ciml_learning.learning.models" in found[0], found
+    assert floor_violations(str(f), "ciml_learning.cli.m") == []
+
+
+def test_every_ciml_learning_module_sits_in_a_floor_and_imports_none_above_it():
+    """Floors as folders: what a module may use is where it lives (strings included)."""
+    found = [hit for m, path in MODULES.items() if m.startswith("ciml_learning.")
+             for hit in floor_violations(path, m)]
+    assert not found, "imports from a floor above (move the code down, or the caller up):\n" + "\n".join(found)
+
+
+ROS_FLOORS = ("ros", "nodes")
+"""The floors that may use the ROS client library; below them only rclpy.serialization (a bag's
+messages are CDR as rclpy writes them), so the algorithms run and are tested without a graph."""
+
+
+def test_only_the_ros_floors_use_rclpy():
+    found = [f"{imp.where()}: {m} → {imp.target}" for m, path in MODULES.items()
+             if m.startswith("ciml_learning.") and m.split(".")[1] not in ROS_FLOORS
+             for imp in imports_of(path, me=m)
+             if imp.target.split(".")[0] == "rclpy" and imp.target != "rclpy.serialization"]
+    assert not found, "rclpy outside ros/ and nodes/:\n" + "\n".join(found)
 
 
 def test_no_package_declares_a_package_above_it():
@@ -433,7 +491,7 @@ def _mypy(*files: str) -> subprocess.CompletedProcess:
 def test_mypy_finds_a_type_error(tmp_path):
     """The check itself: with the project's configuration, a wrong type is an error."""
     probe = tmp_path / "probe.py"
-    probe.write_text('from ciml_learning.robot import load_robot\n\nn_joints: str = load_robot().n_joints\n')
+    probe.write_text('from ciml_learning.core.robot import load_robot\n\nn_joints: str = load_robot().n_joints\n')
     r = _mypy(str(probe))
     assert r.returncode == 1 and "Incompatible types in assignment" in r.stdout, r.stdout + r.stderr
 

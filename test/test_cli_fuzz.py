@@ -11,7 +11,7 @@ import os
 
 import pytest
 
-from ciml_learning.cli import main
+from ciml_learning.cli.main import main
 
 NON_UTF8 = os.fsdecode(b"bad\xff\xfename")
 NUMBERS = ["-1", "0", "1e308", "99999999999999999999999", "nan", "inf", "", "abc"]
@@ -96,7 +96,7 @@ def test_hostile_argument_gives_one_line(verb, arg, kind, i, tmp_path, capsys, m
 
 
 def test_jobs_are_capped_at_the_available_cores(capsys):
-    from ciml_learning.cliargs import available_cores, cap_jobs
+    from ciml_learning.cli.args import available_cores, cap_jobs
 
     cores = available_cores()
     assert cap_jobs(10_000) == cores and f"capped at the {cores} available cores" in capsys.readouterr().err

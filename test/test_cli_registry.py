@@ -13,8 +13,8 @@ from importlib.metadata import entry_points
 
 import pytest
 
-from ciml_learning.cli import VERB_GROUP, build_parser, installed_verbs, main
-from ciml_learning.cliargs import Verb
+from ciml_learning.cli.args import Verb
+from ciml_learning.cli.main import VERB_GROUP, build_parser, installed_verbs, main
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # docs/ARCHITECTURE.md §4 and the README's command list, in `ciml --help` order
@@ -57,7 +57,7 @@ def test_simulator_verb_help_shows_an_example(verb, capsys):
 
 
 def test_every_benchmark_is_registered_by_its_package_and_runs_without_arguments():
-    from ciml_learning.bench import installed_benchmarks
+    from ciml_learning.cli.bench import installed_benchmarks
 
     found = installed_benchmarks()
     assert sorted(found) == sorted(n for names in BENCHMARKS.values() for n in names)
@@ -87,7 +87,7 @@ def alone(**kw):
     return type(eps)(ep for ep in eps if ep.dist is None or ep.dist.name.replace("-", "_") == "ciml_learning")
 importlib.metadata.entry_points = alone
 
-from ciml_learning.cli import main
+from ciml_learning.cli.main import main
 rc = main(sys.argv[1:])
 print(json.dumps({"rc": rc, "sim_loaded": any(m.split(".")[0] in ("ciml_control", "ciml_sim") for m in sys.modules)}))
 """

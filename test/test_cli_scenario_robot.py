@@ -1,7 +1,7 @@
 """A scenario of another robot names the --robot to give (the simulator's verbs, through the CLI)."""
 import pytest
 
-from ciml_learning.cli import main
+from ciml_learning.cli.main import main
 
 
 def _one_line_error(capsys) -> str:

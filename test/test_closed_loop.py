@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from ciml_learning.robot import load_robot
+from ciml_learning.core.robot import load_robot
 
 ROBOT = load_robot()
 

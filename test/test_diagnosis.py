@@ -19,10 +19,10 @@ import pytest
 sys.path.insert(0, os.path.dirname(__file__))
 from diag_data import copy_topics, record_plant_bag, strip_to_live_topics  # noqa: E402
 
-from ciml_learning.cli import main  # noqa: E402
+from ciml_learning.cli.main import main  # noqa: E402
+from ciml_learning.core.robot import load_robot  # noqa: E402
 from ciml_learning.diagnosis import load_epsilon_function  # noqa: E402
 from ciml_learning.diagnosis.run import diagnose  # noqa: E402
-from ciml_learning.robot import load_robot  # noqa: E402
 
 ROBOT = load_robot()
 
@@ -110,7 +110,8 @@ def test_diagnosis_json_contract(diagnosis):
 
 def test_no_ground_truth_reaches_the_diagnosis(scenario_bag, diagnosis, tmp_path):
     """The same result from the bag rewritten with only the four live sensor topics."""
-    from ciml_learning import bagio, topics
+    from ciml_learning.core import topics
+    from ciml_learning.logs import bagio
 
     live = str(tmp_path / "live_only")
     strip_to_live_topics(scenario_bag, live)
@@ -178,7 +179,7 @@ def test_out_of_catalogue_effect_is_unexplained_and_localised(tmp_path):
 
 
 def test_bad_input_one_line_error(tmp_path, capsys, scenario_bag):
-    from ciml_learning import topics
+    from ciml_learning.core import topics
 
     assert main(["diagnose", "--bag", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]) == 1
     err = capsys.readouterr().err.strip().splitlines()

@@ -17,6 +17,10 @@ import pytest
 sys.path.insert(0, os.path.dirname(__file__))
 from diag_data import read_ground_truth, record_plant_bag  # noqa: E402
 
+from ciml_learning.core.extraction import observation_operators  # noqa: E402
+from ciml_learning.core.filters import filter_offline, lowpass_taps  # noqa: E402
+from ciml_learning.core.projection import contact_invariant_bases  # noqa: E402
+from ciml_learning.core.robot import load_robot  # noqa: E402
 from ciml_learning.diagnosis.candidates import (  # noqa: E402
     N_ACT,
     FeatureLayout,
@@ -26,11 +30,7 @@ from ciml_learning.diagnosis.candidates import (  # noqa: E402
     link_inertias,
 )
 from ciml_learning.diagnosis.effects import feature_coefficients  # noqa: E402
-from ciml_learning.extraction import observation_operators  # noqa: E402
-from ciml_learning.filters import filter_offline, lowpass_taps  # noqa: E402
-from ciml_learning.pipeline import load_dataset  # noqa: E402
-from ciml_learning.projection import contact_invariant_bases  # noqa: E402
-from ciml_learning.robot import load_robot  # noqa: E402
+from ciml_learning.logs.pipeline import load_dataset  # noqa: E402
 
 ROBOT = load_robot()
 

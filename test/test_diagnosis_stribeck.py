@@ -14,8 +14,8 @@ import pytest
 sys.path.insert(0, os.path.dirname(__file__))
 from diag_data import record_plant_bag  # noqa: E402
 
+from ciml_learning.core.robot import load_robot  # noqa: E402
 from ciml_learning.diagnosis.run import diagnose  # noqa: E402
-from ciml_learning.robot import load_robot  # noqa: E402
 
 ROBOT = load_robot()
 STRIBECK = {"type": "joint_stribeck_friction", "joint": "lf_kfe_joint", "breakaway": 12.0, "coulomb": 4.0,
@@ -57,7 +57,7 @@ def test_stribeck_friction_above_the_stick_speed_is_named_on_walking_logs(tmp_pa
     95 % interval. Measured: breakaway 11.76 ± 1.12 Nm (12), Coulomb 4.16 ± 0.48 Nm (4), velocity
     0.298 ± 0.034 rad/s (0.3), share 0.85. Before stuck joints were projected out (shrink.py, "Stiction"):
     16.5 ± 5.1, 4.57 ± 0.86, 0.137 ± 0.041 (the stick phases pulled the velocity down)."""
-    from ciml_learning.cli import main
+    from ciml_learning.cli.main import main
 
     truth = {"type": "joint_stribeck_friction", "joint": "rf_kfe_joint", "breakaway": 12.0, "coulomb": 4.0,
              "velocity": 0.3}

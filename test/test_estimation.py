@@ -13,16 +13,17 @@ import os
 import numpy as np
 import pytest
 
-from ciml_learning import bagio, estimation
-from ciml_learning.estimation import (
+from ciml_learning.core import estimation
+from ciml_learning.core.estimation import (
     EstimationError,
     contact_agreement,
     estimate_base,
     estimate_contacts,
     threshold_contacts,
 )
-from ciml_learning.loginputs import load_log
-from ciml_learning.robot import example_robot_data_dir, load_robot
+from ciml_learning.core.robot import example_robot_data_dir, load_robot
+from ciml_learning.logs import bagio
+from ciml_learning.logs.loginputs import load_log
 
 pytest.importorskip("ciml_sim")
 
@@ -147,8 +148,8 @@ def test_estimated_base_reproduces_the_odometry_extraction(hyq):
     extracted contact-invariant error Φ̃' follows the odometry-based one (HyQ default_gap
     trot_35: RMS difference below 25 % of its RMS, measured 12.8 %; the valid samples
     match to 80 %, measured 99 %)."""
-    from ciml_learning.extraction import extract
-    from ciml_learning.filters import filter_state_log
+    from ciml_learning.core.extraction import extract
+    from ciml_learning.core.filters import filter_state_log
 
     robot, log, _ = hyq
     rng = np.random.default_rng(0)

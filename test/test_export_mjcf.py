@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 import yaml
 
-from ciml_learning.cli import main
+from ciml_learning.cli.main import main
+from ciml_learning.core.robot import load_robot
 from ciml_learning.diagnosis.files import write_diagnosis_dir
 from ciml_learning.effects.scenario import scenario_effect
-from ciml_learning.robot import load_robot
 from ciml_sim.export_mjcf import export
 from ciml_sim.mjcf import build_mjcf, pin_to_mj_state
 from ciml_sim.plant import Plant

@@ -21,13 +21,13 @@ import textwrap
 
 import pytest
 
-from ciml_learning.bagio import BagError, read_messages
-from ciml_learning.fileio import FAULT_ENV
-from ciml_learning.mcap_check import BagCorruptError, check_bag, seal_mcap, verify_mcap
-from ciml_learning.model_files import MODEL_JSON, MODEL_NPZ, ModelFileError
-from ciml_learning.models import ModelSet
-from ciml_learning.robot import load_robot
-from ciml_learning.synthetic import fit_arguments, synthetic_training_set
+from ciml_learning.core.fileio import FAULT_ENV
+from ciml_learning.core.robot import load_robot
+from ciml_learning.learning.model_files import MODEL_JSON, MODEL_NPZ, ModelFileError
+from ciml_learning.learning.models import ModelSet
+from ciml_learning.learning.synthetic import fit_arguments, synthetic_training_set
+from ciml_learning.logs.bagio import BagError, read_messages
+from ciml_learning.logs.mcap_check import BagCorruptError, check_bag, seal_mcap, verify_mcap
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BAG = os.path.join(ROOT, "bags", "nominal_stand")
@@ -74,7 +74,7 @@ def tag_of(model_dir: str) -> str | None:
 
 SAVE_MODEL = """
     import sys
-    from ciml_learning.models import ModelSet
+    from ciml_learning.learning.models import ModelSet
     ms = ModelSet.load(sys.argv[1])
     ms.training_ = {"tag": "new"}
     ms.save(sys.argv[2])
@@ -106,8 +106,8 @@ def test_model_save_killed_at_every_step_is_old_or_new(old_model, tmp_path):
 SNAPSHOT = """
     import sys
     import numpy as np
-    from ciml_learning.models import ModelSet
-    from ciml_learning.snapshots import Snapshot, SnapshotWriter
+    from ciml_learning.learning.models import ModelSet
+    from ciml_learning.learning.snapshots import Snapshot, SnapshotWriter
     ms = ModelSet.load(sys.argv[1])
     w = SnapshotWriter(sys.argv[2], keep=1)
     for k in range(2):  # the second write also removes the first snapshot
@@ -118,7 +118,7 @@ SNAPSHOT = """
 
 @pytest.mark.slow
 def test_snapshot_writer_killed_at_every_step_leaves_loadable_snapshots(old_model, tmp_path):
-    from ciml_learning.snapshots import Snapshot  # noqa: F401 - the fields the script uses exist
+    from ciml_learning.learning.snapshots import Snapshot  # noqa: F401 - the fields the script uses exist
 
     root = tmp_path / "online"
 
@@ -172,7 +172,7 @@ def test_record_killed_at_every_step_leaves_no_bag_or_a_whole_bag(tmp_path):
     out = str(tmp_path / "bag")
     script = """
         import sys
-        from ciml_learning.cli import main
+        from ciml_learning.cli.main import main
         sys.exit(main(["record", "--scenario", "nominal", "--motion", "stand", "--duration", "0.2",
                        "--out", sys.argv[1]]))
     """
@@ -225,7 +225,7 @@ def sealed_bag(tmp_path_factory) -> str:
 
 
 def _regions(path: str) -> dict[str, int]:
-    from ciml_learning.mcap_check import _layout
+    from ciml_learning.logs.mcap_check import _layout
 
     with open(path, "rb") as f:
         buf = f.read()
@@ -250,7 +250,7 @@ def test_flipped_bytes_in_each_mcap_region_are_one_line_errors(sealed_bag, regio
     assert "\n" not in str(info.value) and "byte" in str(info.value)
     with pytest.raises(BagError):
         read_messages(str(bag), ["/joint_states"])
-    from ciml_learning.cli import main
+    from ciml_learning.cli.main import main
 
     assert main(["extract", "--bag", str(bag), "--out", str(tmp_path / "t.npz")]) == 1
     err = capsys.readouterr().err.strip()
@@ -291,7 +291,7 @@ def test_out_on_a_device_node_is_refused(old_model, tmp_path, capsys):
         os.mknod(dev, stat.S_IFCHR | 0o666, os.makedev(1, 3))
     except (PermissionError, OSError) as err:
         pytest.skip(f"mknod not permitted: {err}")
-    from ciml_learning.cli import main
+    from ciml_learning.cli.main import main
 
     for argv in (["evaluate", "--model", old_model, "--bag", BAG, "--out", str(dev)],
                  ["train", "--bag", BAG, "--learner", "lwpr", "--out", str(dev)],
@@ -308,8 +308,8 @@ def test_out_on_a_device_node_is_refused(old_model, tmp_path, capsys):
 
 def test_duplicated_messages_are_counted_as_dropped(tmp_path):
     """A log with repeated joint-state messages: each repeat is a counted drop, not a silent one."""
-    from ciml_learning.bagio import BagWriter, iter_bag_messages
-    from ciml_learning.loginputs import load_log
+    from ciml_learning.logs.bagio import BagWriter, iter_bag_messages
+    from ciml_learning.logs.loginputs import load_log
 
     clean = load_log(ROBOT, BAG)
     out = tmp_path / "dup"
@@ -335,7 +335,7 @@ def test_ciml_train_killed_while_publishing_keeps_old_or_new(old_model, tmp_path
     model is intact; killed after it (before removing the old copy) the new one is in place."""
     script = """
         import sys
-        from ciml_learning.cli import main
+        from ciml_learning.cli.main import main
         sys.exit(main(["train", "--bag", sys.argv[1], "--learner", "lwpr", "--jobs", "1", "--out", sys.argv[2]]))
     """
     for step, expect in (("exchange:1", "old"), ("cleanup:1", "new")):
@@ -353,12 +353,12 @@ def test_ciml_train_killed_while_publishing_keeps_old_or_new(old_model, tmp_path
 def test_recording_killed_mid_run_leaves_nothing_at_out_and_is_cleaned(tmp_path):
     """kill -9 while messages are being written: no bag at --out; the next writer removes the
     dead run's partial folder."""
-    from ciml_learning.bagio import BagWriter
+    from ciml_learning.logs.bagio import BagWriter
 
     out = tmp_path / "bag"
     script = """
         import sys, time
-        from ciml_learning.bagio import BagWriter
+        from ciml_learning.logs.bagio import BagWriter
         from ciml_learning import topics
         with BagWriter(sys.argv[1]) as w:
             for k in range(50):
@@ -385,7 +385,7 @@ def test_recording_killed_mid_run_leaves_nothing_at_out_and_is_cleaned(tmp_path)
 
 
 def test_nested_json_and_yaml_alias_bombs_are_one_line(tmp_path):
-    from ciml_learning.fileio import InputFileError, load_json_bounded, load_yaml_bounded
+    from ciml_learning.core.fileio import InputFileError, load_json_bounded, load_yaml_bounded
 
     deep = tmp_path / "deep.json"
     deep.write_text("[" * 100_000 + "]" * 100_000)
@@ -423,7 +423,7 @@ def test_closed_loop_report_killed_at_every_step_keeps_the_diagnosis_whole(tmp_p
                         "<html>old<!--closed-loop--><!--/closed-loop--></html>")
     script = """
         import sys
-        from ciml_learning.cli import main
+        from ciml_learning.cli.main import main
         sys.exit(main(["closed-loop", "--scenario", "nominal", "--motion", "stand", "--model", "nominal",
                        "--duration", "0.2", "--out", sys.argv[1], "--report", sys.argv[2]]))
     """

@@ -26,15 +26,15 @@ import sys
 import numpy as np
 import pytest
 
-from ciml_learning import bagio
-from ciml_learning.robot import example_robot_data_dir, load_robot
+from ciml_learning.core.robot import example_robot_data_dir, load_robot
+from ciml_learning.logs import bagio
 
 pytest.importorskip("ciml_sim")
 sys.path.insert(0, os.path.dirname(__file__))
 import foreign_layouts as fl  # noqa: E402
 
-from ciml_learning.loginputs import load_log  # noqa: E402
-from ciml_learning.profile import load_profile, profile_from_dict  # noqa: E402,F401
+from ciml_learning.core.profile import load_profile, profile_from_dict  # noqa: E402,F401
+from ciml_learning.logs.loginputs import load_log  # noqa: E402
 
 GO1_FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
 SCENARIO = os.path.join(os.path.dirname(__file__), "..", "ciml_sim", "config", "scenarios", "go1_gap.yaml")

@@ -12,8 +12,8 @@ from xml.etree import ElementTree
 import numpy as np
 import pytest
 
-from ciml_learning import bagio
-from ciml_learning.robot import load_robot
+from ciml_learning.core.robot import load_robot
+from ciml_learning.logs import bagio
 
 PACKAGES = ("ciml_learning", "ciml_control", "ciml_sim")
 PREFIX = sys.prefix
@@ -47,7 +47,7 @@ def test_hyq_description():
     )
     assert abs(robot.total_mass - urdf_mass) <= 0.01 * urdf_mass
     # each leg: its 3 joints, and the foot moves only with them
-    from ciml_learning.dynamics import RigidBodyDynamics
+    from ciml_learning.core.dynamics import RigidBodyDynamics
 
     J = RigidBodyDynamics(robot).foot_jacobians(robot.neutral_configuration())
     for i, leg in enumerate(robot.leg_joints):
@@ -56,7 +56,7 @@ def test_hyq_description():
 
 
 def test_wrong_joint_names_are_rejected():
-    from ciml_learning.robot import RobotDescriptionError
+    from ciml_learning.core.robot import RobotDescriptionError
 
     robot = load_robot()
     names = list(robot.joint_names)

@@ -11,10 +11,10 @@ import pytest
 sys.path.insert(0, os.path.dirname(__file__))
 from diag_data import record_plant_bag  # noqa: E402
 
-from ciml_learning.cli import main  # noqa: E402
+from ciml_learning.cli.main import main  # noqa: E402
+from ciml_learning.core.robot import load_robot  # noqa: E402
 from ciml_learning.diagnosis.identified import identified_scenario  # noqa: E402
 from ciml_learning.effects import CATALOGUE  # noqa: E402
-from ciml_learning.robot import load_robot  # noqa: E402
 from ciml_sim.scenario import load_scenario, parse_scenario  # noqa: E402
 
 ROBOT = load_robot()

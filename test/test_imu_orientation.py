@@ -27,8 +27,8 @@ import sys
 import numpy as np
 import pytest
 
-from ciml_learning import bagio
-from ciml_learning.profile import load_profile, profile_from_dict
+from ciml_learning.core.profile import load_profile, profile_from_dict
+from ciml_learning.logs import bagio
 
 pytest.importorskip("ciml_sim")
 sys.path.insert(0, os.path.dirname(__file__))
@@ -77,7 +77,7 @@ def go1(tmp_path_factory):
 
 @pytest.mark.parametrize("motion", MOTIONS)
 def test_orientation_estimated_from_gyro_and_accelerometer_matches_the_truth(go1, motion):
-    from ciml_learning.loginputs import load_log
+    from ciml_learning.logs.loginputs import load_log
 
     bag, prof = go1[motion, "none"]
     log = load_log(go1["robot"], bag, profile_from_dict(prof))
@@ -95,8 +95,8 @@ def test_orientation_estimated_from_gyro_and_accelerometer_matches_the_truth(go1
 
 
 def test_extraction_runs_on_the_estimate_and_agrees_with_the_true_quaternion(go1, capsys):
-    from ciml_learning.cli import main
-    from ciml_learning.pipeline import load_dataset
+    from ciml_learning.cli.main import main
+    from ciml_learning.logs.pipeline import load_dataset
 
     robot = go1["robot"]
     bags = {k: go1["trot_20", k] for k in ("quaternion", "none")}

@@ -1,5 +1,5 @@
 """The shipped graph, ciml_sim/launch/closed_loop.launch.yaml, read by `ciml launch`
-(ciml_learning.launch_file): defaults, arguments, the ros2 launch YAML format, node command
+(ciml_learning.ros.launch_file): defaults, arguments, the ros2 launch YAML format, node command
 lines, one-line errors. (Moved from ciml_learning/test/test_launch_file.py: the file belongs to
 ciml_sim; the launch subset itself is tested there.)"""
 from __future__ import annotations
@@ -11,7 +11,7 @@ import sys
 import pytest
 import yaml
 
-from ciml_learning import launch_file as lf
+from ciml_learning.ros import launch_file as lf
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHIPPED = os.path.join(ROOT, "ciml_sim", "launch", "closed_loop.launch.yaml")
@@ -96,8 +96,8 @@ def test_every_node_reads_the_robot_parameter(tmp_path):
     import rclpy
     from rclpy.parameter import Parameter
 
-    from ciml_learning.errors import CimlError
-    from ciml_learning.profile import load_profile
+    from ciml_learning.core.errors import CimlError
+    from ciml_learning.core.profile import load_profile
 
     go1 = load_profile("go1").robot()
     classes = {"ciml_sim.bridge_node": "MujocoBridge",
@@ -135,9 +135,9 @@ def test_the_learner_pauses_at_info_for_a_missing_reference_and_warns_for_a_fall
     import rclpy
     from rclpy.parameter import Parameter
 
-    from ciml_learning.learning_gate import FALL, NO_REFERENCE
+    from ciml_learning.learning.learning_gate import FALL, NO_REFERENCE
     from ciml_learning.nodes.online_learner import OnlineLearnerNode
-    from ciml_learning.ros_common import OK, WARN
+    from ciml_learning.ros.ros_common import OK, WARN
 
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=random.SystemRandom().randint(1, 101))

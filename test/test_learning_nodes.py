@@ -9,8 +9,8 @@ import pytest
 from rosutil import BIN, Listener, start_node, stop
 from synthetic import write_synthetic_bag
 
-from ciml_learning.pipeline import load_dataset
-from ciml_learning.robot import load_robot
+from ciml_learning.core.robot import load_robot
+from ciml_learning.logs.pipeline import load_dataset
 
 ROBOT = load_robot()
 

@@ -22,8 +22,8 @@ import time
 import numpy as np
 import pytest
 
-from ciml_learning import bagio
-from ciml_learning.profile import load_profile
+from ciml_learning.core.profile import load_profile
+from ciml_learning.logs import bagio
 
 pytest.importorskip("ciml_sim")
 sys.path.insert(0, os.path.dirname(__file__))
@@ -54,9 +54,9 @@ def unitree_bag(tmp_path_factory):
 
 
 def test_live_inputs_read_a_foreign_log_as_load_log_does(unitree_bag):
-    from ciml_learning.bagio import open_reader
-    from ciml_learning.live_inputs import LiveInputs
-    from ciml_learning.loginputs import load_log
+    from ciml_learning.logs.bagio import open_reader
+    from ciml_learning.logs.live_inputs import LiveInputs
+    from ciml_learning.logs.loginputs import load_log
 
     profile, robot, bag = unitree_bag
     log = load_log(robot, bag, profile)
@@ -89,10 +89,10 @@ def _ns(stamp) -> int:
 def test_replayed_foreign_bag_teaches_the_online_learner_like_train(unitree_bag, tmp_path):
     from ciml_msgs.msg import ModelError, ModelUpdate
 
-    from ciml_learning.extraction import learning_inputs
-    from ciml_learning.models import ModelSet
-    from ciml_learning.pipeline import load_dataset
-    from ciml_learning.snapshots import VALIDATION_FILE
+    from ciml_learning.core.extraction import learning_inputs
+    from ciml_learning.learning.models import ModelSet
+    from ciml_learning.learning.snapshots import VALIDATION_FILE
+    from ciml_learning.logs.pipeline import load_dataset
 
     profile, robot, bag = unitree_bag
     offline = load_dataset(robot, [bag], progress=False, profile=profile)

@@ -12,8 +12,8 @@ import pytest
 from test_live_graph import DEFAULT, STARTUP, graph, walks  # noqa: F401  (graph: the fixture)
 
 from ciml_control.references import leg_scale, spec
-from ciml_learning import topics
-from ciml_learning.profile import load_profile
+from ciml_learning.core import topics
+from ciml_learning.core.profile import load_profile
 
 pytestmark = [pytest.mark.slow, pytest.mark.ros]
 

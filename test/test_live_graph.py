@@ -1,8 +1,8 @@
 """The live graph as a user starts it: the shipped launch file, `ciml launch`, start orders, SIGINT.
 
 Every test runs the shipped `ciml_sim/launch/closed_loop.launch.yaml` through the same
-launcher as `ciml launch` (ciml_learning.launcher) on this run's own DDS domain (loopback
-only, conftest.py) and watches the graph with ciml_learning.graph_probe.GraphProbe (the
+launcher as `ciml launch` (ciml_learning.ros.launcher) on this run's own DDS domain (loopback
+only, conftest.py) and watches the graph with ciml_learning.ros.graph_probe.GraphProbe (the
 benchmarks' probe). Each wait is bounded; on a loaded machine start-up is slow, so the
 bounds are generous and the checks are on simulated time (message stamps).
 """
@@ -17,10 +17,11 @@ import time
 import pytest
 from rosutil import fifo_permitted
 
-from ciml_learning import realtime, topics
-from ciml_learning.graph_probe import GraphProbe
-from ciml_learning.launch_file import find_package_share, load
-from ciml_learning.launcher import Launcher
+from ciml_learning.core import topics
+from ciml_learning.ros import realtime
+from ciml_learning.ros.graph_probe import GraphProbe
+from ciml_learning.ros.launch_file import find_package_share, load
+from ciml_learning.ros.launcher import Launcher
 from ciml_sim.live_bench import NOMINAL_RATES_HZ, PROBE_PRIORITY
 
 pytestmark = [pytest.mark.slow, pytest.mark.ros]

@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 from rosutil import Listener, start_node, stop
 
-from ciml_learning import conversions as cv
-from ciml_learning.robot import load_robot
+from ciml_learning.core import conversions as cv
+from ciml_learning.core.robot import load_robot
 
 ROBOT = load_robot()
 
@@ -136,9 +136,9 @@ def _reference_msg(stamp: int):
 
 def _good_model(path) -> dict:
     """An online-learned snapshot (physical targets: a 40 N payload, 3 Nm of knee friction)."""
-    from ciml_learning.models import ModelSet
-    from ciml_learning.online import ErrorSample, OnlineLearner, StateSample
-    from ciml_learning.snapshots import SnapshotWriter
+    from ciml_learning.learning.models import ModelSet
+    from ciml_learning.learning.online import ErrorSample, OnlineLearner, StateSample
+    from ciml_learning.learning.snapshots import SnapshotWriter
 
     learner = OnlineLearner(ROBOT, ModelSet.for_robot(ROBOT, "lwpr"))
     rng = np.random.default_rng(0)
@@ -166,9 +166,9 @@ def test_model_server_refuses_poisoned_and_unchecksummed_models(tmp_path):
     from ciml_msgs.msg import ModelError, ModelUpdate, RobotReference
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from ciml_learning.ros_common import COMMAND_QOS
-    from ciml_learning.serving import load_served_model
-    from ciml_learning.snapshots import PROBE_FILE
+    from ciml_learning.learning.serving import load_served_model
+    from ciml_learning.learning.snapshots import PROBE_FILE
+    from ciml_learning.ros.ros_common import COMMAND_QOS
 
     good = _good_model(tmp_path / "online")
     saved = good["saved"]
@@ -320,8 +320,8 @@ def test_a_served_model_that_raises_the_effort_is_rolled_back_before_the_robot_f
     from nav_msgs.msg import Odometry
     from rclpy.qos import qos_profile_sensor_data
 
-    from ciml_learning.ros_common import COMMAND_QOS
-    from ciml_learning.snapshots import PROBE_FILE
+    from ciml_learning.learning.snapshots import PROBE_FILE
+    from ciml_learning.ros.ros_common import COMMAND_QOS
 
     good = _good_model(tmp_path / "online")
     bad = good["learner"].snapshot().model_set

@@ -19,14 +19,14 @@ import pytest
 from rosutil import BIN, Listener, start_node, stop
 from synthetic import write_synthetic_bag
 
-from ciml_learning.dynamics import ReferenceState, ReferenceTorque
-from ciml_learning.extraction import learning_inputs
-from ciml_learning.model_files import read_metadata
-from ciml_learning.models import ModelSet
-from ciml_learning.pipeline import load_dataset
-from ciml_learning.robot import load_robot
-from ciml_learning.serving import predict_at_reference, served_model
-from ciml_learning.snapshots import STAMPS_FILE
+from ciml_learning.core.dynamics import ReferenceState, ReferenceTorque
+from ciml_learning.core.extraction import learning_inputs
+from ciml_learning.core.robot import load_robot
+from ciml_learning.learning.model_files import read_metadata
+from ciml_learning.learning.models import ModelSet
+from ciml_learning.learning.serving import predict_at_reference, served_model
+from ciml_learning.learning.snapshots import STAMPS_FILE
+from ciml_learning.logs.pipeline import load_dataset
 
 ROBOT = load_robot()
 CALIBRATION = 0
@@ -72,8 +72,8 @@ def test_online_model_from_replay_matches_offline_partial_fit(tmp_path):
     from ciml_msgs.msg import LearningSample, ModelUpdate
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from ciml_learning import conversions as cv
-    from ciml_learning.ros_common import COMMAND_QOS
+    from ciml_learning.core import conversions as cv
+    from ciml_learning.ros.ros_common import COMMAND_QOS
 
     bag = tmp_path / "bag"
     write_synthetic_bag(ROBOT, bag, seconds=4.0)
@@ -184,7 +184,7 @@ def test_online_model_from_replay_matches_offline_partial_fit(tmp_path):
 def _reference_msg(stamp_ns: int, q, v, a):
     from ciml_msgs.msg import RobotReference
 
-    from ciml_learning import conversions as cv
+    from ciml_learning.core import conversions as cv
 
     zeros = np.zeros(ROBOT.n_joints)
     state = cv.robot_state_msg(ROBOT, stamp_ns, q, v, a, zeros, zeros, zeros, np.ones(ROBOT.n_feet, bool), True)
@@ -208,8 +208,8 @@ def _reference_states(n: int):
 
 
 def _trained_model(model_dir) -> ModelSet:
-    """A small LWPR model set learned from a known synthetic error (ciml_learning.synthetic)."""
-    from ciml_learning.synthetic import fit_arguments, synthetic_training_set
+    """A small LWPR model set learned from a known synthetic error (ciml_learning.learning.synthetic)."""
+    from ciml_learning.learning.synthetic import fit_arguments, synthetic_training_set
 
     data = fit_arguments(synthetic_training_set(ROBOT, 1500, seed=3))
     ms = ModelSet.for_robot(ROBOT, "lwpr")
@@ -225,7 +225,7 @@ def test_model_server_nominal_hot_swap_refusal_and_nan(tmp_path):
     from ciml_msgs.msg import ModelError, ModelUpdate, RobotReference
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from ciml_learning.ros_common import COMMAND_QOS
+    from ciml_learning.ros.ros_common import COMMAND_QOS
 
     good = tmp_path / "model_a"
     ms = _trained_model(good)

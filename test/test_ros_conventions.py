@@ -32,7 +32,7 @@ def node_in_private_context():
 
 
 def test_health_condition_raised_then_cleared_returns_to_ok(node_in_private_context):
-    from ciml_learning.ros_common import ERROR, OK, WARN, Health
+    from ciml_learning.ros.ros_common import ERROR, OK, WARN, Health
 
     health = Health(node_in_private_context, event_hold=0.2)
     health.set(OK, "torque control")
@@ -94,8 +94,8 @@ def test_state_publisher_tf_matches_pinocchio_fk():
     from std_msgs.msg import String
     from tf2_msgs.msg import TFMessage
 
-    from ciml_learning import conversions as cv
-    from ciml_learning.robot import load_robot
+    from ciml_learning.core import conversions as cv
+    from ciml_learning.core.robot import load_robot
 
     robot = load_robot()
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -220,7 +220,7 @@ def test_default_qos_reader_receives_every_topic_and_nodes_exit_cleanly(tmp_path
     from sensor_msgs.msg import JointState
     from tf2_msgs.msg import TFMessage
 
-    from ciml_learning import topics
+    from ciml_learning.core import topics
 
     wanted = {topics.JOINT_STATES: JointState, topics.BASE_STATE: Odometry, topics.CONTACT_STATE: ContactState,
               topics.CLOCK: Clock, topics.TORQUE_COMMAND: TorqueCommand, topics.REFERENCE: RobotReference,
@@ -377,8 +377,8 @@ def test_foxglove_layout_parses_and_plots_named_fields_of_existing_topics():
     import json
     import re
 
-    from ciml_learning import topics
-    from ciml_learning.robot import load_robot
+    from ciml_learning.core import topics
+    from ciml_learning.core.robot import load_robot
 
     robot = load_robot()
     with open(os.path.join(CONFIG, "layouts", "ciml_foxglove.json"), encoding="utf-8") as f:
@@ -412,8 +412,8 @@ def test_plotjuggler_layout_parses_and_references_existing_topics():
     import re
     from xml.etree import ElementTree
 
-    from ciml_learning import topics
-    from ciml_learning.robot import load_robot
+    from ciml_learning.core import topics
+    from ciml_learning.core.robot import load_robot
 
     robot = load_robot()
     root = ElementTree.parse(os.path.join(CONFIG, "layouts", "ciml_plotjuggler.xml")).getroot()
@@ -456,8 +456,8 @@ def test_gap_diagnosis_published_once_and_received_by_a_late_subscriber():
     from ciml_msgs.msg import GapDiagnosis
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-    from ciml_learning.cli import build_parser
-    from ciml_learning.gap_publisher import gap_diagnosis_fields, publish_gap_diagnosis
+    from ciml_learning.cli.main import build_parser
+    from ciml_learning.ros.gap_publisher import gap_diagnosis_fields, publish_gap_diagnosis
 
     args = build_parser().parse_args(["diagnose", "--bag", "b", "--out", "d", "--publish"])
     assert args.publish == 5.0
@@ -494,12 +494,12 @@ def test_gap_diagnosis_published_once_and_received_by_a_late_subscriber():
 MIGRATED = {  # node class -> its schema (ciml_*/node_params.py)
     "ciml_sim.bridge_node:MujocoBridge": "ciml_sim.node_params:MUJOCO_BRIDGE",
     "ciml_control.nodes.reference_generator:ReferenceGeneratorNode": "ciml_control.node_params:REFERENCE_GENERATOR",
-    "ciml_learning.nodes.error_extractor:ErrorExtractorNode": "ciml_learning.node_params:ERROR_EXTRACTOR",
-    "ciml_learning.nodes.state_publisher:StatePublisherNode": "ciml_learning.node_params:STATE_PUBLISHER",
-    "ciml_learning.nodes.model_server:ModelServerNode": "ciml_learning.node_params:MODEL_SERVER",
-    "ciml_learning.nodes.state_filter:StateFilterNode": "ciml_learning.node_params:STATE_FILTER",
+    "ciml_learning.nodes.error_extractor:ErrorExtractorNode": "ciml_learning.ros.node_params:ERROR_EXTRACTOR",
+    "ciml_learning.nodes.state_publisher:StatePublisherNode": "ciml_learning.ros.node_params:STATE_PUBLISHER",
+    "ciml_learning.nodes.model_server:ModelServerNode": "ciml_learning.ros.node_params:MODEL_SERVER",
+    "ciml_learning.nodes.state_filter:StateFilterNode": "ciml_learning.ros.node_params:STATE_FILTER",
     "ciml_control.nodes.id_controller:IdControllerNode": "ciml_control.node_params:ID_CONTROLLER",
-    "ciml_learning.nodes.online_learner:OnlineLearnerNode": "ciml_learning.node_params:ONLINE_LEARNER",
+    "ciml_learning.nodes.online_learner:OnlineLearnerNode": "ciml_learning.ros.node_params:ONLINE_LEARNER",
 }
 
 

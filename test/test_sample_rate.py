@@ -51,10 +51,10 @@ def resample_bag(robot, src: str, dst: str, rate_hz: float, offset: float = 0.0)
     starting `offset` [s] after its first stamp (stamps.resample: linear interpolation; the
     quaternion renormalised; contacts: the latest at or before each instant); /torque_command
     copied as recorded (its own stamps, 250 Hz)."""
-    from ciml_learning import conversions as cv
-    from ciml_learning import topics
-    from ciml_learning.bagio import BagWriter, iter_bag_messages, read_messages
-    from ciml_learning.stamps import resample
+    from ciml_learning.core import conversions as cv
+    from ciml_learning.core import topics
+    from ciml_learning.core.stamps import resample
+    from ciml_learning.logs.bagio import BagWriter, iter_bag_messages, read_messages
 
     data = read_messages(src, topics.MEASUREMENT_TOPICS)
     tj = np.array([s for s, _ in data[topics.JOINT_STATES]]) * 1e-9
@@ -84,9 +84,9 @@ def resample_bag(robot, src: str, dst: str, rate_hz: float, offset: float = 0.0)
 def lags(tmp_path_factory):
     """{name: (lag [s], its 95 % interval)} of the 448 Hz resampling of a 1 kHz recording and
     of that log's two 250 Hz resamplings (module docstring)."""
-    from ciml_learning.bagio import BagWriter
+    from ciml_learning.core.robot import load_robot
     from ciml_learning.diagnosis.run import diagnose
-    from ciml_learning.robot import load_robot
+    from ciml_learning.logs.bagio import BagWriter
     from ciml_sim.recorder import run_headless
     from ciml_sim.scenario import resolve_scenario
 

@@ -88,10 +88,10 @@ if ! stamp_ok pkgs "$h"; then
 fi
 # The learners' numba kernels, compiled once into numba's cache (__pycache__ beside the sources), so that the
 # first live graph's online learner starts at once: compiled on first use they took 144 s beside a running graph
-h=$(hash_of "$ROOT"/ciml_learning/ciml_learning/learners/*.py "$STAMPS/wheels")
+h=$(hash_of "$ROOT"/ciml_learning/ciml_learning/learning/learners/*.py "$STAMPS/wheels")
 if ! stamp_ok kernels "$h"; then
   log "compiling the learners' kernels (numba cache)"
-  "$PY" -c 'from ciml_learning.online import warm_up; from ciml_learning.profile import load_profile
+  "$PY" -c 'from ciml_learning.learning.online import warm_up; from ciml_learning.core.profile import load_profile
 warm_up(load_profile("hyq").robot())' || { log "compiling the learners' kernels failed"; exit 1; }
   stamp_set kernels "$h"
 fi

@@ -94,8 +94,8 @@ class Log:
 
 
 def read_log(robot, bag: str) -> Log:
-    from ciml_learning.bagio import read_messages
-    from ciml_learning.loginputs import load_log
+    from ciml_learning.logs.bagio import read_messages
+    from ciml_learning.logs.loginputs import load_log
 
     s = load_log(robot, bag)
     # rosbags deserializes into message classes it generates at run time: untyped
@@ -449,7 +449,7 @@ def main() -> int:
 
     from absl import logging as absl_logging
 
-    from ciml_learning.robot import load_robot
+    from ciml_learning.core.robot import load_robot
     from ciml_sim.gapbench import SUITE
 
     absl_logging.set_verbosity(absl_logging.ERROR)  # one "sensor dimension 24 vs 0" warning per window otherwise

@@ -19,14 +19,14 @@ from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import JointState
 
-from ciml_learning import conversions as cv
-from ciml_learning import topics
-from ciml_learning.dynamics import selection_matrix
-from ciml_learning.extraction import combined_error
-from ciml_learning.model_epsilon import load_epsilon_function
-from ciml_learning.projection import contact_invariant_basis
-from ciml_learning.robot import load_robot
-from ciml_learning.ros_common import COMMAND_QOS, SENSOR_PUB_QOS
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.dynamics import selection_matrix
+from ciml_learning.core.extraction import combined_error
+from ciml_learning.core.projection import contact_invariant_basis
+from ciml_learning.core.robot import load_robot
+from ciml_learning.learning.model_epsilon import load_epsilon_function
+from ciml_learning.ros.ros_common import COMMAND_QOS, SENSOR_PUB_QOS
 
 from .controller import IdController
 from .conversions import reference_msg
@@ -43,7 +43,7 @@ def compute_benchmark(motion: str = "trot_35", n_steps: int = 2000, seed: int = 
                       model_dir: str | None = None) -> dict:
     """p50/p99 of one control step as the id_controller node runs it: the model error ε at
     the reference (eq. 17: contact-invariant basis at qᵈ and a Φ̃', Γ prediction — from
-    `model_dir` via ciml_learning.model_epsilon.load_epsilon_function if given, else a fixed
+    `model_dir` via ciml_learning.learning.model_epsilon.load_epsilon_function if given, else a fixed
     prediction) plus IdController.compute() (QP included), along a reference with a
     perturbed measured state. Reference samples are precomputed (the node receives them
     on /reference). Target p99 ≤ 1 ms (budget at 250 Hz: 4 ms)."""

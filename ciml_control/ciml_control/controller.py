@@ -29,9 +29,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ciml_learning.dynamics import RigidBodyDynamics
-from ciml_learning.errors import CimlError
-from ciml_learning.robot import RobotDescription
+from ciml_learning.core.dynamics import RigidBodyDynamics
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.robot import RobotDescription
 
 from . import native
 from .compiled.control_step import (

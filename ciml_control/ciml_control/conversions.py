@@ -1,16 +1,16 @@
 """ciml_msgs/RobotReference ↔ numpy for the controller, by joint/foot name (ModelError:
-ciml_learning.conversions.model_error_arrays).
+ciml_learning.core.conversions.model_error_arrays).
 
-Like ciml_learning.conversions: readers accept rclpy and rosbags messages, reject
+Like ciml_learning.core.conversions: readers accept rclpy and rosbags messages, reject
 wrong names and non-finite values with a ConversionError; writers build rclpy messages.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from ciml_learning.conversions import check_finite, header_msg, robot_reference_arrays, stamp_to_ns
-from ciml_learning.profile import ProfileError, RobotProfile
-from ciml_learning.robot import RobotDescription
+from ciml_learning.core.conversions import check_finite, header_msg, robot_reference_arrays, stamp_to_ns
+from ciml_learning.core.profile import ProfileError, RobotProfile
+from ciml_learning.core.robot import RobotDescription
 
 from .references import ReferencePoint
 

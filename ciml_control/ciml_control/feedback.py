@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from ciml_learning.robot import RobotDescription
+from ciml_learning.core.robot import RobotDescription
 
 from .compiled.feedback_linearization import projected_pinv_apply
 from .compiled.linalg import arg
@@ -93,7 +93,7 @@ class FeedbackGains:
         return cls(np.full(nj, kp), np.full(nj, kd), kp_lin, kd_lin)
 
     def validate(self, robot: RobotDescription) -> None:
-        from ciml_learning.errors import CimlError
+        from ciml_learning.core.errors import CimlError
 
         for name, arr, n in (("kp", self.kp, robot.n_joints), ("kd", self.kd, robot.n_joints),
                              ("kp_lin", self.kp_lin, robot.nv), ("kd_lin", self.kd_lin, robot.nv)):

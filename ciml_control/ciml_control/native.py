@@ -30,8 +30,8 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from ciml_learning.errors import CimlError
-from ciml_learning.robot import RobotDescription
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.robot import RobotDescription
 
 LIBRARY = os.path.join(os.path.dirname(os.path.abspath(__file__)), "libciml_control_core.so")
 

@@ -1,10 +1,10 @@
-"""Parameter schemas of the ciml_control nodes (ciml_learning.params): each is the one source
+"""Parameter schemas of the ciml_control nodes (ciml_learning.core.params): each is the one source
 of the node's declare() calls, its config/<node>.yaml and its README table."""
 from __future__ import annotations
 
-from ciml_learning.node_params import ROBOT, THREAD_PRIORITY
-from ciml_learning.params import NodeSchema, Param
-from ciml_learning.rollback import RollbackConfig
+from ciml_learning.core.params import NodeSchema, Param
+from ciml_learning.learning.rollback import RollbackConfig
+from ciml_learning.ros.node_params import ROBOT, THREAD_PRIORITY
 
 from .feedback import BASE_ANGULAR_KD, BASE_ANGULAR_KP, BASE_LINEAR_KD, BASE_LINEAR_KP
 from .references import MOTIONS
@@ -74,7 +74,7 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
           "is at most this × the nominal prior variance", "", 1e-3, 1e3, read_only=False),
     Param("rollback", True, "Roll back a newly served model whose feedback effort or base position error rises "
           "beyond rollback_rise × its predecessor's, or whose effort is more than rollback_worse above it "
-          "(ciml_learning.rollback)", read_only=False),
+          "(ciml_learning.learning.rollback)", read_only=False),
     Param("rollback_window", _ROLLBACK.window, "RMS window of a newly served model's effort and error", "s", 0.02,
           5.0),
     Param("rollback_probation", _ROLLBACK.probation, "A newly served model is watched this long", "s", 0.1, 600.0),

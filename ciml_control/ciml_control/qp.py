@@ -57,7 +57,7 @@ from functools import lru_cache
 import numpy as np
 import proxsuite
 
-from ciml_learning.errors import CimlError
+from ciml_learning.core.errors import CimlError
 
 from . import native
 from .compiled import contact_space

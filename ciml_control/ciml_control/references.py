@@ -56,9 +56,9 @@ import pinocchio as pin
 from scipy.interpolate import CubicSpline
 from scipy.optimize import linprog
 
-from ciml_learning.dynamics import quaternion_xyzw
-from ciml_learning.errors import CimlError
-from ciml_learning.robot import RobotDescription
+from ciml_learning.core.dynamics import quaternion_xyzw
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.robot import RobotDescription
 
 from . import native
 from .compiled.leg_ik import leg_ik, leg_rates

@@ -25,7 +25,7 @@ from dataclasses import replace
 import numpy as np
 import pinocchio as pin
 
-from ciml_learning.robot import RobotDescription
+from ciml_learning.core.robot import RobotDescription
 
 from .references import BaseState, LegIK, ReferencePoint, quintic
 

@@ -30,7 +30,7 @@ Feedback linearisation at the measured state (q, v) (eq. 22–24):
 with M, J_c at the measured state and the reference contact set (or the measured one,
 feedback_contacts="measured"). The sum u_ff + u_fb,lin is clipped to τ_max, the clipping
 taken from u_fb,lin. The joint PD of eq. 22 runs in the robot's 1 kHz loop (its law:
-ciml_learning.conversions.commanded_torque).
+ciml_learning.core.conversions.commanded_torque).
 """
 from __future__ import annotations
 
@@ -40,8 +40,8 @@ import numpy as np
 import pinocchio as pin
 import proxsuite
 
-from ciml_learning.dynamics import RigidBodyDynamics
-from ciml_learning.robot import RobotDescription
+from ciml_learning.core.dynamics import RigidBodyDynamics
+from ciml_learning.core.robot import RobotDescription
 
 from .feedback import FeedbackGains
 from .qp import DEFAULT_F_MIN, DEFAULT_MU, friction_cone_matrix

@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ciml_learning.dynamics import RigidBodyDynamics
-from ciml_learning.projection import contact_jacobian
-from ciml_learning.robot import RobotDescription
+from ciml_learning.core.dynamics import RigidBodyDynamics
+from ciml_learning.core.projection import contact_jacobian
+from ciml_learning.core.robot import RobotDescription
 
 DEFAULT_KP = 300.0  # [Nm/rad] HyQ-like joint stiffness; other robots: scaled (feedback.joint_gain_scale)
 DEFAULT_KD = 8.0    # [Nm s/rad]

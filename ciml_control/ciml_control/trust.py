@@ -11,7 +11,7 @@ a corrupted file) can be wrong everywhere, so per entry i of ε (nv: base wrench
    serving.nominal_prediction: 5 % of the weight for base forces, ×0.1 m for base torques, a
    quarter of it per foot, 5 % of each torque limit per joint). A model less certain than
    the prior has nothing to add; the entry falls back to the nominal model (0).
-2. Clip to physics: |ε_i| ≤ the robot's physical bound (ciml_learning.physical_bounds:
+2. Clip to physics: |ε_i| ≤ the robot's physical bound (ciml_learning.core.physical_bounds:
    m·g for base forces, m·g·leg span for base torques, the torque limit per joint).
 
 Without variances (an identified physical model, `ciml diagnose`'s effects) only the clip
@@ -23,11 +23,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ciml_learning.dynamics import selection_matrix
-from ciml_learning.extraction import combined_error
-from ciml_learning.models import default_scaling
-from ciml_learning.physical_bounds import physical_bounds
-from ciml_learning.robot import RobotDescription
+from ciml_learning.core.dynamics import selection_matrix
+from ciml_learning.core.extraction import combined_error
+from ciml_learning.core.physical_bounds import physical_bounds
+from ciml_learning.core.robot import RobotDescription
+from ciml_learning.learning.models import default_scaling
 
 DEFAULT_MAX_VARIANCE_RATIO = 1.0
 """Trust an entry whose predictive variance is at most the prior's (the model knows more

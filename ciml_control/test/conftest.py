@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 
 from ciml_control.references import standing_configuration
-from ciml_learning.robot import load_robot
+from ciml_learning.core.robot import load_robot
 
 
 @pytest.fixture(scope="module")

@@ -11,8 +11,8 @@ from ciml_control.compiled.linalg import min_norm_correction, qr_complete
 from ciml_control.controller import IdController
 from ciml_control.qp import contact_decomposition
 from ciml_control.references import make_reference, standing_configuration
-from ciml_learning.dynamics import RigidBodyDynamics
-from ciml_learning.robot import load_robot
+from ciml_learning.core.dynamics import RigidBodyDynamics
+from ciml_learning.core.robot import load_robot
 
 
 @pytest.fixture(scope="module")

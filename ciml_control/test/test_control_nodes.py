@@ -9,8 +9,8 @@ from rosutil import Listener, start_node, stop
 
 from ciml_control.conversions import reference_msg, reference_point
 from ciml_control.references import make_reference, standing_configuration
-from ciml_learning import conversions as cv
-from ciml_learning.robot import load_robot
+from ciml_learning.core import conversions as cv
+from ciml_learning.core.robot import load_robot
 
 ROBOT = load_robot()
 
@@ -164,9 +164,9 @@ def test_id_controller_waits_then_commands_limited_trusted_torque_and_damps_with
     assert len(last("nominal")) == 20 and all(np.allclose(ff, expected.feedforward, atol=1e-3)
                                               for ff in last("nominal"))
     # with the prediction: the feedforward of the QP with ε = J'ᵀ Φ̃' − Sᵀ Γ (eq. 17) at the reference
-    from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
-    from ciml_learning.extraction import combined_error
-    from ciml_learning.projection import contact_invariant_basis
+    from ciml_learning.core.dynamics import RigidBodyDynamics, selection_matrix
+    from ciml_learning.core.extraction import combined_error
+    from ciml_learning.core.projection import contact_invariant_basis
 
     basis = contact_invariant_basis(RigidBodyDynamics(ROBOT).foot_jacobians(ref.q), ROBOT.leg_joints)
     eps = combined_error(basis, phi, gamma, selection_matrix(ROBOT))
@@ -365,8 +365,8 @@ def test_id_controller_publishes_a_ros2_control_effort_array_in_the_profiles_joi
 
     from ciml_control.conversions import effort_joint_order
     from ciml_control.nodes.id_controller import IdControllerNode
-    from ciml_learning.errors import CimlError
-    from ciml_learning.profile import load_profile, shipped_profile
+    from ciml_learning.core.errors import CimlError
+    from ciml_learning.core.profile import load_profile, shipped_profile
 
     data = yaml.safe_load(open(shipped_profile("go1")))
     data["urdf"] = load_profile("go1").urdf
@@ -455,8 +455,8 @@ def test_model_error_predicted_as_a_feedforward_without_a_model():
     nominal model: source 'nominal', zeros, nothing observed, the prior variances (large)."""
     import rclpy
 
+    from ciml_learning.core.profile import load_profile
     from ciml_learning.nodes.model_server import ModelServerNode
-    from ciml_learning.profile import load_profile
 
     robot = load_profile("go1").robot()
     node, ctx = _in_process(ModelServerNode, robot="go1")

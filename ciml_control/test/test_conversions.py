@@ -4,12 +4,12 @@ import pytest
 
 from ciml_control.conversions import reference_msg, reference_point
 from ciml_control.references import make_reference, standing_configuration
-from ciml_learning import conversions as cv
-from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
-from ciml_learning.errors import CimlError
-from ciml_learning.extraction import combined_error
-from ciml_learning.projection import contact_invariant_basis
-from ciml_learning.robot import load_robot
+from ciml_learning.core import conversions as cv
+from ciml_learning.core.dynamics import RigidBodyDynamics, selection_matrix
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.extraction import combined_error
+from ciml_learning.core.projection import contact_invariant_basis
+from ciml_learning.core.robot import load_robot
 
 ROBOT = load_robot()
 

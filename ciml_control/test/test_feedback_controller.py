@@ -7,9 +7,9 @@ from ciml_control.controller import ControllerInputError, IdController
 from ciml_control.feedback import FeedbackGains, feedback_linearization, tracking_error
 from ciml_control.references import ReferencePoint, make_reference
 from ciml_control.standing import gravity_compensation
-from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
-from ciml_learning.errors import CimlError
-from ciml_learning.projection import contact_jacobian, projector
+from ciml_learning.core.dynamics import RigidBodyDynamics, selection_matrix
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.projection import contact_jacobian, projector
 
 
 def _random_state(robot, q_stand, seed):

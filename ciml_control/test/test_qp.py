@@ -11,8 +11,8 @@ from ciml_control.qp import (
     build_feedforward_qp,
     friction_cone_matrix,
 )
-from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
-from ciml_learning.errors import CimlError
+from ciml_learning.core.dynamics import RigidBodyDynamics, selection_matrix
+from ciml_learning.core.errors import CimlError
 
 G = 9.81
 

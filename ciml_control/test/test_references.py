@@ -5,7 +5,7 @@ import pytest
 
 from ciml_control import references as refs
 from ciml_control.references import MOTIONS, UnknownMotionError, default_duration, make_reference
-from ciml_learning.errors import CimlError
+from ciml_learning.core.errors import CimlError
 
 
 def _sample_motion(robot, q_stand, motion, dt=0.02):

@@ -9,7 +9,7 @@ import pinocchio as pin
 
 from ciml_control.references import make_reference, standing_configuration
 from ciml_control.safe_stop import LANDING, LIVE, STANDING, SafeStop
-from ciml_learning.robot import load_robot
+from ciml_learning.core.robot import load_robot
 
 ROBOT = load_robot()
 

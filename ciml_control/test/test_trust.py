@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 
 from ciml_control.trust import TrustedEpsilonFunction, TrustLaw
-from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
-from ciml_learning.extraction import combined_error
-from ciml_learning.models import default_scaling
-from ciml_learning.projection import contact_invariant_basis
-from ciml_learning.robot import load_robot
+from ciml_learning.core.dynamics import RigidBodyDynamics, selection_matrix
+from ciml_learning.core.extraction import combined_error
+from ciml_learning.core.projection import contact_invariant_basis
+from ciml_learning.core.robot import load_robot
+from ciml_learning.learning.models import default_scaling
 
 ROBOT = load_robot()
 MG = ROBOT.total_mass * 9.81

@@ -5,7 +5,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from ciml_learning.estimation import (
+from ciml_learning.core.estimation import (
     ATTITUDE_KP,
     GRAVITY,
     AttitudeFilter,

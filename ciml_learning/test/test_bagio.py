@@ -4,10 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ciml_learning import bagio, topics
-from ciml_learning import conversions as cv
-from ciml_learning.bagio import BagError, BagWriter
-from ciml_learning.robot import load_robot
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.robot import load_robot
+from ciml_learning.logs import bagio
+from ciml_learning.logs.bagio import BagError, BagWriter
 
 ROBOT = load_robot()
 

@@ -3,13 +3,13 @@ import os
 
 import pytest
 
-from ciml_learning.cli import build_parser, main, profile_from_args, robot_from_args
+from ciml_learning.cli.main import build_parser, main, profile_from_args, robot_from_args
 
 HYQ_FEET = ["lf_foot", "lh_foot", "rf_foot", "rh_foot"]
 
 
 def _parse(argv):
-    from ciml_learning.cli import _join_feet
+    from ciml_learning.cli.main import _join_feet
 
     p = build_parser()
     return p.parse_args(_join_feet(argv, {"extract", "diagnose", "train", "inspect"}))
@@ -27,7 +27,7 @@ def test_feet_before_or_after_the_verb_in_either_spelling(argv):
 
 
 def test_robot_and_urdf_after_the_verb_and_before_it_are_kept(tmp_path):
-    from ciml_learning.profile import shipped_profile
+    from ciml_learning.core.profile import shipped_profile
 
     go1 = shipped_profile("go1")
     for argv in (["--robot", go1, "diagnose", "--bag", "b", "--out", "d"],
@@ -87,7 +87,7 @@ def test_a_missing_profile_is_a_one_line_error_for_every_verb(argv, capsys, tmp_
 ])
 @pytest.mark.parametrize("option", [["--robot", "go1"], ["--urdf", "u.urdf"], ["--feet", "a,b,c,d"]])
 def test_verbs_without_a_robot_refuse_the_robot_options(verb, argv, option, capsys):
-    from ciml_learning.cli import installed_verbs
+    from ciml_learning.cli.main import installed_verbs
 
     if verb not in dict(installed_verbs()):
         pytest.skip(f"{verb} not installed")
@@ -98,7 +98,7 @@ def test_verbs_without_a_robot_refuse_the_robot_options(verb, argv, option, caps
 
 
 def test_shipped_robot_names_and_erd_urdfs_are_accepted(tmp_path, monkeypatch):
-    from ciml_learning.profile import ProfileError, load_profile, shipped_names, with_overrides
+    from ciml_learning.core.profile import ProfileError, load_profile, shipped_names, with_overrides
 
     assert {"hyq", "go1", "solo12", "a1"} <= set(shipped_names())
     for name in shipped_names():
@@ -132,7 +132,7 @@ def _launch_file(tmp_path, declares: tuple[str, ...]):
 
 
 def test_launch_passes_the_robot_as_the_files_robot_argument(tmp_path, monkeypatch, capsys):
-    from ciml_learning.profile import shipped_profile
+    from ciml_learning.core.profile import shipped_profile
 
     path, prefix = _launch_file(tmp_path, ("robot", "urdf"))
     monkeypatch.setenv("AMENT_PREFIX_PATH", prefix)
@@ -159,7 +159,7 @@ def test_launch_refuses_a_robot_its_file_cannot_take(tmp_path, monkeypatch, caps
 def test_version_names_the_package_version_and_the_commit(capsys):
     import subprocess
 
-    from ciml_learning.version import package_version
+    from ciml_learning.core.version import package_version
 
     with pytest.raises(SystemExit) as done:
         main(["--version"])

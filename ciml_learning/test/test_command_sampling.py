@@ -7,11 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ciml_learning import conversions as cv
-from ciml_learning import topics
-from ciml_learning.bagio import BagWriter
-from ciml_learning.loginputs import load_log
-from ciml_learning.robot import load_robot
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.robot import load_robot
+from ciml_learning.logs.bagio import BagWriter
+from ciml_learning.logs.loginputs import load_log
 
 ROBOT = load_robot()
 MS = 1_000_000

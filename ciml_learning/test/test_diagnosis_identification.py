@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ciml_learning.core.robot import load_robot
 from ciml_learning.diagnosis.candidates import N_ACT, N_GENERIC, FeatureLayout, link_inertias, point_mass_rotational
 from ciml_learning.diagnosis.effects import DiagnosisError, EffectModel, feature_coefficients
 from ciml_learning.diagnosis.features import Grams, Rows, grams
@@ -15,7 +16,6 @@ from ciml_learning.diagnosis.identification import (
     physical_parameters,
     select,
 )
-from ciml_learning.robot import load_robot
 
 ROBOT = load_robot()
 LAYOUT = FeatureLayout(ROBOT, link_inertias(ROBOT))

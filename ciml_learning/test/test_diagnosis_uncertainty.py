@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ciml_learning.core.robot import load_robot
 from ciml_learning.diagnosis import bounds
 from ciml_learning.diagnosis import uncertainty as unc
 from ciml_learning.diagnosis.candidates import N_ACT, FeatureLayout, link_inertias
@@ -26,7 +27,6 @@ from ciml_learning.diagnosis.identification import (
     select,
     staircase_reading,
 )
-from ciml_learning.robot import load_robot
 
 ROBOT = load_robot()
 LAYOUT = FeatureLayout(ROBOT, link_inertias(ROBOT))
@@ -91,7 +91,7 @@ def test_lag_reading_is_what_the_regression_on_the_filtered_torque_rate_reads(ra
     """c of Γ = τ − u = −c τ̇ (τ̇ by the diagnosis' own low-pass differentiator) on a simulated lag of
     10 ms: lag_reading at the samples' phases, within 1 %; 7.7 ms for a staircase sampled on its
     command instants, 10 ms for a continuous command."""
-    from ciml_learning.filters import derivative_taps, filter_offline
+    from ciml_learning.core.filters import derivative_taps, filter_offline
 
     T, period = 0.010, 0.004
     t, tau, u = _lagged_staircase(T, period, rate, offset, share)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ciml_learning.core.robot import load_robot
 from ciml_learning.diagnosis.candidates import N_ACT, FeatureLayout, link_inertias
 from ciml_learning.diagnosis.effects import feature_coefficients
 from ciml_learning.diagnosis.features import Rows, grams
@@ -13,7 +14,6 @@ from ciml_learning.diagnosis.identification import Model, parameter_uncertainty,
 from ciml_learning.effects import CATALOGUE, EFFECTS, EffectTypeError, effect_type
 from ciml_learning.effects.base import COULOMB_SMOOTHING
 from ciml_learning.effects.joint_stribeck_friction import STRIBECK_VELOCITIES
-from ciml_learning.robot import load_robot
 
 ROBOT = load_robot()
 LAYOUT = FeatureLayout(ROBOT, link_inertias(ROBOT))

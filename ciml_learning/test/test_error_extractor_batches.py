@@ -9,7 +9,7 @@ def test_batches_publish_the_same_errors_in_order():
     import rclpy
     from rclpy.parameter import Parameter
 
-    from ciml_learning import conversions as cv
+    from ciml_learning.core import conversions as cv
     from ciml_learning.nodes.error_extractor import ErrorExtractorNode
 
     rclpy.init()

@@ -12,7 +12,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from std_msgs.msg import Int32  # noqa: E402
 
-from ciml_learning.executor import DirectExecutor  # noqa: E402
+from ciml_learning.ros.executor import DirectExecutor  # noqa: E402
 
 pytestmark = pytest.mark.ros
 QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
@@ -138,7 +138,7 @@ def test_publish_periods_report_rate_and_jitter(monkeypatch):
     from collections import Counter
     from types import SimpleNamespace
 
-    from ciml_learning import ros_common
+    from ciml_learning.ros import ros_common
 
     health = SimpleNamespace(counts=Counter())
     clock = iter([k * 0.004 + (0.003 if k % 50 == 7 else 0.0) for k in range(1000)])  # 2 % of samples 3 ms late

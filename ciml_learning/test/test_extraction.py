@@ -7,16 +7,16 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from ciml_learning.dynamics import RigidBodyDynamics, selection_matrix
-from ciml_learning.extraction import (
+from ciml_learning.core.dynamics import RigidBodyDynamics, selection_matrix
+from ciml_learning.core.extraction import (
     actuation_error,
     combined_error,
     extract,
     learning_input_names,
     learning_inputs,
 )
-from ciml_learning.projection import DEFAULT_GAMMA, contact_invariant_basis, contact_jacobian, projector
-from ciml_learning.robot import load_robot
+from ciml_learning.core.projection import DEFAULT_GAMMA, contact_invariant_basis, contact_jacobian, projector
+from ciml_learning.core.robot import load_robot
 
 ROBOT = load_robot()
 CONFIGS = [np.array(c, dtype=bool) for c in itertools.product([False, True], repeat=4)]
@@ -171,7 +171,7 @@ def test_learning_inputs_drop_base_position_and_yaw():
 def test_reference_torque_realises_the_reference_and_differentiates_within_a_contact_phase():
     from types import SimpleNamespace
 
-    from ciml_learning.dynamics import ReferenceTorque
+    from ciml_learning.core.dynamics import ReferenceTorque
 
     rng = np.random.default_rng(5)
     q, v = random_state(rng, spread=0.1)
@@ -203,9 +203,9 @@ def test_dataset_extracted_in_chunks_matches_the_whole_log(tmp_path, monkeypatch
 
     from synthetic import write_synthetic_bag
 
-    from ciml_learning import pipeline
-    from ciml_learning.filters import filter_state_log
-    from ciml_learning.loginputs import load_log
+    from ciml_learning.core.filters import filter_state_log
+    from ciml_learning.logs import pipeline
+    from ciml_learning.logs.loginputs import load_log
 
     bags = []
     for seed, seconds in enumerate((2.0, 1.5, 2.5)):

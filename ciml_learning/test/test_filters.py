@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from ciml_learning.filters import (
+from ciml_learning.core.filters import (
     MAX_FILLED_SAMPLES,
     OnlineFilter,
     contact_change_mask,
@@ -101,7 +101,7 @@ def _state_log(n: int, seed: int = 3):
 
 
 def _online(t, q, v, tau, u, c):
-    from ciml_learning.filters import OnlineStateFilter
+    from ciml_learning.core.filters import OnlineStateFilter
 
     f = OnlineStateFilter(FS)
     outs = [s for k in range(len(t)) for s in f.push(t[k], q[k], v[k], tau[k], u[k], c[k])]
@@ -184,7 +184,7 @@ def _signal(t):
 
 
 def test_window_is_specified_in_seconds():
-    from ciml_learning.filters import WINDOW_S, taps_for_rate
+    from ciml_learning.core.filters import WINDOW_S, taps_for_rate
 
     assert taps_for_rate(250.0) == 31  # the paper's filter at its rate
     for fs in RATES:
@@ -207,7 +207,7 @@ def test_derivatives_are_the_same_at_every_rate(fs):
 
 
 def test_448_hz_log_equals_its_250_hz_resampling():
-    from ciml_learning.stamps import resample
+    from ciml_learning.core.stamps import resample
 
     t = np.arange(int(8 * 448)) / 448.0
     x, xd, _ = _signal(t)
@@ -234,7 +234,7 @@ def test_448_hz_log_equals_its_250_hz_resampling():
 
 
 def test_stamp_problems_are_counted():
-    from ciml_learning.stamps import measure_rate
+    from ciml_learning.core.stamps import measure_rate
 
     t = np.arange(1000) / 448.0 + 5.0
     t = np.delete(t, [100, 101, 102])       # a gap of 4 periods

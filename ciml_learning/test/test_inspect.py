@@ -9,10 +9,10 @@ sys.path.insert(0, os.path.dirname(__file__))
 
 from foreign_bags import FEET, UNITREE_ORDER, go1_messages, imu_messages, store, write_bag  # noqa: E402
 
-from ciml_learning.cli import main  # noqa: E402
-from ciml_learning.inspect_log import inspect_bag  # noqa: E402
-from ciml_learning.loginputs import load_log  # noqa: E402
-from ciml_learning.profile import load_profile, shipped_profile  # noqa: E402
+from ciml_learning.cli.main import main  # noqa: E402
+from ciml_learning.core.profile import load_profile, shipped_profile  # noqa: E402
+from ciml_learning.logs.inspect_log import inspect_bag  # noqa: E402
+from ciml_learning.logs.loginputs import load_log  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +67,7 @@ def test_drafted_contact_threshold_is_a_share_of_the_weight():
     """The draft threshold is 15 % of the robot's weight (hysteresis 10 %), not the data's midpoint:
     a trot whose stance feet carry half the weight each, with half-sine load profiles (midpoint of
     the readings: ~W/2, which would drop early and late stance)."""
-    from ciml_learning.inspect_log import _threshold_from
+    from ciml_learning.logs.inspect_log import _threshold_from
 
     mass, g = 13.1, 9.81
     t = np.arange(0.0, 4.0, 0.002)

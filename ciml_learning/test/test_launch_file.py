@@ -1,4 +1,4 @@
-"""The YAML launch subset of `ciml launch` (ciml_learning.launch_file) and its process runner,
+"""The YAML launch subset of `ciml launch` (ciml_learning.ros.launch_file) and its process runner,
 without ROS: parsing, substitutions, conditions, parameter typing, errors, signals."""
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ import time
 import pytest
 import yaml
 
-from ciml_learning import launch_file as lf
-from ciml_learning.launcher import Launcher
+from ciml_learning.ros import launch_file as lf
+from ciml_learning.ros.launcher import Launcher
 
 
 def _share(pkg: str) -> str:
@@ -343,7 +343,7 @@ def test_launch_prefix_runs_before_the_executable(tmp_path, monkeypatch):
 
 
 def test_container_command_line_and_node_lookup():
-    from ciml_learning import container
+    from ciml_learning.ros import container
 
     assert container.parse_command_line(["--node", "p", "a", "--ros-args", "-p", "x:=1", "--node", "q", "b"]) == [
         ("p", "a", ["--ros-args", "-p", "x:=1"]), ("q", "b", [])]
@@ -357,13 +357,13 @@ def test_container_command_line_and_node_lookup():
         container.node_class("ciml_sim", "nope")
 
 
-# --- the live benchmarks' measurement helpers (ciml_learning.graph_probe) -------------------------
+# --- the live benchmarks' measurement helpers (ciml_learning.ros.graph_probe) -------------------------
 
 
 def test_period_statistics_of_receipt_times():
     import numpy as np
 
-    from ciml_learning.graph_probe import period_stats
+    from ciml_learning.ros.graph_probe import period_stats
 
     rng = np.random.default_rng(0)
     t = np.cumsum(np.full(2500, 0.004) + rng.normal(0, 1e-4, 2500))
@@ -379,8 +379,8 @@ def test_period_statistics_of_receipt_times():
 def test_feedback_effort_is_the_pd_part_plus_feedback_linearisation():
     import numpy as np
 
-    from ciml_learning.conversions import TorqueCommandArrays
-    from ciml_learning.graph_probe import feedback_effort
+    from ciml_learning.core.conversions import TorqueCommandArrays
+    from ciml_learning.ros.graph_probe import feedback_effort
 
     n = 12
     kp, kd = np.full(n, 300.0), np.full(n, 8.0)
@@ -393,8 +393,8 @@ def test_feedback_effort_is_the_pd_part_plus_feedback_linearisation():
 
 
 def test_process_memory_and_cpu_readers():
-    from ciml_learning.graph_probe import cpu_seconds
-    from ciml_learning.realtime import rss_mb
+    from ciml_learning.ros.graph_probe import cpu_seconds
+    from ciml_learning.ros.realtime import rss_mb
 
     assert rss_mb(os.getpid()) > 10.0 and cpu_seconds(os.getpid()) > 0.0
     dead = subprocess.Popen(["true"])

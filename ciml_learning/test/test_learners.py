@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from threadpoolctl import threadpool_limits
 
-from ciml_learning.learners import LEARNERS, LWPR, LearnerError, SparseGPR, learner_class
-from ciml_learning.learners.sgpr import kmeans, matern32
-from ciml_learning.synthetic import cross_function
+from ciml_learning.learning.learners import LEARNERS, LWPR, LearnerError, SparseGPR, learner_class
+from ciml_learning.learning.learners.sgpr import kmeans, matern32
+from ciml_learning.learning.synthetic import cross_function
 
 CROSS = dict(init_D=50.0, init_alpha=250.0, w_gen=0.2)  # the reference library's cross-function setup
 

@@ -21,9 +21,9 @@ from foreign_bags import (  # noqa: E402
     write_bag,
 )
 
-from ciml_learning.bagio import BagError  # noqa: E402
-from ciml_learning.loginputs import field_values, load_log  # noqa: E402
-from ciml_learning.profile import profile_from_dict  # noqa: E402
+from ciml_learning.core.profile import profile_from_dict  # noqa: E402
+from ciml_learning.logs.bagio import BagError  # noqa: E402
+from ciml_learning.logs.loginputs import field_values, load_log  # noqa: E402
 
 PROFILE = profile_from_dict(GO1_PROFILE)
 ROBOT = PROFILE.robot()
@@ -157,7 +157,7 @@ def test_missing_joints_missing_topic_and_stale_command_are_explained(tmp_path, 
 
 
 def test_native_bag_reads_as_before():
-    from ciml_learning.robot import load_robot
+    from ciml_learning.core.robot import load_robot
 
     bag = os.path.join(os.path.dirname(__file__), "..", "..", "bags", "nominal_stand")
     log = load_log(load_robot(), bag)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ciml_learning import conversions as cv
-from ciml_learning.conversions import ConversionError, model_error_arrays
-from ciml_learning.robot import load_robot
+from ciml_learning.core import conversions as cv
+from ciml_learning.core.conversions import ConversionError, model_error_arrays
+from ciml_learning.core.robot import load_robot
 
 ROBOT = load_robot()
 NR, NJ = len(ROBOT.rbd_error_names), ROBOT.n_joints

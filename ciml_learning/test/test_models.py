@@ -9,15 +9,15 @@ import shutil
 import numpy as np
 import pytest
 
-from ciml_learning.dynamics import ReferenceState, ReferenceTorque, RigidBodyDynamics, selection_matrix
-from ciml_learning.extraction import combined_error, learning_inputs
-from ciml_learning.model_epsilon import EpsilonFunction, load_epsilon_function
-from ciml_learning.model_files import FORMAT_VERSION, MODEL_JSON, MODEL_NPZ, ModelFileError, model_checksum
-from ciml_learning.models import ModelSet, ModelSetError, rbd_output_names
-from ciml_learning.projection import contact_invariant_basis
-from ciml_learning.robot import example_robot_data_dir, load_robot
-from ciml_learning.synthetic import fit_arguments as fit_args
-from ciml_learning.synthetic import relative_rmse, synthetic_training_set
+from ciml_learning.core.dynamics import ReferenceState, ReferenceTorque, RigidBodyDynamics, selection_matrix
+from ciml_learning.core.extraction import combined_error, learning_inputs
+from ciml_learning.core.projection import contact_invariant_basis
+from ciml_learning.core.robot import example_robot_data_dir, load_robot
+from ciml_learning.learning.model_epsilon import EpsilonFunction, load_epsilon_function
+from ciml_learning.learning.model_files import FORMAT_VERSION, MODEL_JSON, MODEL_NPZ, ModelFileError, model_checksum
+from ciml_learning.learning.models import ModelSet, ModelSetError, rbd_output_names
+from ciml_learning.learning.synthetic import fit_arguments as fit_args
+from ciml_learning.learning.synthetic import relative_rmse, synthetic_training_set
 
 ROBOT = load_robot()
 SMALL_SGPR = {"n_inducing": 15, "n_hyper_samples": 200, "max_iters": 3}
@@ -337,7 +337,7 @@ def test_bad_inputs_raise_one_line_errors(lwpr_set, data):
         lwpr_set.predict(np.full((1, 74), np.nan))
     with pytest.raises(ModelSetError, match="calibrate"):
         lwpr_set.calibrate(*fit_args(data)[:5])
-    from ciml_learning.learners import LearnerError
+    from ciml_learning.learning.learners import LearnerError
 
     with pytest.raises(LearnerError, match="unknown lwpr hyper-parameter"):
         ModelSet.for_robot(ROBOT, "lwpr", {"base": {"n_inducing": 5}})

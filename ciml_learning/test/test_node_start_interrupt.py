@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from ciml_learning.launch_file import find_package_prefix
+from ciml_learning.ros.launch_file import find_package_prefix
 
 
 @pytest.mark.parametrize("pkg, executable", [("ciml_learning", "online_learner"), ("ciml_learning", "ciml_container"),

@@ -11,18 +11,31 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from ciml_learning import conversions as cv
-from ciml_learning.conversions import ConversionError
-from ciml_learning.dynamics import ReferenceState, ReferenceTorque
-from ciml_learning.errors import CimlError
-from ciml_learning.extraction import dynamics_batch, learning_inputs
-from ciml_learning.model_files import ModelFileError, read_metadata, read_model_file
-from ciml_learning.models import ModelSet, ModelSetError
-from ciml_learning.online import AwaitReference, ErrorSample, OnlineLearner, SequenceGaps, StateSample, learning_sample
-from ciml_learning.projection import contact_invariant_bases, generalized_rbd_error, leg_coupling
-from ciml_learning.robot import load_robot
-from ciml_learning.serving import NOMINAL, SwapHold, load_served_model, nominal_prediction, predict_at_reference
-from ciml_learning.snapshot_gate import (
+from ciml_learning.core import conversions as cv
+from ciml_learning.core.conversions import ConversionError
+from ciml_learning.core.dynamics import ReferenceState, ReferenceTorque
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.extraction import dynamics_batch, learning_inputs
+from ciml_learning.core.projection import contact_invariant_bases, generalized_rbd_error, leg_coupling
+from ciml_learning.core.robot import load_robot
+from ciml_learning.learning.model_files import ModelFileError, read_metadata, read_model_file
+from ciml_learning.learning.models import ModelSet, ModelSetError
+from ciml_learning.learning.online import (
+    AwaitReference,
+    ErrorSample,
+    OnlineLearner,
+    SequenceGaps,
+    StateSample,
+    learning_sample,
+)
+from ciml_learning.learning.serving import (
+    NOMINAL,
+    SwapHold,
+    load_served_model,
+    nominal_prediction,
+    predict_at_reference,
+)
+from ciml_learning.learning.snapshot_gate import (
     ACCEPTED,
     HELD_BACK,
     REFUSED_NOT_BETTER,
@@ -30,8 +43,8 @@ from ciml_learning.snapshot_gate import (
     ValidationConfig,
     validate,
 )
-from ciml_learning.snapshots import LATEST, STAMPS_FILE, VALIDATION_FILE, SnapshotWriter
-from ciml_learning.workers import LatestOnlyWorker
+from ciml_learning.learning.snapshots import LATEST, STAMPS_FILE, VALIDATION_FILE, SnapshotWriter
+from ciml_learning.learning.workers import LatestOnlyWorker
 
 ROBOT = load_robot()
 
@@ -378,7 +391,7 @@ def test_latest_only_worker_skips_stale_items_and_reports_errors():
 
 # ---------------------------------------------------------------------- safety: bounds, gate, refusal
 def test_physical_bounds_come_from_the_robot_description():
-    from ciml_learning.physical_bounds import physical_bounds
+    from ciml_learning.core.physical_bounds import physical_bounds
 
     b = physical_bounds(ROBOT)
     mg = ROBOT.total_mass * 9.81
@@ -405,7 +418,7 @@ def _gate_stream(n: int):
 
 
 def test_learning_gate_pauses_on_a_fall_and_resumes_after_recovery():
-    from ciml_learning.learning_gate import FALL, HOLD, GateConfig, LearningGate
+    from ciml_learning.learning.learning_gate import FALL, HOLD, GateConfig, LearningGate
 
     q, stamps = _gate_stream(1000)
     gate = LearningGate(ROBOT, GateConfig(resume_after=0.5))
@@ -428,7 +441,7 @@ def test_learning_gate_pauses_on_a_fall_and_resumes_after_recovery():
 
 
 def test_learning_gate_checks_tracking_against_the_reference_of_the_same_stamp():
-    from ciml_learning.learning_gate import NO_REFERENCE, TRACKING, GateConfig, LearningGate
+    from ciml_learning.learning.learning_gate import NO_REFERENCE, TRACKING, GateConfig, LearningGate
 
     q, stamps = _gate_stream(10)
     zeros_r, zeros_a = np.zeros(18), np.zeros(12)
@@ -451,7 +464,7 @@ def test_learning_gate_checks_tracking_against_the_reference_of_the_same_stamp()
 
 
 def test_online_learner_does_not_learn_a_fall_or_targets_beyond_physics():
-    from ciml_learning.learning_gate import FALL, TARGET, LearningGate
+    from ciml_learning.learning.learning_gate import FALL, TARGET, LearningGate
 
     s = stream(200)
     mg = ROBOT.total_mass * 9.81
@@ -486,8 +499,8 @@ def test_online_learner_does_not_learn_a_fall_or_targets_beyond_physics():
 
 
 def test_model_server_refuses_unannounced_checksums_and_models_beyond_physical_bounds(tmp_path):
-    from ciml_learning.model_files import read_metadata
-    from ciml_learning.snapshots import PROBE_FILE
+    from ciml_learning.learning.model_files import read_metadata
+    from ciml_learning.learning.snapshots import PROBE_FILE
 
     learner, s = _trained()
     saved = SnapshotWriter(str(tmp_path / "online")).write(learner.snapshot())

@@ -1,4 +1,4 @@
-"""The sample-pairing rule (ciml_learning.pairing), used by the offline log reader and the
+"""The sample-pairing rule (ciml_learning.core.pairing), used by the offline log reader and the
 state_filter node: the same partner for every joint sample, one sample at a time or a whole log."""
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from collections import deque
 
 import numpy as np
 
-from ciml_learning.pairing import AGE_PERIODS, add_to_history, age_limit_ns, is_strict, partner, partner_indices
+from ciml_learning.core.pairing import AGE_PERIODS, add_to_history, age_limit_ns, is_strict, partner, partner_indices
 
 MS = 1_000_000
 

@@ -3,7 +3,7 @@ import copy
 
 import pytest
 
-from ciml_learning.profile import ProfileError, load_profile, profile_from_dict, shipped_profile
+from ciml_learning.core.profile import ProfileError, load_profile, profile_from_dict, shipped_profile
 
 BASE = {"format": 1, "name": "t", "urdf": "erd:go1_description/urdf/go1.urdf",
         "feet": ["FL_foot", "FR_foot", "RL_foot", "RR_foot"],
@@ -76,7 +76,7 @@ def test_robot_level_errors(tmp_path):
 def test_relative_urdf_and_ros1_type_names(tmp_path):
     import shutil
 
-    from ciml_learning.robot import example_robot_data_dir
+    from ciml_learning.core.robot import example_robot_data_dir
 
     src = f"{example_robot_data_dir()}/go1_description/urdf/go1.urdf"
     shutil.copy(src, tmp_path / "go1.urdf")

@@ -1,4 +1,4 @@
-"""ciml_learning.realtime: SCHED_FIFO for every thread of a process, or the reason why not.
+"""ciml_learning.ros.realtime: SCHED_FIFO for every thread of a process, or the reason why not.
 Run in child processes, so the test runner itself is never real-time scheduled."""
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import sys
 import pytest
 from rosutil import fifo_permitted
 
-from ciml_learning import realtime
+from ciml_learning.ros import realtime
 
 CHILD = """
 import os, sys, threading, time

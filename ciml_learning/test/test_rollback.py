@@ -1,10 +1,10 @@
-"""The rollback watch of a served model (ciml_learning.rollback): pure, no ROS."""
+"""The rollback watch of a served model (ciml_learning.learning.rollback): pure, no ROS."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from ciml_learning.rollback import (
+from ciml_learning.learning.rollback import (
     NOMINAL_SOURCE,
     SUDDEN_RISE,
     WORSE_THAN_BEFORE,

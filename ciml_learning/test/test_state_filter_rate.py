@@ -8,7 +8,7 @@ import pytest
 def test_node_measures_the_rate_and_matches_offline():
     import rclpy
 
-    from ciml_learning.filters import filter_state_log
+    from ciml_learning.core.filters import filter_state_log
     from ciml_learning.nodes.state_filter import RATE_SAMPLES, StateFilterNode
 
     rclpy.init()

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from synthetic import write_synthetic_bag
 
-from ciml_learning.cli import main
-from ciml_learning.dynamics import ReferenceState
-from ciml_learning.model_epsilon import load_epsilon_function
-from ciml_learning.models import ModelSet, rbd_output_names
-from ciml_learning.robot import load_robot
+from ciml_learning.cli.main import main
+from ciml_learning.core.dynamics import ReferenceState
+from ciml_learning.core.robot import load_robot
+from ciml_learning.learning.model_epsilon import load_epsilon_function
+from ciml_learning.learning.models import ModelSet, rbd_output_names
 
 ROBOT = load_robot()
 

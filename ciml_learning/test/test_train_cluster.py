@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from synthetic import write_synthetic_bag
 
-from ciml_learning.cli import main
-from ciml_learning.models import ModelSet
-from ciml_learning.robot import load_robot
+from ciml_learning.cli.main import main
+from ciml_learning.core.robot import load_robot
+from ciml_learning.learning.models import ModelSet
 
 ROBOT = load_robot()
 

@@ -19,12 +19,12 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 
 from ciml_control.standing import StandingController
-from ciml_learning import conversions as cv
-from ciml_learning import topics
-from ciml_learning.bagio import BagWriter
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.robot import load_robot
 from ciml_learning.diagnosis.run import diagnose
-from ciml_learning.robot import load_robot
-from ciml_learning.ros_common import COMMAND_QOS, SENSOR_QOS
+from ciml_learning.logs.bagio import BagWriter
+from ciml_learning.ros.ros_common import COMMAND_QOS, SENSOR_QOS
 
 from . import live_bench
 from .bridge_node import MujocoBridge

@@ -63,11 +63,11 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from ciml_control.standing import safe_damping_gain
-from ciml_learning import conversions as cv
-from ciml_learning import topics
-from ciml_learning.errors import CimlError
-from ciml_learning.profile import load_profile
-from ciml_learning.ros_common import COMMAND_QOS, OK, SENSOR_PUB_QOS, WARN, Health, declare_schema, run_node
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.profile import load_profile
+from ciml_learning.ros.ros_common import COMMAND_QOS, OK, SENSOR_PUB_QOS, WARN, Health, declare_schema, run_node
 
 from .node_params import MUJOCO_BRIDGE
 from .plant import Plant

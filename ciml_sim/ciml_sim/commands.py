@@ -13,8 +13,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ciml_learning.errors import CimlError
-from ciml_learning.robot import RobotDescription
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.robot import RobotDescription
 
 
 class ModelDirError(CimlError):
@@ -30,14 +30,14 @@ def load_epsilon_function(robot: RobotDescription, spec: str) -> Callable | None
     """The model error ε(reference point) the controller uses, from --model.
 
     'nominal' → None (ε = 0); a directory with diagnosis.json → the identified effects
-    (ciml_learning.diagnosis); any other directory → a learned model (ciml_learning.model_epsilon).
+    (ciml_learning.diagnosis); any other directory → a learned model (ciml_learning.learning.model_epsilon).
     """
     if spec == "nominal":
         return None
     if not os.path.isdir(spec):
         raise ModelDirError(f"--model {spec}: expected 'nominal', a model directory or a diagnosis directory")
     is_diagnosis = os.path.isfile(os.path.join(spec, "diagnosis.json"))
-    module = "ciml_learning.diagnosis" if is_diagnosis else "ciml_learning.model_epsilon"
+    module = "ciml_learning.diagnosis" if is_diagnosis else "ciml_learning.learning.model_epsilon"
     try:
         import importlib
 
@@ -57,8 +57,8 @@ def load_epsilon_function(robot: RobotDescription, spec: str) -> Callable | None
 def scenario_for(args: argparse.Namespace, robot: RobotDescription):
     """The --scenario for the robot of --robot; when it does not fit that robot (its joints or
     links are another robot's), the error names the shipped robots it fits: "add --robot go1"."""
-    from ciml_learning.cli import profile_from_args
-    from ciml_learning.profile import load_profile, shipped_names
+    from ciml_learning.cli.main import profile_from_args
+    from ciml_learning.core.profile import load_profile, shipped_names
 
     from .scenario import ScenarioError, resolve_scenario
 
@@ -82,14 +82,14 @@ def scenario_for(args: argparse.Namespace, robot: RobotDescription):
 
 
 def record(args: argparse.Namespace) -> int:
-    from ciml_learning.cli import robot_from_args
+    from ciml_learning.cli.main import robot_from_args
 
     from .recorder import check_motion, record_bag
 
     _duration(args.duration)
     if os.path.lexists(args.out):  # refused before the simulation, not after
         raise CimlError(f"{args.out} exists already; choose a new --out")
-    from ciml_learning.fileio import check_out_parent
+    from ciml_learning.core.fileio import check_out_parent
 
     check_out_parent(args.out, "--out")
     robot = robot_from_args(args)
@@ -111,9 +111,9 @@ def record(args: argparse.Namespace) -> int:
 
 def closed_loop(args: argparse.Namespace) -> int:
     from ciml_control.references import default_duration
-    from ciml_learning.cli import robot_from_args
+    from ciml_learning.cli.main import robot_from_args
+    from ciml_learning.core.fileio import atomic_write_json, check_out_dir, check_out_file
     from ciml_learning.diagnosis.files import is_diagnosis_dir
-    from ciml_learning.fileio import atomic_write_json, check_out_dir, check_out_file
 
     from .recorder import check_motion, run_headless
 
@@ -144,7 +144,7 @@ def _model_label(model: str) -> str:
         return "nominal"
     if os.path.isfile(os.path.join(model, "diagnosis.json")):
         return "identified effects"
-    from ciml_learning.fileio import load_json_bounded
+    from ciml_learning.core.fileio import load_json_bounded
 
     try:  # a label only: the model itself is verified when it is loaded
         meta = load_json_bounded(os.path.join(model, "model.json"), "model description", 16 * 2**20)
@@ -187,9 +187,9 @@ VERIFY_JSON = "verify.json"
 def verify(args: argparse.Namespace) -> int:
     """`ciml verify --real BAGS... --diagnosis DIR [--oracle SCENARIO] [--motion NAME] --out DIR`:
     every input is checked before the first simulation; DIR/verify.json is written whole or not at all."""
-    from ciml_learning.cli import robot_from_args
+    from ciml_learning.cli.main import robot_from_args
+    from ciml_learning.core.fileio import atomic_dir, check_out_dir
     from ciml_learning.diagnosis.files import IDENTIFIED_SCENARIO, read_diagnosis_json
-    from ciml_learning.fileio import atomic_dir, check_out_dir
 
     from .scenario import load_scenario, resolve_scenario
     from .verify import check_logs, summary_lines
@@ -215,7 +215,7 @@ def verify(args: argparse.Namespace) -> int:
     doc = {"format_version": 1, "diagnosis": args.diagnosis, "identified_scenario": scenario_path,
            "oracle": args.oracle, **result, "regression_shrink": regression}
     with atomic_dir(args.out, is_verify_dir, "verify") as tmp:
-        from ciml_learning.fileio import json_dumps
+        from ciml_learning.core.fileio import json_dumps
 
         with open(os.path.join(tmp, VERIFY_JSON), "w", encoding="utf-8") as f:
             f.write(json_dumps(_jsonable(doc)))

@@ -20,12 +20,12 @@ import tempfile
 import mujoco
 import yaml
 
+from ciml_learning.core.fileio import atomic_write_text, check_out_parent, read_bounded
 from ciml_learning.diagnosis import DiagnosisError
 from ciml_learning.diagnosis.effects import effects_from_diagnosis
 from ciml_learning.diagnosis.files import read_diagnosis_json
 from ciml_learning.effects import effect_type
 from ciml_learning.effects.mjcf import MjcfError, MjcfPatch
-from ciml_learning.fileio import atomic_write_text, check_out_parent, read_bounded
 
 MJCF_MAX_BYTES = 16 * 2**20
 CALIBRATION = "sensor_calibration.yaml"

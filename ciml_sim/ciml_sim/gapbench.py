@@ -37,10 +37,10 @@ from collections.abc import Sequence
 import numpy as np
 import yaml
 
+from ciml_learning.core.fileio import atomic_write_json, atomic_write_text
 from ciml_learning.diagnosis.shrink import WORSE_TOLERANCE
 from ciml_learning.effects.draws import REALISTIC_NOISE
 from ciml_learning.effects.scenario import TOP_LEVEL
-from ciml_learning.fileio import atomic_write_json, atomic_write_text
 
 from .scenario import OUT_OF_CATALOGUE_TYPES
 
@@ -349,7 +349,7 @@ def _record_motions(case: str, scenario_path: str, spec: dict, scale: float, pre
 def run_case(index: int, spec: dict, out_dir: str, scale: float = 1.0) -> dict:
     """Record the case's motions (no ground truth), diagnose them in a separate process, score.
     A reference case also records the reference scenario's motions and diagnoses with --reference."""
-    from ciml_learning.robot import load_robot
+    from ciml_learning.core.robot import load_robot
 
     robot = load_robot()
     _LINKS.update(robot.link_names)
@@ -533,7 +533,7 @@ def rescore(out_dir: str) -> dict:
     """Score the diagnoses already in DIR again (after a change of the scoring, or of an interrupted
     run: the cases whose case_NN/diagnosis/diagnosis.json exists), without recording or diagnosing;
     rewrites DIR/gap_bench.json and .md."""
-    from ciml_learning.robot import load_robot
+    from ciml_learning.core.robot import load_robot
 
     robot = load_robot()
     _LINKS.update(robot.link_names)
@@ -587,8 +587,8 @@ def suite_case(job: tuple[int, str, float]) -> dict:
 def gap_bench(out_dir: str, cases: Sequence[int] | None = None, jobs: int = 1, scale: float = 1.0,
               progress: bool = True, cluster: str | None = None) -> dict:
     """Run the suite (or the given case numbers) with joblib or on a Dask `cluster`
-    (ciml_learning.cluster), write DIR/gap_bench.json and DIR/gap_bench.md."""
-    from ciml_learning.cluster import run_all
+    (ciml_learning.learning.cluster), write DIR/gap_bench.json and DIR/gap_bench.md."""
+    from ciml_learning.learning.cluster import run_all
 
     os.makedirs(out_dir, exist_ok=True)
     selected = [(i, os.path.abspath(out_dir), scale) for i in range(1, len(SUITE) + 1) if cases is None or i in cases]
@@ -610,9 +610,9 @@ def is_gap_bench_dir(d: str) -> bool:
 def gap_bench_command(args) -> int:
     """`ciml gap-bench --out DIR [--cases N...] [--jobs J | --cluster ADDRESS] [--scale S]` (the suite;
     gaprandom.command sends --random here or to the random bench)."""
-    from ciml_learning.cliargs import cap_jobs
-    from ciml_learning.errors import CimlError
-    from ciml_learning.fileio import check_out_dir
+    from ciml_learning.cli.args import cap_jobs
+    from ciml_learning.core.errors import CimlError
+    from ciml_learning.core.fileio import check_out_dir
 
     check_out_dir(args.out, is_gap_bench_dir, "gap-bench output")
     if args.cases and any(not 1 <= c <= len(SUITE) for c in args.cases):

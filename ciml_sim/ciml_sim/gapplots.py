@@ -12,7 +12,7 @@ import os
 
 import numpy as np
 
-from ciml_learning.fileio import atomic_write_bytes, atomic_write_text
+from ciml_learning.core.fileio import atomic_write_bytes, atomic_write_text
 
 from .gapstats import NOMINAL_ROW, NOTHING, UNEXPLAINED, WRONG_PLACE
 

@@ -10,7 +10,7 @@ Each finished case writes its scores to case_NN/score.json, so an interrupted be
 stopped (`--resume`): hundreds of cases outlast a session, a machine or a cluster.
 
 Cases are independent: locally they run on joblib's processes (--jobs), on a cluster as Dask tasks
-(--cluster, ciml_learning.cluster); both call random_case() and give the same scores.
+(--cluster, ciml_learning.learning.cluster); both call random_case() and give the same scores.
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ import json
 import os
 import time
 
-from ciml_learning.fileio import atomic_write_json, atomic_write_text
+from ciml_learning.core.fileio import atomic_write_json, atomic_write_text
 
 from . import gapbench, gapstats
 
@@ -30,9 +30,9 @@ CASE_FIELDS = ("seed", "kind", "noise_scale", "sensor_noise", "effects", "train_
 def draw(n: int, seed: int) -> list[dict]:
     """The N cases of a master seed, on the suite robot's (HyQ's) joints, leg links and motions."""
     from ciml_control.references import MOTIONS
+    from ciml_learning.core.robot import load_robot
     from ciml_learning.diagnosis.candidates import link_inertias
     from ciml_learning.effects.draws import draw_cases
-    from ciml_learning.robot import load_robot
 
     robot = load_robot()
     # the leg links the diagnosis has a candidate for; the root (joint 1) would duplicate a payload
@@ -83,8 +83,8 @@ def random_case(job: tuple[int, dict, str, float]) -> dict:
 def finished_cases(out_dir: str, n: int, seed: int) -> dict[int, dict]:
     """The cases an earlier run of the same draw finished in DIR (case → its score.json); a draw of
     another N or seed is a CimlError (its cases are other cases)."""
-    from ciml_learning.errors import CimlError
-    from ciml_learning.fileio import InputFileError, load_json_bounded
+    from ciml_learning.core.errors import CimlError
+    from ciml_learning.core.fileio import InputFileError, load_json_bounded
 
     path = os.path.join(out_dir, "draws.json")
     if not os.path.isfile(path):
@@ -107,8 +107,8 @@ def finished_cases(out_dir: str, n: int, seed: int) -> dict[int, dict]:
 def rescore(out_dir: str) -> dict:
     """Score the diagnoses of a random bench in DIR again (after a change of the scoring), from its
     draws.json and case folders, without recording or diagnosing; keeps the timings and the engine."""
-    from ciml_learning.fileio import load_json_bounded
-    from ciml_learning.robot import load_robot
+    from ciml_learning.core.fileio import load_json_bounded
+    from ciml_learning.core.robot import load_robot
 
     gapbench._LINKS.update(load_robot().link_names)
     drawn = load_json_bounded(os.path.join(out_dir, "draws.json"), "draws.json")
@@ -155,7 +155,7 @@ def random_bench(out_dir: str, n: int, seed: int, jobs: int = 1, scale: float = 
                  cluster: str | None = None, resume: bool = False) -> dict:
     """Draw N cases from SEED, run them (joblib with `jobs`, or the Dask `cluster`), write the results;
     with `resume`, the cases DIR already finished for this draw are kept, not run again."""
-    from ciml_learning.cluster import PartialResults, run_all
+    from ciml_learning.learning.cluster import PartialResults, run_all
 
     done = finished_cases(out_dir, n, seed) if resume else {}
     os.makedirs(out_dir, exist_ok=True)
@@ -181,10 +181,10 @@ def random_bench(out_dir: str, n: int, seed: int, jobs: int = 1, scale: float = 
 def command(args) -> int:
     """`ciml gap-bench`: the suite (gapbench.gap_bench_command), or with --random N --seed S the random
     bench (`--out DIR [--jobs J | --cluster ADDRESS] [--scale S]`)."""
-    from ciml_learning.cliargs import cap_jobs
-    from ciml_learning.cluster import LOCAL_PREFIX
-    from ciml_learning.errors import CimlError
-    from ciml_learning.fileio import check_out_dir
+    from ciml_learning.cli.args import cap_jobs
+    from ciml_learning.core.errors import CimlError
+    from ciml_learning.core.fileio import check_out_dir
+    from ciml_learning.learning.cluster import LOCAL_PREFIX
 
     from .gapplots import overall_table, per_type_table
 

@@ -8,7 +8,7 @@ called by address (`mj_function`) on the very mjModel/mjData the Python bindings
 so the bindings see every step. `actuation` is the same law for one reading; the plant
 uses it wherever it needs u and τ (one law, one place).
 
-The commanded torque u is a compiled copy of ciml_learning.conversions.commanded_torque,
+The commanded torque u is a compiled copy of ciml_learning.core.conversions.commanded_torque,
 the law's specification (what the learning side computes Γ = τ − u with), written in
 coefficient form (`command_coefficients`, then `actuation`) so that the 1 kHz loop does
 four multiply-adds per joint; test_joint_loop_law asserts the two agree on random inputs.
@@ -155,7 +155,7 @@ def actuation(q: np.ndarray, qd: np.ndarray, act: Actuators, cmd: HeldCommand, n
         q_m = q + offset (+ noise),  q̇_m = q̇ (+ noise)
         u = clip(c − K_p q_m − K_d q̇_m + ċ (t − t_c), ±limits),   c = u_ff + K_p q_t + K_d q̇_t
 
-    u is a compiled copy of ciml_learning.conversions.commanded_torque (the specification;
+    u is a compiled copy of ciml_learning.core.conversions.commanded_torque (the specification;
     test_joint_loop_law asserts they agree on random inputs); the lag, gain and offset are
     the scenario's actuator effects (`act`, the "reality" after the law):
         out.lag = act.lag + α (u − act.lag)   (backward-Euler first-order lag; u without lag)
@@ -212,7 +212,7 @@ def command_coefficients(u_ff: np.ndarray, q_target: np.ndarray, qd_target: np.n
                          kd: np.ndarray, damping_mode: bool, c: np.ndarray, c_rate: np.ndarray,
                          kp_out: np.ndarray, kd_out: np.ndarray) -> int:
     """A TorqueCommand as the joint loop's coefficients (see `actuation`; with it, a compiled
-    copy of ciml_learning.conversions.commanded_torque, tested equal to it):
+    copy of ciml_learning.core.conversions.commanded_torque, tested equal to it):
     c = u_ff + K_p q_t + K_d q̇_t, ċ = K_p q̇_t, K_p, K_d; in damping mode c = ċ = K_p = 0.
     Returns 0, or 1 for a non-finite value, 2 for a negative gain (nothing written)."""
     n = u_ff.shape[0]

@@ -1,8 +1,8 @@
 """Benchmarks of the live graph started from its launch file (`ciml bench`; docs/LIVE_GRAPH.md).
 
 Both benchmarks start this package's `launch/closed_loop.launch.yaml` with the same launcher as
-`ciml launch` (ciml_learning.launcher; the file and the executables are found by name in
-the ament index) and watch the graph with ciml_learning.graph_probe.GraphProbe in this
+`ciml launch` (ciml_learning.ros.launcher; the file and the executables are found by name in
+the ament index) and watch the graph with ciml_learning.ros.graph_probe.GraphProbe in this
 process, on a private DDS domain (loopback only):
 
 - `live_graph_rates`: per topic the receive rate and the period p50/p99 and jitter
@@ -26,10 +26,10 @@ import time
 
 import numpy as np
 
-from ciml_learning import topics
-from ciml_learning.errors import CimlError
-from ciml_learning.graph_probe import GraphProbe, cpu_seconds, period_stats
-from ciml_learning.realtime import rss_mb
+from ciml_learning.core import topics
+from ciml_learning.core.errors import CimlError
+from ciml_learning.ros.graph_probe import GraphProbe, cpu_seconds, period_stats
+from ciml_learning.ros.realtime import rss_mb
 
 LAUNCH_PACKAGE = "ciml_sim"
 LAUNCH_FILE = "closed_loop.launch.yaml"
@@ -88,8 +88,8 @@ def _load_average() -> list[float]:
 
 def start_graph(arguments: dict[str, str], log_dir: str, only: list[str] | None = None):
     """The shipped launch file's nodes started by the launcher (output to log_dir/<node>.log)."""
-    from ciml_learning.launch_file import find_package_share, load
-    from ciml_learning.launcher import Launcher
+    from ciml_learning.ros.launch_file import find_package_share, load
+    from ciml_learning.ros.launcher import Launcher
 
     path = os.path.join(find_package_share(LAUNCH_PACKAGE), "launch", LAUNCH_FILE)
     desc = load(path, arguments)
@@ -248,7 +248,7 @@ def online_learning_runs(seeds: tuple[int, ...] = (0, 1, 2, 3, 4), scenarios: tu
     runs without, next to their noise (their spread between seeds). `robot`: the launch file's
     robot argument (a shipped name or a profile); its scenarios must name it. `launch`: more
     launch arguments for every run (e.g. learner_nice)."""
-    from ciml_learning.profile import load_profile
+    from ciml_learning.core.profile import load_profile
 
     description = load_profile(robot).robot()
     _private_domain()
@@ -309,7 +309,7 @@ def plot_learning_runs(result: dict, path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ciml_learning.fileio import atomic_write_bytes
+    from ciml_learning.core.fileio import atomic_write_bytes
 
     scenarios = result["scenarios"]
     fig, axes = plt.subplots(1, len(scenarios), figsize=(6 * len(scenarios), 4), squeeze=False)
@@ -349,7 +349,7 @@ def _slice_rms(timed: list[tuple[float, float]], t0: float, start: float, length
 
 
 def _effort_run(robot, arguments: dict[str, str], duration: float, period: float, startup_timeout: float) -> dict:
-    from ciml_learning.physical_bounds import physical_bounds
+    from ciml_learning.core.physical_bounds import physical_bounds
 
     fall = FALL_RATIO * physical_bounds(robot).standing_height
     with tempfile.TemporaryDirectory(prefix="ciml_live_") as tmp:

@@ -21,9 +21,9 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from ciml_learning.dynamics import quaternion_xyzw
-from ciml_learning.errors import CimlError
-from ciml_learning.robot import RobotDescription
+from ciml_learning.core.dynamics import quaternion_xyzw
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.robot import RobotDescription
 
 FOOT_RADIUS = 0.002
 """Collision radius of the feet [m]. The nominal model has point feet at the URDF foot

@@ -1,9 +1,9 @@
-"""Parameter schema of the mujoco_bridge node (ciml_learning.params): the one source of its
+"""Parameter schema of the mujoco_bridge node (ciml_learning.core.params): the one source of its
 declare() calls, config/mujoco_bridge.yaml and the README table."""
 from __future__ import annotations
 
-from ciml_learning.node_params import ROBOT, THREAD_PRIORITY
-from ciml_learning.params import NodeSchema, Param
+from ciml_learning.core.params import NodeSchema, Param
+from ciml_learning.ros.node_params import ROBOT, THREAD_PRIORITY
 
 MUJOCO_BRIDGE = NodeSchema("ciml_sim", "mujoco_bridge",
                            "the simulated robot (MuJoCo, 1 kHz joint loop) on the live graph", (

@@ -26,7 +26,7 @@ Where each effect acts (docs/ARCHITECTURE.md §5), from command to motion:
     → sensors: encoder_offset and base_imu_tilt bias what is measured (the joint loop
       sees the offset encoder too); sensor noise likewise.
 
-Timing convention (the one ciml_learning.loginputs.load_log rebuilds): a sample at
+Timing convention (the one ciml_learning.logs.loginputs.load_log rebuilds): a sample at
 time t reports the state at t and the joint loop's u and the actuator's τ at t *under
 the command in force before t*, its position target advanced to t (a command computed
 from that sample acts after it);
@@ -59,10 +59,10 @@ import numpy as np
 import pinocchio as pin
 
 from ciml_control.references import standing_configuration
-from ciml_learning.dynamics import quaternion_xyzw
+from ciml_learning.core.dynamics import quaternion_xyzw
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.robot import RobotDescription
 from ciml_learning.effects.joint_coulomb_friction import FRICTION_SOLIMP, friction_solref
-from ciml_learning.errors import CimlError
-from ciml_learning.robot import RobotDescription
 
 from . import joint_loop
 from .effects import SIM_EFFECTS, Truth

@@ -42,10 +42,10 @@ import numpy as np
 from ciml_control.controller import IdController
 from ciml_control.references import MOTIONS, make_reference
 from ciml_control.trust import TrustedEpsilonFunction
-from ciml_learning import conversions as cv
-from ciml_learning import topics
-from ciml_learning.errors import CimlError
-from ciml_learning.robot import RobotDescription
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.robot import RobotDescription
 
 from . import joint_loop
 from .plant import GroundTruth, Measurement, Plant
@@ -153,7 +153,7 @@ def run_headless(
     """Run `motion` for `duration` seconds of simulation time on the plant with the controller.
 
     epsilon_fn(reference_point) → ε (nv), the model error eq. (17) the controller uses
-    (None: the nominal model). With a `writer` (ciml_learning.bagio.BagWriter) the live
+    (None: the nominal model). With a `writer` (ciml_learning.logs.bagio.BagWriter) the live
     graph's topics are written (/joint_states, /base_state, /contact_state,
     /torque_command, /clock) and, if `ground_truth`, the /sim/ topics. The run stops
     early if the robot falls (base below `min_base_height` [m], default FALL_HEIGHT_FRACTION
@@ -316,7 +316,7 @@ def record_bag(robot: RobotDescription, scenario: Scenario, motion: str, duratio
     """Run `motion` headless into a new bag `out` (zstd MCAP chunks: ~4× smaller, the joint and DoF
     names repeat in every message), the motion named in its metadata (bagio.MOTION_KEY) so that
     `ciml verify` can run it again; (the run, messages per topic)."""
-    from ciml_learning.bagio import MOTION_KEY, BagWriter
+    from ciml_learning.logs.bagio import MOTION_KEY, BagWriter
 
     writer = BagWriter(out, compression="zstd", custom_data={MOTION_KEY: motion})
     with writer:

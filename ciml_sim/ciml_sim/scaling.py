@@ -40,7 +40,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ciml_learning.realtime import rss_mb
+from ciml_learning.ros.realtime import rss_mb
 
 RATE_HZ = 250.0
 STAGES = ("extraction", "diagnosis", "train_lwpr", "train_sgpr")
@@ -93,16 +93,18 @@ def _cpu_s() -> float:
 def run_stage(stage: str, bags: Sequence[str], out_dir: str, jobs: int = 1) -> dict:
     """Run one stage on `bags` in this process and measure it (called in a fresh process)."""
     t_import = time.perf_counter()
-    from ciml_learning.profile import load_profile
+    from ciml_learning.core.profile import load_profile
 
     profile = load_profile(None)  # `ciml VERB` without --robot
     robot = profile.robot()
     if stage == "extraction":
-        from ciml_learning.pipeline import load_dataset
+        from ciml_learning.logs.pipeline import load_dataset
     elif stage == "diagnosis":
         from ciml_learning.diagnosis.run import diagnose
     elif stage.startswith("train_"):
-        from ciml_learning.training import train_from_bags  # (train_sgpr: GPy is imported by its first fit, timed)
+        from ciml_learning.learning.training import (
+            train_from_bags,  # (train_sgpr: GPy is imported by its first fit, timed)
+        )
     else:
         raise ValueError(f"unknown stage {stage!r}; valid: {', '.join(STAGES)}")
     info: dict = {"import_s": round(time.perf_counter() - t_import, 3), "rss_before_mb": rss_mb(os.getpid())}
@@ -186,7 +188,7 @@ def scaling_benchmark(sizes: str | Sequence[int] = "10000,100000,1000000", stage
                       motion: str = "trot_35", scenario: str = "default_gap", bag_samples: int = 10_000,
                       jobs: int = 1, stage_limit_s: float = 900.0, bag_dir: str = "") -> dict:
     """Wall time, CPU time and peak RSS of each stage at each size (module docstring)."""
-    from ciml_learning.robot import load_robot
+    from ciml_learning.core.robot import load_robot
 
     from .scenario import resolve_scenario
 
@@ -210,10 +212,11 @@ def scaling_benchmark(sizes: str | Sequence[int] = "10000,100000,1000000", stage
                         "cpu_s = user + sys of the process (all threads) and its reaped children; peak_rss_mb = "
                         "VmHWM (imports included), rss_growth_mb = peak − RSS before the stage; fits: "
                         "least squares of log y on log N"),
-        "stage_functions": {"extraction": "ciml_learning.pipeline.load_dataset + ExtractionResult.save (ciml extract)",
-                            "diagnosis": "ciml_learning.diagnosis.run.diagnose, no --heldout (ciml diagnose)",
-                            "train_lwpr": "ciml_learning.training.train_from_bags + ModelSet.save (ciml train)",
-                            "train_sgpr": "ciml_learning.training.train_from_bags + ModelSet.save (ciml train)"},
+        "stage_functions": {
+            "extraction": "ciml_learning.logs.pipeline.load_dataset + ExtractionResult.save (ciml extract)",
+            "diagnosis": "ciml_learning.diagnosis.run.diagnose, no --heldout (ciml diagnose)",
+            "train_lwpr": "ciml_learning.learning.training.train_from_bags + ModelSet.save (ciml train)",
+            "train_sgpr": "ciml_learning.learning.training.train_from_bags + ModelSet.save (ciml train)"},
         "motion": motion, "scenario": scenario, "rate_hz": RATE_HZ, "bag_samples": bag_samples, "jobs": jobs,
         "sizes": size_list, "stages": {s: {"runs": []} for s in stage_list}, "skipped": [], "failed": [],
         "stage_limit_s": stage_limit_s,

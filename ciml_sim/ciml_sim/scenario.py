@@ -19,10 +19,10 @@ import sys
 from dataclasses import dataclass, field
 from typing import Any
 
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.robot import RobotDescription
 from ciml_learning.effects import CATALOGUE, EFFECTS, MEASUREMENT_ONLY, OUT_OF_CATALOGUE, Field
 from ciml_learning.effects.scenario import NOISE_FIELDS, TOP_LEVEL
-from ciml_learning.errors import CimlError
-from ciml_learning.robot import RobotDescription
 
 
 class ScenarioError(CimlError):
@@ -181,7 +181,7 @@ def parse_scenario(data: Any, robot: RobotDescription) -> Scenario:
 
 def load_scenario(path: str | os.PathLike, robot: RobotDescription) -> Scenario:
     """Load and validate a scenario YAML file (size and alias-expansion limits: fileio.load_yaml_bounded)."""
-    from ciml_learning.fileio import InputFileError, load_yaml_bounded
+    from ciml_learning.core.fileio import InputFileError, load_yaml_bounded
 
     try:
         data = load_yaml_bounded(str(path), "scenario file", max_bytes=256 * 1024, max_nodes=20_000)
@@ -238,7 +238,7 @@ def scenario_of_robot(spec: str, robot_name: str, robot: RobotDescription) -> Sc
 
 def _robot_key(path: str) -> str:
     """The `robot:` key of a scenario file ('' without one; a malformed file is left to load_scenario)."""
-    from ciml_learning.fileio import InputFileError, load_yaml_bounded
+    from ciml_learning.core.fileio import InputFileError, load_yaml_bounded
 
     try:
         data = load_yaml_bounded(path, "scenario file", max_bytes=256 * 1024, max_nodes=20_000)

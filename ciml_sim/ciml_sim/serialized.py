@@ -9,7 +9,7 @@ takes ~50 µs to construct) and serialising them.
 
 Exactness: rclpy's CDR leaves the alignment padding between fields uninitialised (the
 same message serialised twice can differ there), so the templates use the canonical
-form: rclpy's bytes read back and written again by rosbags (ciml_learning.bagio's
+form: rclpy's bytes read back and written again by rosbags (ciml_learning.logs.bagio's
 typestore), which zeroes the padding — the same message for every reader, and
 deterministic bags. Each template is checked at construction against that canonical
 serialisation of the same message with random values (byte-identical, else
@@ -23,10 +23,10 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ciml_learning import conversions as cv
-from ciml_learning import topics
-from ciml_learning.errors import CimlError
-from ciml_learning.robot import RobotDescription
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.robot import RobotDescription
 
 STAMP = "stamp"
 """Slot kind of a builtin_interfaces/Time (header stamp, /clock)."""
@@ -40,7 +40,7 @@ def _serialize(msg) -> bytes:
     """Canonical CDR of an rclpy message: rclpy's serialisation with zeroed padding."""
     from rclpy.serialization import serialize_message
 
-    from ciml_learning.bagio import typestore
+    from ciml_learning.logs.bagio import typestore
 
     cls = type(msg)
     typename = f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
@@ -158,7 +158,7 @@ def _locate(base: bytes, other: bytes, a: bytes, b: bytes) -> int:
 class SampleSerializer:
     """CDR bytes of one headless sample's messages (the live topics and /sim/), by template.
 
-    The messages of ciml_learning.conversions and ciml_sim.recorder.ground_truth_messages,
+    The messages of ciml_learning.core.conversions and ciml_sim.recorder.ground_truth_messages,
     serialised by rclpy with zeroed padding (checked at construction).
     """
 

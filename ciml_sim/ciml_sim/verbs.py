@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import argparse
 
-from ciml_learning import cliargs as ca
-from ciml_learning.cliargs import Verb
+from ciml_learning.cli import args as ca
+from ciml_learning.cli.args import Verb
 
 
 def _record(s: argparse.ArgumentParser) -> None:

@@ -4,7 +4,7 @@
 The real logs' motions run again in the simulator three ways: nominal (no effect), with the
 diagnosis' identified scenario (DIR/identified_scenario.yaml) and, when the user passes it, with the
 oracle (the true scenario, for benchmarks). Each re-simulated log goes through the same reader,
-filter and extraction as the real one (ciml_learning.pipeline.load_dataset), and the gap is what the
+filter and extraction as the real one (ciml_learning.logs.pipeline.load_dataset), and the gap is what the
 two logs show for the same motion at the same time since its start: per dimension, the RMS
 difference of the extracted model error (Φ̃' of eq. (11) and Γ of eq. (14)) and, apart, of the
 measured joint torques.
@@ -25,11 +25,12 @@ from typing import Any
 
 import numpy as np
 
-from ciml_learning import bagio, topics
+from ciml_learning.core import topics
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.robot import RobotDescription
 from ciml_learning.diagnosis.localization import dimension_names, dimension_units
 from ciml_learning.diagnosis.shrink import WORSE_TOLERANCE
-from ciml_learning.errors import CimlError
-from ciml_learning.robot import RobotDescription
+from ciml_learning.logs import bagio
 
 from .recorder import CONTROL_RATE, SENSOR_RATES, check_motion, record_bag
 from .scenario import Scenario, nominal_scenario
@@ -72,7 +73,7 @@ def bag_motion(path: str) -> tuple[str, int] | None:
 
 def log_signals(robot: RobotDescription, path: str, start_ns: int) -> Signals:
     """Signals of one bag, read, filtered and extracted as the diagnosis reads it."""
-    from ciml_learning.pipeline import load_dataset
+    from ciml_learning.logs.pipeline import load_dataset
 
     ds = load_dataset(robot, [path], progress=False)
     tg, n_j = ds.targets, robot.n_joints

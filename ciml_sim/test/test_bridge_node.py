@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from rosutil import Listener, start_node, stop
 
-from ciml_learning.robot import load_robot
+from ciml_learning.core.robot import load_robot
 
 ROBOT = load_robot()
 
@@ -25,7 +25,7 @@ class _Graph(Listener):
         from sensor_msgs.msg import JointState
         from std_srvs.srv import Trigger
 
-        from ciml_learning.ros_common import COMMAND_QOS, SENSOR_QOS
+        from ciml_learning.ros.ros_common import COMMAND_QOS, SENSOR_QOS
 
         sensors = {"/joint_states": JointState, "/base_state": Odometry, "/contact_state": ContactState}
         super().__init__({**sensors, "/clock": Clock, "/diagnostics": DiagnosticArray},
@@ -53,7 +53,7 @@ def _standing_height() -> float:
 
 def _command(valid: bool = True):
     from ciml_control.standing import StandingController
-    from ciml_learning import conversions as cv
+    from ciml_learning.core import conversions as cv
     from ciml_sim.plant import Plant
     from ciml_sim.scenario import nominal_scenario
 
@@ -202,7 +202,7 @@ def test_lockstep_waits_for_each_samples_command_then_releases_a_silent_controll
     """lockstep:=true: under torque control each sample waits for the command stamped with the
     previous one; a controller that answers every sample gets one command per sample; one that
     goes silent stalls simulated time for lockstep_timeout, then the bridge runs free and damps."""
-    from ciml_learning import conversions as cv
+    from ciml_learning.core import conversions as cv
 
     graph = _Graph()
     answered: list[int] = []
@@ -260,7 +260,7 @@ def test_bridge_simulates_the_robot_parameter_and_refuses_another_robots_scenari
     import rclpy
     from rclpy.parameter import Parameter
 
-    from ciml_learning.profile import load_profile
+    from ciml_learning.core.profile import load_profile
     from ciml_sim.bridge_node import MujocoBridge
 
     go1 = load_profile("go1").robot()

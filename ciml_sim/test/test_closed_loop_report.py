@@ -5,8 +5,8 @@ import json
 
 import pytest
 
+from ciml_learning.core.errors import CimlError
 from ciml_learning.diagnosis.report import CLOSED_LOOP_BEGIN, CLOSED_LOOP_END
-from ciml_learning.errors import CimlError
 from ciml_sim.commands import _add_to_report, _model_label
 
 

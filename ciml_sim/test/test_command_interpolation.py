@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ciml_learning import conversions as cv
-from ciml_learning import topics
-from ciml_learning.bagio import BagWriter, read_messages
-from ciml_learning.loginputs import load_log
-from ciml_learning.pipeline import load_dataset
-from ciml_learning.robot import load_robot
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.robot import load_robot
+from ciml_learning.logs.bagio import BagWriter, read_messages
+from ciml_learning.logs.loginputs import load_log
+from ciml_learning.logs.pipeline import load_dataset
 from ciml_sim.plant import Plant
 from ciml_sim.recorder import run_headless
 from ciml_sim.scenario import parse_scenario, resolve_scenario

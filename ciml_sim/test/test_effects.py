@@ -14,8 +14,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from ciml_learning.dynamics import RigidBodyDynamics
-from ciml_learning.robot import load_robot
+from ciml_learning.core.dynamics import RigidBodyDynamics
+from ciml_learning.core.robot import load_robot
 from ciml_sim.mjcf import mj_to_pin_force
 from ciml_sim.plant import Plant, true_pinocchio_model
 from ciml_sim.scenario import nominal_scenario, parse_scenario

@@ -8,7 +8,7 @@ import pinocchio as pin
 
 from ciml_control.references import make_reference
 from ciml_control.standing import StandingController
-from ciml_learning.robot import load_robot
+from ciml_learning.core.robot import load_robot
 from ciml_sim import recorder
 from ciml_sim.mjcf import quat_xyzw_to_matrix
 from ciml_sim.plant import Plant

@@ -9,10 +9,10 @@ import os
 import numpy as np
 import pytest
 
-from ciml_learning import cluster
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.robot import load_robot
 from ciml_learning.effects import CATALOGUE, EFFECTS, OUT_OF_CATALOGUE, draws
-from ciml_learning.errors import CimlError
-from ciml_learning.robot import load_robot
+from ciml_learning.learning import cluster
 from ciml_sim import gapbench, gapplots, gaprandom, gapstats
 from ciml_sim.scenario import parse_scenario
 

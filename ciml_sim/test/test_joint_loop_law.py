@@ -1,11 +1,11 @@
-"""The joint-loop law has one definition, ciml_learning.conversions.commanded_torque (what the
+"""The joint-loop law has one definition, ciml_learning.core.conversions.commanded_torque (what the
 learning side computes Γ = τ − u with, eq. 14); the plant's 1 kHz loop runs a compiled copy
 (ciml_sim.joint_loop.command_coefficients + actuation). The copy must equal the specification."""
 from __future__ import annotations
 
 import numpy as np
 
-from ciml_learning import conversions as cv
+from ciml_learning.core import conversions as cv
 from ciml_sim import joint_loop
 
 NJ = 12

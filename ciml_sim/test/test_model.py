@@ -6,7 +6,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from ciml_learning.robot import load_robot
+from ciml_learning.core.robot import load_robot
 from ciml_sim.mjcf import (
     build_mjcf,
     mj_mass_matrix_and_bias_in_pin,

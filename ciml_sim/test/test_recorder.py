@@ -10,10 +10,11 @@ import sys
 import numpy as np
 import pytest
 
-from ciml_learning import bagio, topics
-from ciml_learning.bagio import BagWriter, list_topics, read_messages
-from ciml_learning.loginputs import load_log
-from ciml_learning.robot import load_robot
+from ciml_learning.core import topics
+from ciml_learning.core.robot import load_robot
+from ciml_learning.logs import bagio
+from ciml_learning.logs.bagio import BagWriter, list_topics, read_messages
+from ciml_learning.logs.loginputs import load_log
 from ciml_sim import recorder
 from ciml_sim.recorder import run_headless
 from ciml_sim.scenario import EFFECT_TYPES, parse_scenario, resolve_scenario

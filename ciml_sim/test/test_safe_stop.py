@@ -13,7 +13,7 @@ import pytest
 from ciml_control.controller import IdController
 from ciml_control.references import make_reference
 from ciml_control.safe_stop import LIVE, STANDING, SafeStop
-from ciml_learning.profile import load_profile
+from ciml_learning.core.profile import load_profile
 from ciml_sim.plant import Plant
 from ciml_sim.recorder import PHYSICS_STEPS_PER_TICK, SETTLE_TIME, measured_configuration
 from ciml_sim.scenario import nominal_scenario

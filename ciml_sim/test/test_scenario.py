@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from ciml_learning.robot import load_robot
+from ciml_learning.core.robot import load_robot
 from ciml_sim.scenario import (
     CATALOGUE_TYPES,
     EFFECT_TYPES,

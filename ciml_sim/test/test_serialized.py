@@ -6,10 +6,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ciml_learning import conversions as cv
-from ciml_learning import topics
-from ciml_learning.bagio import BagWriter, read_messages
-from ciml_learning.robot import load_robot
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.robot import load_robot
+from ciml_learning.logs.bagio import BagWriter, read_messages
 from ciml_sim import recorder
 from ciml_sim.plant import Plant
 from ciml_sim.scenario import parse_scenario
@@ -54,7 +54,7 @@ def _reference_messages(ns, m, out, truth) -> list[tuple[str, object]]:
 @pytest.mark.parametrize("seed", [0, 1])
 def test_templates_give_rclpys_messages_byte_for_byte_up_to_padding(seed):
     """Every live and /sim/ message of a sample: the template bytes equal rclpy's serialisation
-    of the message built the usual way (ciml_learning.conversions, recorder.ground_truth_messages)
+    of the message built the usual way (ciml_learning.core.conversions, recorder.ground_truth_messages)
     with its padding zeroed, and rclpy reads them back to that message."""
     from rclpy.serialization import deserialize_message
 
@@ -109,7 +109,7 @@ def test_recorder_writes_the_same_bag_through_templates_and_through_rclpy(tmp_pa
         fast.write(m, out)
         slow.write(m, out)
         assert a.counts == b.counts and len(a.counts) == 10
-    from ciml_learning.bagio import iter_bag_messages, typestore
+    from ciml_learning.logs.bagio import iter_bag_messages, typestore
 
     store = typestore()
     fast_msgs = list(iter_bag_messages(tmp_path / "fast"))

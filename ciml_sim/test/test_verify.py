@@ -8,8 +8,9 @@ import os
 import pytest
 import yaml
 
-from ciml_learning import bagio, cli
-from ciml_learning.robot import load_robot
+from ciml_learning.cli import main as cli
+from ciml_learning.core.robot import load_robot
+from ciml_learning.logs import bagio
 from ciml_sim.recorder import record_bag
 from ciml_sim.scenario import parse_scenario
 from ciml_sim.verify import bag_motion
@@ -77,7 +78,7 @@ def test_a_diagnosis_without_identified_scenario_is_refused(real_bag, tmp_path, 
 
 def test_a_log_without_a_motion_needs_motion(real_bag, tmp_path, capsys):
     """A log naming no motion (no /reference, no recorded motion): one line; --motion names it."""
-    from ciml_learning.errors import CimlError
+    from ciml_learning.core.errors import CimlError
     from ciml_sim.verify import check_logs
 
     bare = tmp_path / "bare"

@@ -16,8 +16,8 @@ import time
 sys.path.insert(0, os.path.join(os.getcwd(), "test"))  # run from the repo
 from test_live_graph import DEFAULT, NODES, diagnosing, rate_probe, shipped_file, walks
 
-from ciml_learning.launch_file import load
-from ciml_learning.launcher import Launcher
+from ciml_learning.ros.launch_file import load
+from ciml_learning.ros.launcher import Launcher
 
 out = sys.argv[1]
 os.makedirs(out, exist_ok=True)

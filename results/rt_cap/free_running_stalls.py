@@ -13,8 +13,8 @@ import time
 
 import numpy as np
 
-from ciml_learning import topics
-from ciml_learning.graph_probe import GraphProbe, cpu_seconds
+from ciml_learning.core import topics
+from ciml_learning.ros.graph_probe import GraphProbe, cpu_seconds
 from ciml_sim import live_bench
 
 only = sys.argv[1].split(",") if sys.argv[1] != "all" else None

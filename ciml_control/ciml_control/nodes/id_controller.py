@@ -51,7 +51,7 @@ the two feedforwards, the learned correction in joint torques, on /model_error/f
 (sensor_msgs/JointState: names, effort [Nm], the joint sample's stamp; zero while no model is
 served or trusted; not published after a QP failure, counted feedforward_skipped).
 Rollback (`rollback`): every step's feedback effort and base position error go to an
-EffortWatch (ciml_learning.rollback) with the `source` of the prediction used; when a newly
+EffortWatch (ciml_learning.learning.rollback) with the `source` of the prediction used; when a newly
 served model makes either rise beyond `rollback_rise` × the RMS of the seconds before it (RMS
 over `rollback_window`, during `rollback_probation`), or its RMS effort over its first
 `rollback_assess` seconds exceeds that of the seconds before it by more than `rollback_worse`
@@ -76,19 +76,28 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 
-from ciml_learning import conversions as cv
-from ciml_learning import topics
-from ciml_learning.errors import CimlError
-from ciml_learning.profile import load_profile
-from ciml_learning.projection import contact_invariant_basis
-from ciml_learning.rollback import (
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.profile import load_profile
+from ciml_learning.core.projection import contact_invariant_basis
+from ciml_learning.learning.rollback import (
     NOMINAL_SOURCE,
     WORSE_THAN_BEFORE,
     EffortWatch,
     RollbackConfig,
     feedback_effort,
 )
-from ciml_learning.ros_common import COMMAND_QOS, LATEST_QOS, OK, WARN, Health, PublishPeriods, declare_schema, run_node
+from ciml_learning.ros.ros_common import (
+    COMMAND_QOS,
+    LATEST_QOS,
+    OK,
+    WARN,
+    Health,
+    PublishPeriods,
+    declare_schema,
+    run_node,
+)
 
 from ..controller import ControlOutput, IdController
 from ..conversions import effort_array_msg, effort_joint_order, feedforward_msg, reference_point

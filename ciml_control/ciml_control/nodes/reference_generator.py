@@ -22,10 +22,10 @@ from ciml_msgs.msg import RobotReference, TorqueCommand
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 
-from ciml_learning import topics
-from ciml_learning.errors import CimlError
-from ciml_learning.profile import load_profile
-from ciml_learning.ros_common import COMMAND_QOS, ERROR, Health, declare_schema, run_node
+from ciml_learning.core import topics
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.profile import load_profile
+from ciml_learning.ros.ros_common import COMMAND_QOS, ERROR, Health, declare_schema, run_node
 
 from ..conversions import reference_msg
 from ..node_params import REFERENCE_GENERATOR

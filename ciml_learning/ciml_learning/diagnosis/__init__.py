@@ -20,16 +20,16 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..robot import RobotDescription
-from .effects import DiagnosisError, EffectModel, effects_from_diagnosis
-from .files import DIAGNOSIS_JSON, read_diagnosis_json
+from ciml_learning.core.robot import RobotDescription
+from ciml_learning.diagnosis.effects import DiagnosisError, EffectModel, effects_from_diagnosis
+from ciml_learning.diagnosis.files import DIAGNOSIS_JSON, read_diagnosis_json
 
 __all__ = ["DiagnosisError", "EffectModel", "load_epsilon_function", "diagnose"]
 
 
 def diagnose(*args, **kwargs):
     """See ciml_learning.diagnosis.run.diagnose."""
-    from .run import diagnose as _diagnose
+    from ciml_learning.diagnosis.run import diagnose as _diagnose
 
     return _diagnose(*args, **kwargs)
 
@@ -56,8 +56,8 @@ def load_epsilon_function(robot: RobotDescription, diagnosis_dir: str) -> Callab
     reference's (dynamics.ReferenceTorque, with the rigid-body effects to realise too).
     A non-finite result is replaced by zeros (the nominal model), never returned.
     """
-    from ..dynamics import ReferenceTorque, selection_matrix
-    from ..extraction import combined_error
+    from ciml_learning.core.dynamics import ReferenceTorque, selection_matrix
+    from ciml_learning.core.extraction import combined_error
 
     model = load_effect_model(robot, diagnosis_dir)
     S = selection_matrix(robot)

@@ -16,10 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..effects import CATALOGUE, effect_type
-from ..effects.actuator_lag import MAX_LAG
-from ..effects.base import FRICTION_FRACTION, OFFSET_FRACTION, TORQUE_GAIN, torque_limits
-from ..effects.payload import PAYLOAD_MASS_FRACTION
+from ciml_learning.effects import CATALOGUE, effect_type
+from ciml_learning.effects.actuator_lag import MAX_LAG
+from ciml_learning.effects.base import FRICTION_FRACTION, OFFSET_FRACTION, TORQUE_GAIN, torque_limits
+from ciml_learning.effects.payload import PAYLOAD_MASS_FRACTION
 
 MAX_TICK = 0.1
 """[s] longest controller tick of a log (the baseline's udot ≥ −MAX_TICK/2)."""

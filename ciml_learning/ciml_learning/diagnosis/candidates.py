@@ -62,12 +62,12 @@ from functools import cached_property
 import numpy as np
 import pinocchio as pin
 
-from ..effects import CATALOGUE, EFFECTS, Candidate, Refinement, effect_type
-from ..effects.base import COULOMB_SMOOTHING
-from ..effects.payload import point_mass_rotational
-from ..filters import filter_offline, lowpass_taps
-from ..robot import RobotDescription
-from .bounds import BASELINE, parameter_bounds
+from ciml_learning.core.filters import filter_offline, lowpass_taps
+from ciml_learning.core.robot import RobotDescription
+from ciml_learning.diagnosis.bounds import BASELINE, parameter_bounds
+from ciml_learning.effects import CATALOGUE, EFFECTS, Candidate, Refinement, effect_type
+from ciml_learning.effects.base import COULOMB_SMOOTHING
+from ciml_learning.effects.payload import point_mass_rotational
 
 __all__ = ["COULOMB_SMOOTHING", "Candidate", "FeatureLayout", "point_mass_rotational"]
 

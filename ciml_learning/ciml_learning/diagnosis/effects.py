@@ -10,10 +10,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..effects import EFFECTS, Conversion, effect_type
-from ..errors import CimlError
-from ..robot import RobotDescription
-from .candidates import (
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.robot import RobotDescription
+from ciml_learning.diagnosis.candidates import (
     COULOMB_SMOOTHING,
     JOINT_FEATURE_TYPES,
     N_ACT,
@@ -22,6 +21,7 @@ from .candidates import (
     RegressorEvaluator,
     link_inertias,
 )
+from ciml_learning.effects import EFFECTS, Conversion, effect_type
 
 
 class DiagnosisError(CimlError):

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..extraction import observation_operators
-from ..projection import contact_invariant_bases
-from ..robot import RobotDescription
-from .candidates import (
+from ciml_learning.core.extraction import observation_operators
+from ciml_learning.core.projection import contact_invariant_bases
+from ciml_learning.core.robot import RobotDescription
+from ciml_learning.diagnosis.candidates import (
     N_ACT,
     FeatureLayout,
     RegressorEvaluator,

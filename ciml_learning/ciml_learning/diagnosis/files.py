@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import os
 
-from ..errors import CimlError
-from ..fileio import atomic_dir, json_dumps, load_json_bounded
-from .effects import DiagnosisError
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.fileio import atomic_dir, json_dumps, load_json_bounded
+from ciml_learning.diagnosis.effects import DiagnosisError
 
 DIAGNOSIS_JSON, REPORT_HTML = "diagnosis.json", "report.html"
 IDENTIFIED_SCENARIO = "identified_scenario.yaml"

@@ -50,10 +50,10 @@ from typing import Any
 import numpy as np
 from scipy.optimize import brentq
 
-from ..effects import EFFECTS, Conversion, effect_type
-from .bounds import physical_violation
-from .candidates import Candidate, FeatureLayout
-from .features import Grams, Rows
+from ciml_learning.diagnosis.bounds import physical_violation
+from ciml_learning.diagnosis.candidates import Candidate, FeatureLayout
+from ciml_learning.diagnosis.features import Grams, Rows
+from ciml_learning.effects import EFFECTS, Conversion, effect_type
 
 MIN_SHARE = 0.005
 """Smallest held-out reduction, as a fraction of the nominal normalised residual of the
@@ -990,7 +990,7 @@ def _block_grams(selection: Selection, rows: Rows, feats: np.ndarray, block: int
 
 def _residual_series(selection: Selection, rows: Rows) -> list[np.ndarray]:
     """The identification residual after the selected model, one time series per output dimension."""
-    from .features import predict
+    from ciml_learning.diagnosis.features import predict
 
     pr, pa = predict(rows, selection.model.feature_theta())
     out = [(rows.y_rbd - pr)[rows.dim_rbd == d] for d in np.unique(rows.dim_rbd)]
@@ -1003,7 +1003,7 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
     """Standard deviation of each candidate's physical parameters (uncertainty.py: block bootstrap
     with blocks from the residual's autocorrelation, held-out reproduction, the lag's conversion),
     and a summary of how it was obtained (block length, components)."""
-    from . import uncertainty as unc
+    from ciml_learning.diagnosis import uncertainty as unc
 
     model = selection.model
     if not model.candidates:

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import yaml
 
-from ..effects.scenario import outside_range, scenario_effect
-from .reference import effect_key
+from ciml_learning.diagnosis.reference import effect_key
+from ciml_learning.effects.scenario import outside_range, scenario_effect
 
 
 def identified_scenario(result: dict, name: str = "identified") -> dict:

@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from ..pipeline import Dataset
-from ..robot import RobotDescription
-from .features import Rows
+from ciml_learning.core.robot import RobotDescription
+from ciml_learning.diagnosis.features import Rows
+from ciml_learning.logs.pipeline import Dataset
 
 MIN_SAMPLES_PER_SPLIT = 25
 

@@ -9,9 +9,9 @@ import os
 
 import numpy as np
 
-from ..effects import EFFECTS
-from ..errors import CimlError
-from .files import REPORT_HTML, read_diagnosis_json, write_diagnosis_dir
+from ciml_learning.core.errors import CimlError
+from ciml_learning.diagnosis.files import REPORT_HTML, read_diagnosis_json, write_diagnosis_dir
+from ciml_learning.effects import EFFECTS
 
 
 def _png(fig) -> str:

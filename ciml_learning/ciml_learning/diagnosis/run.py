@@ -1,6 +1,6 @@
 """The sim-to-real gap diagnosis end to end (docs/ARCHITECTURE.md §6): bags in, diagnosis.json and report.html out.
 
-The diagnosis reads bags only through ciml_learning.pipeline.load_dataset, i.e. only the four
+The diagnosis reads bags only through ciml_learning.logs.pipeline.load_dataset, i.e. only the four
 sensor topics (/joint_states, /base_state, /contact_state, /torque_command): nothing under
 /sim/, no scenario name or effect list can reach it.
 
@@ -24,26 +24,26 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..effects import EFFECTS
-from ..fileio import check_out_dir
-from ..pipeline import load_dataset
-from ..robot import RobotDescription
-from .bounds import physical_ranges
-from .candidates import COULOMB_SMOOTHING, UNMODELLED_SENSOR_TYPE, FeatureLayout, link_inertias
-from .effects import DiagnosisError
-from .features import build_rows, grams, predict
-from .files import IDENTIFIED_SCENARIO, is_diagnosis_dir, write_diagnosis_dir
-from .identification import (
+from ciml_learning.core.fileio import check_out_dir
+from ciml_learning.core.robot import RobotDescription
+from ciml_learning.diagnosis.bounds import physical_ranges
+from ciml_learning.diagnosis.candidates import COULOMB_SMOOTHING, UNMODELLED_SENSOR_TYPE, FeatureLayout, link_inertias
+from ciml_learning.diagnosis.effects import DiagnosisError
+from ciml_learning.diagnosis.features import build_rows, grams, predict
+from ciml_learning.diagnosis.files import IDENTIFIED_SCENARIO, is_diagnosis_dir, write_diagnosis_dir
+from ciml_learning.diagnosis.identification import (
     parameter_uncertainty,
     physical_parameters,
     pooled_command_sampling,
     relevance_function,
     select,
 )
-from .identified import identified_scenario_yaml
-from .localization import dimension_names, leg_summary, localize
-from .report import render_report
-from .shrink import project_stuck, residual_series, residuals, shrink, stuck_ss
+from ciml_learning.diagnosis.identified import identified_scenario_yaml
+from ciml_learning.diagnosis.localization import dimension_names, leg_summary, localize
+from ciml_learning.diagnosis.report import render_report
+from ciml_learning.diagnosis.shrink import project_stuck, residual_series, residuals, shrink, stuck_ss
+from ciml_learning.effects import EFFECTS
+from ciml_learning.logs.pipeline import load_dataset
 
 FORMAT_VERSION = 1
 HELDOUT_FRACTION = 0.3
@@ -58,7 +58,7 @@ def _say(progress: bool, msg: str) -> None:
 
 def split_heldout(dataset, fraction: float = HELDOUT_FRACTION) -> tuple[np.ndarray, np.ndarray, str]:
     """(identification samples, held-out samples, description) of one dataset without --heldout."""
-    from ..filters import delay_for_rate
+    from ciml_learning.core.filters import delay_for_rate
 
     n_bags = len(dataset.bags)
     idx = np.arange(len(dataset.targets.t))
@@ -82,7 +82,7 @@ def corrected_rows(rows, model):
     """Rows whose measured errors have a (baseline) model's prediction removed."""
     import dataclasses
 
-    from .features import predict
+    from ciml_learning.diagnosis.features import predict
 
     pr, pa = predict(rows, model.feature_theta())
     return dataclasses.replace(rows, y_rbd=rows.y_rbd - pr, y_act=rows.y_act - pa)
@@ -108,7 +108,7 @@ def consistency_subsets(robot: RobotDescription, dataset, rows) -> list:
 def friction_speed_subsets(robot: RobotDescription, dataset, rows):
     """candidate → Grams of its joint's sliding samples (|q̇_j| ≥ V_STICK) in three speed bins, for
     joint friction candidates (identification.consistency); cached per joint."""
-    from .shrink import V_STICK
+    from ciml_learning.diagnosis.shrink import V_STICK
 
     cache: dict[str, list] = {}
     speed = np.abs(dataset.log.v[rows.samples, 6:])
@@ -240,7 +240,7 @@ def _unmodelled_entry(layout: FeatureLayout, dataset, samples: np.ndarray, cand,
     (`position_center`), its stiffness there (k: the exerted torque falls by k per rad, a spring's
     k; the model error e is minus the exerted torque) and the RMS of its position-dependent part
     over the identification samples."""
-    from .candidates import generic_joint_basis
+    from ciml_learning.diagnosis.candidates import generic_joint_basis
 
     j = layout.robot.joint_names.index(cand.joint)
     assert layout.q_center is not None and layout.q_scale is not None  # FeatureLayout sets both
@@ -399,7 +399,7 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
         "time_s": round(time.perf_counter() - t_start, 2),
     }
     if reference:
-        from .reference import compare, reference_summary
+        from ciml_learning.diagnosis.reference import compare, reference_summary
 
         _say(progress, f"diagnosing {len(reference)} reference bag(s) against the nominal model")
         ref = diagnose(robot, [str(r) for r in reference], None, None, progress=progress, report=False, profile=profile)

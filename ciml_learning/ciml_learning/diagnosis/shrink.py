@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from .features import Rows, predict
-from .identification import Model, physical_parameters
-from .localization import dimension_names, dimension_units
+from ciml_learning.diagnosis.features import Rows, predict
+from ciml_learning.diagnosis.identification import Model, physical_parameters
+from ciml_learning.diagnosis.localization import dimension_names, dimension_units
 
 V_STICK = 0.05
 """[rad/s] a joint slower than this may be stuck by its friction."""
@@ -104,7 +104,7 @@ def residuals(rows: Rows, model: Model, weights: np.ndarray, v_joints: np.ndarra
     """Residuals of `rows` under the model, with the stiction estimate of each friction that sticks.
 
     v_joints: joint velocities of rows.samples (N × n_j)."""
-    from ..effects import EFFECTS
+    from ciml_learning.effects import EFFECTS
 
     lay = rows.layout
     theta = model.feature_theta()

@@ -8,8 +8,8 @@ scenario and the MJCF export read it; ciml_sim registers how it simulates each n
 """
 from __future__ import annotations
 
-from ..errors import CimlError
-from . import (
+from ciml_learning.core.errors import CimlError
+from ciml_learning.effects import (
     actuator_lag,
     base_imu_tilt,
     encoder_offset,
@@ -24,7 +24,7 @@ from . import (
     torque_sensor_gain,
     torque_sensor_offset,
 )
-from .base import Candidate, Conversion, EffectType, Field, Refinement
+from ciml_learning.effects.base import Candidate, Conversion, EffectType, Field, Refinement
 
 _ALL: tuple[EffectType, ...] = (
     payload.EFFECT, joint_coulomb_friction.EFFECT, joint_viscous_friction.EFFECT, actuator_lag.EFFECT,

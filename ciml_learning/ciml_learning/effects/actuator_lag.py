@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import TORQUE_GAIN, Candidate, EffectType, Field
+from ciml_learning.effects.base import TORQUE_GAIN, Candidate, EffectType, Field
 
 MAX_LAG = 0.1
 """[s] largest actuator time constant."""

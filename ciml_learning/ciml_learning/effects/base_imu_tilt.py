@@ -5,7 +5,7 @@ because P_c is rotation-invariant), |angles| ≤ 5°. Not MuJoCo physics: sensor
 """
 from __future__ import annotations
 
-from .base import MAX_ANGLE, Candidate, EffectType, Field
+from ciml_learning.effects.base import MAX_ANGLE, Candidate, EffectType, Field
 
 
 class BaseImuTilt(EffectType):

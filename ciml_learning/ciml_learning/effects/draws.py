@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from . import CATALOGUE, EFFECTS, OUT_OF_CATALOGUE
-from .scenario import outside_range
+from ciml_learning.effects import CATALOGUE, EFFECTS, OUT_OF_CATALOGUE
+from ciml_learning.effects.scenario import outside_range
 
 REALISTIC_NOISE: dict[str, float] = {"q": 0.0005, "qd": 0.01, "tau": 0.5, "base_orientation": 0.001}
 """The realistic sensor noise of docs/ARCHITECTURE.md §5 (standard deviations); a case scales it."""

@@ -5,7 +5,7 @@ Not MuJoCo physics: it goes to sensor_calibration.yaml (subtract δ from the rea
 """
 from __future__ import annotations
 
-from .base import MAX_ANGLE, Candidate, EffectType, Field
+from ciml_learning.effects.base import MAX_ANGLE, Candidate, EffectType, Field
 
 
 class EncoderOffset(EffectType):

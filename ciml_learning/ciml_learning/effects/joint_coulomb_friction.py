@@ -6,7 +6,14 @@ CIML's plant (FRICTION_SOLIMP), where the diagnosis' regressor is a tanh-smoothe
 """
 from __future__ import annotations
 
-from .base import FRICTION_FRACTION, Candidate, EffectType, Field, joint_torque_limit, torque_limits
+from ciml_learning.effects.base import (
+    FRICTION_FRACTION,
+    Candidate,
+    EffectType,
+    Field,
+    joint_torque_limit,
+    torque_limits,
+)
 
 FRICTION_SOLIMP = (0.9999, 0.9999, 0.001, 0.5, 2.0)
 """MuJoCo's joint-friction constraint made close to ideal Coulomb friction: with friction_solref's

@@ -16,7 +16,15 @@ import math
 
 import numpy as np
 
-from .base import COULOMB_SMOOTHING, FRICTION_FRACTION, Candidate, EffectType, Field, joint_torque_limit, torque_limits
+from ciml_learning.effects.base import (
+    COULOMB_SMOOTHING,
+    FRICTION_FRACTION,
+    Candidate,
+    EffectType,
+    Field,
+    joint_torque_limit,
+    torque_limits,
+)
 
 STRIBECK_STEP = 2.0 ** 0.5
 STRIBECK_VELOCITIES = tuple(0.05 * STRIBECK_STEP ** k for k in range(11))

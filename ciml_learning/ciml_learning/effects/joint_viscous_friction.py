@@ -5,7 +5,14 @@ Candidate column: e_{6+j} = q̇_j, θ = b ∈ [0, ½ τ_max / (1 rad/s)]. MuJoCo
 """
 from __future__ import annotations
 
-from .base import FRICTION_FRACTION, Candidate, EffectType, Field, joint_torque_limit, torque_limits
+from ciml_learning.effects.base import (
+    FRICTION_FRACTION,
+    Candidate,
+    EffectType,
+    Field,
+    joint_torque_limit,
+    torque_limits,
+)
 
 
 class JointViscousFriction(EffectType):

@@ -5,7 +5,7 @@ regressor), θ = s − 1, s ∈ [0.2, 5]. MuJoCo: the body's `inertial` (mass an
 """
 from __future__ import annotations
 
-from .base import Candidate, EffectType, Field
+from ciml_learning.effects.base import Candidate, EffectType, Field
 
 LINK_MASS_SCALE = (0.2, 5.0)
 """A link's true mass lies within this factor range of its URDF mass."""

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 
-from ..errors import CimlError
+from ciml_learning.core.errors import CimlError
 
 PAYLOAD_BODY = "ciml_payload"
 POINT_INERTIA = 1e-9

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Candidate, EffectType, Field
+from ciml_learning.effects.base import Candidate, EffectType, Field
 
 PAYLOAD_MASS_FRACTION = 1.0
 """A payload weighs at most this multiple of the robot's own mass."""

@@ -2,7 +2,7 @@
 diagnosis says "unexplained" (localised) instead of naming a wrong effect. Fields and wording only."""
 from __future__ import annotations
 
-from .base import EffectType, Field
+from ciml_learning.effects.base import EffectType, Field
 
 
 class JointSpring(EffectType):

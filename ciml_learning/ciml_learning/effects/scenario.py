@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from . import effect_type
+from ciml_learning.effects import effect_type
 
 TOP_LEVEL = ("name", "robot", "seed", "sensor_noise", "effects", "description")
 NOISE_FIELDS: tuple[str, ...] = ("q", "qd", "tau", "base_orientation", "base_position", "base_velocity")

@@ -5,7 +5,7 @@ Candidate column: Γ_j = a τ_j, a = 1 − 1/g, g ∈ [0.5, 2]. MuJoCo: the actu
 """
 from __future__ import annotations
 
-from .base import TORQUE_GAIN, Candidate, EffectType, Field, gain_theta
+from ciml_learning.effects.base import TORQUE_GAIN, Candidate, EffectType, Field, gain_theta
 
 
 class TorqueGain(EffectType):

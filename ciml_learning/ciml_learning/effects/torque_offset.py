@@ -5,7 +5,7 @@ Candidate column: Γ_j = b with b = o/g, |o| ≤ 0.2 τ_max. MuJoCo: the actuato
 """
 from __future__ import annotations
 
-from .base import OFFSET_FRACTION, TORQUE_GAIN, Candidate, EffectType, Field, joint_torque_limit
+from ciml_learning.effects.base import OFFSET_FRACTION, TORQUE_GAIN, Candidate, EffectType, Field, joint_torque_limit
 
 
 class TorqueOffset(EffectType):

@@ -5,7 +5,7 @@ g_s ∈ [0.5, 2]. Not MuJoCo physics: sensor_calibration.yaml (divide the readin
 """
 from __future__ import annotations
 
-from .base import TORQUE_GAIN, Candidate, EffectType, Field, gain_theta
+from ciml_learning.effects.base import TORQUE_GAIN, Candidate, EffectType, Field, gain_theta
 
 
 class TorqueSensorGain(EffectType):

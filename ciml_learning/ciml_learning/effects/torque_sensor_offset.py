@@ -5,7 +5,7 @@ physics: sensor_calibration.yaml (subtract o_s from the reading).
 """
 from __future__ import annotations
 
-from .base import OFFSET_FRACTION, TORQUE_GAIN, Candidate, EffectType, Field, joint_torque_limit
+from ciml_learning.effects.base import OFFSET_FRACTION, TORQUE_GAIN, Candidate, EffectType, Field, joint_torque_limit
 
 
 class TorqueSensorOffset(EffectType):

@@ -1,6 +1,6 @@
 """`error_extractor`: /filtered_state → /model_error/measured (eq. 11 and 14) + /model_error/learning_samples.
 
-Thin adapter around ciml_learning.extraction.extract; rejected inputs are counted on
+Thin adapter around ciml_learning.core.extraction.extract; rejected inputs are counted on
 /diagnostics and never produce an output. Every extracted error goes to /model_error/measured
 (for plots and recording); each valid one (its state valid: not near a contact change, filter
 warmed up) also goes, with the state it came from, to /model_error/learning_samples as one
@@ -19,13 +19,13 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.timer import Timer
 
-from .. import conversions as cv
-from .. import topics
-from ..errors import CimlError
-from ..extraction import extract
-from ..node_params import ERROR_EXTRACTOR
-from ..profile import load_profile
-from ..ros_common import STREAM_QOS, Health, declare_schema, run_node
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.extraction import extract
+from ciml_learning.core.profile import load_profile
+from ciml_learning.ros.node_params import ERROR_EXTRACTOR
+from ciml_learning.ros.ros_common import STREAM_QOS, Health, declare_schema, run_node
 
 
 class ErrorExtractorNode(Node):

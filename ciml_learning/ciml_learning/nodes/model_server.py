@@ -1,7 +1,7 @@
 """`model_server`: /reference + /model_update → /model_error/predicted (mean and variance).
 
-Thin adapter around ciml_learning.serving (load_served_model, predict_at_reference) and
-ciml_learning.workers (LatestOnlyWorker). For every /reference (qᵈ, q̇ᵈ, q̈ᵈ, contacts) it
+Thin adapter around ciml_learning.learning.serving (load_served_model, predict_at_reference) and
+ciml_learning.learning.workers (LatestOnlyWorker). For every /reference (qᵈ, q̇ᵈ, q̈ᵈ, contacts) it
 publishes a ciml_msgs/ModelError stamped like the reference: Φ̃' (18) and Γ (n_j) predicted
 at the reference's state and the torque it asks for (τ_ref and its rate over the reference
 stream, dynamics.ReferenceTorque) with their predictive variances (the set learns Φ̃ = J'ᵀΦ̃'; Φ̃' = J'⁻ᵀΦ̃ with
@@ -27,7 +27,7 @@ counted (refused_models) and the old model keeps serving. Rejected references
 (non-finite, wrong names) are counted and produce no output: NaN never reaches /model_error/predicted.
 
 Rollback: a /model_rollback naming the model being served (the controller's EffortWatch saw
-the feedback effort or the base tracking error jump while it served: ciml_learning.rollback)
+the feedback effort or the base tracking error jump while it served: ciml_learning.learning.rollback)
 puts back the model served before it (the last one not rolled back; the nominal model if none),
 counted (rollbacks, WARN); a model rolled back is never served again.
 """
@@ -37,15 +37,16 @@ from ciml_msgs.msg import ModelError, ModelUpdate, RobotReference
 from rclpy.node import Node
 from std_msgs.msg import String
 
-from .. import conversions as cv
-from .. import realtime, topics
-from ..dynamics import ReferenceState, ReferenceTorque
-from ..errors import CimlError
-from ..node_params import MODEL_SERVER
-from ..profile import load_profile
-from ..ros_common import COMMAND_QOS, Health, declare_schema, run_node
-from ..serving import ServedModel, SwapHold, load_served_model, predict_at_reference
-from ..workers import LatestOnlyWorker
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.dynamics import ReferenceState, ReferenceTorque
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.profile import load_profile
+from ciml_learning.learning.serving import ServedModel, SwapHold, load_served_model, predict_at_reference
+from ciml_learning.learning.workers import LatestOnlyWorker
+from ciml_learning.ros import realtime
+from ciml_learning.ros.node_params import MODEL_SERVER
+from ciml_learning.ros.ros_common import COMMAND_QOS, Health, declare_schema, run_node
 
 MAX_PREVIOUS = 3
 """Models kept in memory to roll back to (each ~ the size of a snapshot)."""

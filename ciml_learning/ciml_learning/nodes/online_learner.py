@@ -1,6 +1,6 @@
 """`online_learner`: /model_error/learning_samples → LWPR snapshots + /model_update.
 
-Thin adapter around ciml_learning.online (learning_sample, OnlineLearner) and snapshots
+Thin adapter around ciml_learning.learning.online (learning_sample, OnlineLearner) and snapshots
 (SnapshotWriter): each learning sample — a valid filtered state (q, q̇, q̈ → x of eq. 12) and
 its measured error of eq. (11)/(14), sent together by error_extractor for valid states only —
 is learned at once with ModelSet.partial_fit_one (all 30 dimensions, ~0.5 ms per sample).
@@ -24,7 +24,7 @@ Rejected inputs are counted on /diagnostics and never learned: samples that do n
 of stamp order, and invalid samples (a state not valid: filter warm-up, near a contact change).
 At shutdown a last snapshot of unsaved samples is written (not announced).
 
-Learning that cannot poison the loop (ciml_learning.learning_gate, docs/LIVE_GRAPH.md):
+Learning that cannot poison the loop (ciml_learning.learning.learning_gate, docs/LIVE_GRAPH.md):
 valid pairs are learned only while the robot is up (base height, tilt), tracks the
 /reference sample of the same stamp (base position, attitude, joints), and the measured
 error is within the robot's physical bounds (m·g, m·g·leg span, torque limits). Otherwise
@@ -34,7 +34,7 @@ back to OK ("learning …") once the checks have passed for `resume_after` secon
 /reference (a replayed log) tracking is not checked unless `require_reference`.
 
 A snapshot is announced only if it predicts better than the nominal model on held-back live
-samples it was not trained on (ciml_learning.snapshot_gate: one block of stamps in
+samples it was not trained on (ciml_learning.learning.snapshot_gate: one block of stamps in
 `hold_back_every` is held back; at least `min_learned` samples learned; per output, its mean
 squared error ≤ (1 − `validation_margin`) × the nominal model's on ≥ `min_heldout` held-back
 samples); it is announced with its accepted outputs only. Decisions are counted on /diagnostics
@@ -52,19 +52,19 @@ from ciml_msgs.msg import LearningSample, ModelUpdate, RobotReference
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from .. import conversions as cv
-from .. import topics
-from ..errors import CimlError
-from ..learning_gate import NO_REFERENCE, GateConfig, LearningGate
-from ..models import ModelSet
-from ..node_params import ONLINE_LEARNER
-from ..online import AwaitReference, OnlineLearner, SequenceGaps, learning_sample, warm_up
-from ..profile import load_profile
-from ..ros_common import COMMAND_QOS, OK, WARN, Health, declare_schema, run_node
-from ..ros_common import ERROR as DIAG_ERROR
-from ..snapshot_gate import HELD_BACK, ValidationConfig
-from ..snapshots import SnapshotWriter
-from ..workers import LatestOnlyWorker
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.profile import load_profile
+from ciml_learning.learning.learning_gate import NO_REFERENCE, GateConfig, LearningGate
+from ciml_learning.learning.models import ModelSet
+from ciml_learning.learning.online import AwaitReference, OnlineLearner, SequenceGaps, learning_sample, warm_up
+from ciml_learning.learning.snapshot_gate import HELD_BACK, ValidationConfig
+from ciml_learning.learning.snapshots import SnapshotWriter
+from ciml_learning.learning.workers import LatestOnlyWorker
+from ciml_learning.ros.node_params import ONLINE_LEARNER
+from ciml_learning.ros.ros_common import COMMAND_QOS, OK, WARN, Health, declare_schema, run_node
+from ciml_learning.ros.ros_common import ERROR as DIAG_ERROR
 
 DEFAULT_MODEL_DIR = os.path.join("~", ".ros", "ciml", "online_model")
 

@@ -1,11 +1,11 @@
 """`state_filter`: a robot's own sensor topics → /filtered_state (paper §III-C, online filter).
 
-Thin adapter around ciml_learning.live_inputs.LiveInputs and filters.OnlineStateFilter. It
+Thin adapter around ciml_learning.logs.live_inputs.LiveInputs and filters.OnlineStateFilter. It
 subscribes to the topics of the `robot` profile's input map (docs/ROBOT_PROFILE.md: CIML's own
 /joint_states, /base_state, /contact_state, /torque_command for hyq; a Unitree layout's joint
 states with foot entries, IMU, foot-force array and effort or LowCmd command for go1) and hands
 every message to LiveInputs, which reads it with load_log's readers and pairs each joint sample by
-ciml_learning.pairing's rule, as a log is read offline. Rejected messages and samples are counted
+ciml_learning.core.pairing's rule, as a log is read offline. Rejected messages and samples are counted
 on /diagnostics; a topic that stays silent while others speak is a WARN there. With
 `inputs: ciml` it reads CIML's own topics for any robot instead (the simulator bridge publishes
 those; the shipped launch file sets it). Output is aligned to the filter's delay (≈ 60 ms at any rate).
@@ -27,16 +27,24 @@ from ciml_msgs.msg import RobotState
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
-from .. import conversions as cv
-from .. import topics
-from ..errors import CimlError
-from ..filters import OnlineStateFilter
-from ..live_inputs import LiveInputs
-from ..node_params import STATE_FILTER
-from ..profile import TORQUE_COMMAND, load_profile
-from ..replay import message_class
-from ..ros_common import OK, SENSOR_STREAM_QOS, STREAM_QOS, Health, PublishPeriods, declare_schema, run_node
-from ..stamps import measure_rate
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.filters import OnlineStateFilter
+from ciml_learning.core.profile import TORQUE_COMMAND, load_profile
+from ciml_learning.core.stamps import measure_rate
+from ciml_learning.logs.live_inputs import LiveInputs
+from ciml_learning.ros.node_params import STATE_FILTER
+from ciml_learning.ros.replay import message_class
+from ciml_learning.ros.ros_common import (
+    OK,
+    SENSOR_STREAM_QOS,
+    STREAM_QOS,
+    Health,
+    PublishPeriods,
+    declare_schema,
+    run_node,
+)
 
 RATE_SAMPLES = 32
 """Joint samples whose stamps set the filter's rate when the `rate` parameter is 0."""

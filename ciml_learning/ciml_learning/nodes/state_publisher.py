@@ -3,7 +3,7 @@ exists here). Publishes
 - /robot_description (std_msgs/String, transient local): the URDF text,
 - /tf_static: the URDF's fixed joints (transient local),
 - /tf: odom → base link from /base_state, and parent → child link of every actuated joint
-  from /joint_states (forward kinematics: ciml_learning.tf_tree, Pinocchio),
+  from /joint_states (forward kinematics: ciml_learning.core.tf_tree, Pinocchio),
 at most `publish_rate` times per second each, stamped with the sample's own stamp.
 """
 from __future__ import annotations
@@ -16,13 +16,13 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
-from .. import conversions as cv
-from .. import topics
-from ..errors import CimlError
-from ..node_params import STATE_PUBLISHER
-from ..profile import load_profile
-from ..ros_common import LATCHED_QOS, SENSOR_QOS, Health, declare_schema, run_node
-from ..tf_tree import LinkTransform, LinkTree
+from ciml_learning.core import conversions as cv
+from ciml_learning.core import topics
+from ciml_learning.core.errors import CimlError
+from ciml_learning.core.profile import load_profile
+from ciml_learning.core.tf_tree import LinkTransform, LinkTree
+from ciml_learning.ros.node_params import STATE_PUBLISHER
+from ciml_learning.ros.ros_common import LATCHED_QOS, SENSOR_QOS, Health, declare_schema, run_node
 
 TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 """tf2's TransformBroadcaster profile."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pinocchio as pin
 
-from ciml_learning.errors import CimlError
+from ciml_learning.core.errors import CimlError
 
 from .base import SimEffect
 

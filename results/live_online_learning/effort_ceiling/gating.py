@@ -7,7 +7,7 @@ import sys
 import numpy as np
 
 import ciml_sim.recorder as rec
-from ciml_learning.cli import robot_from_args
+from ciml_learning.cli.main import robot_from_args
 from ciml_sim.commands import load_epsilon_function, scenario_for
 
 made = []

@@ -3,7 +3,7 @@ models, to see which dimensions make two models' closed-loop efforts differ.
     python swap_base_models.py MODEL_A MODEL_B OUT_DIR"""
 import sys
 
-from ciml_learning.models import N_BASE, ModelSet
+from ciml_learning.learning.models import N_BASE, ModelSet
 
 a, b = ModelSet.load(sys.argv[1]), ModelSet.load(sys.argv[2])
 for i in range(N_BASE):

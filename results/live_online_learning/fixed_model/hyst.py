@@ -10,8 +10,8 @@ import sys
 
 import numpy as np
 
-from ciml_learning.model_epsilon import load_epsilon_function
-from ciml_learning.profile import load_profile
+from ciml_learning.core.profile import load_profile
+from ciml_learning.learning.model_epsilon import load_epsilon_function
 from ciml_sim.recorder import run_headless
 from ciml_sim.scenario import resolve_scenario
 

@@ -16,7 +16,7 @@ import ciml_sim.recorder as recorder
 from ciml_control.controller import IdController
 from ciml_control.feedback import BASE_LINEAR_KD, BASE_LINEAR_KP, FeedbackGains
 from ciml_control.references import make_reference
-from ciml_learning.profile import load_profile
+from ciml_learning.core.profile import load_profile
 from ciml_sim.commands import load_epsilon_function
 from ciml_sim.scenario import resolve_scenario
 

@@ -6,7 +6,7 @@ import json
 import sys
 import time
 
-from ciml_learning.profile import load_profile
+from ciml_learning.core.profile import load_profile
 from ciml_sim import live_bench
 
 robot = load_profile("hyq").robot()

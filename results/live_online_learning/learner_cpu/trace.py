@@ -10,8 +10,8 @@ import sys
 import tempfile
 import time
 
-from ciml_learning import topics
-from ciml_learning.graph_probe import GraphProbe, cpu_seconds
+from ciml_learning.core import topics
+from ciml_learning.ros.graph_probe import GraphProbe, cpu_seconds
 from ciml_sim import live_bench
 
 seed = sys.argv[1]

@@ -1,0 +1,1 @@
+"""The `ciml` command: its verbs, their implementations, the bench runner and benchmarks."""

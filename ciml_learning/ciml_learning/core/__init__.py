@@ -1,0 +1,1 @@
+"""The core: robot description, dynamics, projection, ε (eq. 17), filters, pairing, messages, profiles, files."""

@@ -1,0 +1,84 @@
+"""The sample-pairing rule: which base, contact, IMU and command sample goes with a joint sample.
+
+A robot log is sampled at its joint-state stamps. For a joint sample stamped t, each other
+role's sample is the latest one stamped at or before t — the command strictly before t (a
+command stamped t was computed from the sample at t and acts after it; TorqueCommand.msg) —
+and is used only if it is at most `age_limit_ns` older than t: the larger of max_age_s and
+AGE_PERIODS periods of that role's topic (a topic slower than the joint states is still
+paired with every joint sample between two of its messages).
+
+The one home of this rule: loginputs.load_log applies it to a whole log (partner_indices),
+the state_filter node to one joint sample at a time (add_to_history, partner). Pure module: numpy only.
+"""
+from __future__ import annotations
+
+import bisect
+from collections import deque
+from collections.abc import Sequence
+
+import numpy as np
+
+from ciml_learning.core.stamps import measure_rate
+
+AGE_PERIODS = 2.5
+"""A partner may be this many of its topic's periods old (when that is more than max_age_s)."""
+
+STRICT_ROLES = frozenset({"command"})
+"""Roles paired strictly before the joint sample's stamp; the others at or before it."""
+
+
+def is_strict(role: str) -> bool:
+    """Whether `role` pairs strictly before the joint sample (the command) or at or before it."""
+    return role in STRICT_ROLES
+
+
+def age_limit_ns(max_age_s: float, partner_stamps_ns: np.ndarray | Sequence[int]) -> int:
+    """The oldest a partner may be [ns]: max(max_age_s, AGE_PERIODS / its topic's rate), the
+    rate measured from the partner's stamps (stamps.measure_rate; none with fewer than two)."""
+    rate = measure_rate(np.asarray(partner_stamps_ns, dtype=float) * 1e-9).rate_hz
+    return int(max(max_age_s, AGE_PERIODS / rate if np.isfinite(rate) else 0.0) * 1e9)
+
+
+def partner_indices(partner_t: np.ndarray, t: np.ndarray, max_age_ns: int, strict: bool = False) -> np.ndarray:
+    """For each joint stamp in t, the index of the latest partner stamp (sorted partner_t) at or
+    before it (strictly before with `strict`); −1 if there is none or it is older than max_age_ns."""
+    idx = np.searchsorted(partner_t, t, side="left" if strict else "right") - 1
+    ok = idx >= 0
+    ok[ok] &= (t[ok] - partner_t[idx[ok]]) <= max_age_ns
+    idx[~ok] = -1
+    return idx
+
+
+def _stamp(entry: tuple[int, object]) -> int:
+    return entry[0]
+
+
+def add_to_history(history: deque[tuple[int, object]], stamp: int, value: object) -> None:
+    """Append (stamp, value) to a role's history, which partner() needs in stamp order: a message
+    that arrives after a later-stamped one is inserted where its stamp belongs (after any of the
+    same stamp, as a stable sort of the log would place it). A full history drops its oldest."""
+    if not history or stamp >= history[-1][0]:
+        history.append((stamp, value))
+        return
+    i = bisect.bisect_right(history, stamp, key=_stamp)
+    if history.maxlen is not None and len(history) == history.maxlen:
+        if i == 0:  # older than everything kept
+            return
+        history.popleft()
+        i -= 1
+    history.insert(i, (stamp, value))
+
+
+def partner(history: deque[tuple[int, object]], stamp: int, max_age_s: float, strict: bool = False):
+    """The (stamp, value) of `history` (a role's recent samples in stamp order: add_to_history) that
+    pairs with the joint sample stamped `stamp` [ns], or None: partner_indices for one sample, by
+    bisection (the state_filter calls this for every joint sample and role), the age limit measured
+    from the history's stamps only when the partner is older than max_age_s."""
+    i = (bisect.bisect_left if strict else bisect.bisect_right)(history, stamp, key=_stamp) - 1
+    if i < 0:
+        return None
+    age = stamp - history[i][0]
+    if age <= int(max_age_s * 1e9):
+        return history[i]
+    stamps = np.fromiter((s for s, _ in history), dtype=np.int64, count=len(history))
+    return history[i] if age <= age_limit_ns(max_age_s, stamps) else None

@@ -31,6 +31,7 @@ import array
 import os
 import re
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -593,6 +594,57 @@ class _Command:
         return self.law(self.rows[i], q, qd, dt)
 
 
+@dataclass
+class RoleSeries:
+    """A measured role's messages in stamp order: stamps [ns], per-message values (arrays of M
+    rows), each value's fill for a joint sample without a partner, the topic errors name, and the
+    source description."""
+
+    t: np.ndarray
+    values: tuple[np.ndarray, ...]
+    missing: tuple[Any, ...]
+    topic: str
+    source: str
+
+
+_IDENTITY_XYZW = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def _contacts_series(robot, spec, tops, rej, warnings, joint_top) -> RoleSeries:
+    t, flags, source = _read_contacts(robot, spec, tops, rej, joint_top)
+    if len(t) == 0:
+        raise BagError(f"contacts: no usable message — {rej.first('contacts')}")
+    return RoleSeries(t, (flags,), (False,), spec.get("topic", "per-foot topics"), source)
+
+
+def _imu_series(robot, spec, tops, rej, warnings, joint_top) -> RoleSeries:
+    t, quat, gyro, source = _read_imu(spec, tops, rej)
+    return RoleSeries(t, (quat, gyro), (_IDENTITY_XYZW, 0.0), spec["topic"], source)
+
+
+def _base_series(robot, spec, tops, rej, warnings, joint_top) -> RoleSeries:
+    t, pos, quat, twist, source = _read_base(spec, tops, rej, warnings)
+    topic = spec["topic"] if "topic" in spec else spec["pose_topic"]
+    return RoleSeries(t, (pos, quat, twist), (0.0, _IDENTITY_XYZW, 0.0), topic, source)
+
+
+MEASURED_ROLES: tuple[tuple[str, Callable[..., RoleSeries]], ...] = (
+    ("contacts", _contacts_series), ("imu", _imu_series), ("base", _base_series))
+"""The roles load_log reads from their own topics and pairs with each joint sample, in reading
+order; a role the profile marks `estimate` (contacts, base) is estimated after pairing instead.
+The command, whose value depends on the joint sample it acts on (CommandReader), is read after
+them."""
+
+
+def _paired(values: np.ndarray, fill: Any, idx: np.ndarray) -> np.ndarray:
+    """values[idx] per joint sample; `fill` where idx < 0 (no partner)."""
+    out = np.empty((len(idx), *values.shape[1:]), dtype=values.dtype)
+    out[:] = fill
+    has = idx >= 0
+    out[has] = values[idx[has]]
+    return out
+
+
 def _span(t: np.ndarray) -> str:
     return f"{t[0] * 1e-9:.3f}–{t[-1] * 1e-9:.3f} s" if len(t) else "none"
 
@@ -680,36 +732,17 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
         stale[role] = int((idx < 0).sum())
         return idx
 
-    # contacts (measured)
-    contacts = None
-    if "estimate" not in con_spec:
-        tc, cflags, sources["contacts"] = _read_contacts(robot, con_spec, tops, rej, jtop)
-        if len(tc) == 0:
-            raise BagError(f"contacts: no usable message — {rej.first('contacts')}")
-        ic = hold("contacts", con_spec.get("topic", "per-foot topics"), tc)
-        ok &= ic >= 0
-        contacts = np.zeros((n, robot.n_feet), dtype=bool)
-        contacts[ic >= 0] = cflags[ic[ic >= 0]]
-    # imu
-    imu: tuple[np.ndarray, np.ndarray] | None = None  # orientation (x, y, z, w), angular velocity
-    if imu_spec is not None:
-        ti, iq, iw, sources["imu"] = _read_imu(imu_spec, tops, rej)
-        ii = hold("imu", imu_spec["topic"], ti)
-        ok &= ii >= 0
-        imu_quat = np.tile([0.0, 0.0, 0.0, 1.0], (n, 1))
-        imu_gyro = np.zeros((n, 3))
-        imu_quat[ii >= 0], imu_gyro[ii >= 0] = iq[ii[ii >= 0]], iw[ii[ii >= 0]]
-        imu = (imu_quat, imu_gyro)
-    # base (measured)
-    base: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # position, orientation, twist
-    if "estimate" not in base_spec:
-        tb, bp, bq, bt, sources["base"] = _read_base(base_spec, tops, rej, warnings)
-        ib = hold("base", base_spec["topic"] if "topic" in base_spec else base_spec["pose_topic"], tb)
-        ok &= ib >= 0
-        base_pos, base_quat, base_twist = np.zeros((n, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)), np.zeros((n, 6))
-        has = ib >= 0
-        base_pos[has], base_quat[has], base_twist[has] = bp[ib[has]], bq[ib[has]], bt[ib[has]]
-        base = (base_pos, base_quat, base_twist)
+    # the measured roles, each paired with every joint sample (MEASURED_ROLES)
+    paired: dict[str, tuple[np.ndarray, ...]] = {}
+    for role, read_series in MEASURED_ROLES:
+        spec = inputs.get(role)
+        if spec is None or "estimate" in spec:
+            continue
+        series = read_series(robot, spec, tops, rej, warnings, jtop)
+        sources[role] = series.source
+        idx = hold(role, series.topic, series.t)
+        ok &= idx >= 0
+        paired[role] = tuple(_paired(v, fill, idx) for v, fill in zip(series.values, series.missing))
     # command
     u_observed = cmd_spec is not None
     u = tau.copy()
@@ -727,12 +760,9 @@ def load_log(robot: RobotDescription, path: str | os.PathLike, profile: RobotPro
     sel = np.flatnonzero(ok)
     tj, qj, qdj, tau, u = tj[sel], qj[sel], qdj[sel], tau[sel], u[sel]
     n = len(tj)
-    if imu is not None:
-        imu = (imu[0][sel], imu[1][sel])
-    if contacts is not None:
-        contacts = contacts[sel]
-    if base is not None:
-        base = (base[0][sel], base[1][sel], base[2][sel])
+    paired = {role: tuple(a[sel] for a in arrays) for role, arrays in paired.items()}
+    contacts = paired["contacts"][0] if "contacts" in paired else None
+    imu, base = paired.get("imu"), paired.get("base")  # (orientation x y z w, gyro); (position, orientation, twist)
     if cmd_spec is not None and profile.torque_source != "none":  # what the actuator lag reads (diagnosis)
         stamp_report["command_sampling"] = _command_sampling(robot, cmd, iu[sel], tj, qj, qdj, tau, u, rate)
     if profile.torque_source == "none":

@@ -359,7 +359,7 @@ def test_recording_killed_mid_run_leaves_nothing_at_out_and_is_cleaned(tmp_path)
     script = """
         import sys, time
         from ciml_learning.logs.bagio import BagWriter
-        from ciml_learning import topics
+        from ciml_learning.core import topics
         with BagWriter(sys.argv[1]) as w:
             for k in range(50):
                 w.write_serialized(topics.JOINT_STATES, k, b"\\x00\\x01\\x00\\x00" + bytes(60),

@@ -13,7 +13,7 @@ from ciml_learning.ros import realtime
 
 CHILD = """
 import os, sys, threading, time
-from ciml_learning import realtime
+from ciml_learning.ros import realtime
 early = threading.Thread(target=time.sleep, args=(2,), daemon=True)
 early.start()                                 # exists before: switched
 print(realtime.set_fifo_priority(int(sys.argv[1])))
@@ -49,7 +49,7 @@ def test_scheduling_policy_of_this_process_is_normal():
 
 CHILD_SOME = """
 import os, threading, time
-from ciml_learning import realtime
+from ciml_learning.ros import realtime
 before = realtime.thread_ids()
 mine = threading.Thread(target=time.sleep, args=(2,), daemon=True)
 mine.start()                                  # the only thread to switch
@@ -73,7 +73,7 @@ def test_only_the_given_threads_real_time_scheduled_and_children_of_the_others_n
 
 CHILD_NICE = """
 import os, threading, time
-from ciml_learning import realtime
+from ciml_learning.ros import realtime
 before, start = realtime.thread_ids(), os.getpriority(os.PRIO_PROCESS, 0)
 mine = threading.Thread(target=time.sleep, args=(2,), daemon=True)
 mine.start()
@@ -97,7 +97,7 @@ def test_exit_after_ends_a_process_whose_main_thread_holds_the_gil(status):
     import subprocess
     import sys
 
-    code = ("import ctypes, sys\nfrom ciml_learning import realtime\n"
+    code = ("import ctypes, sys\nfrom ciml_learning.ros import realtime\n"
             f"assert realtime.exit_after(0.5, {status})\n"
             "ctypes.PyDLL(None).sleep(30)  # holds the GIL\nsys.exit(9)\n")
     proc = subprocess.run([sys.executable, "-c", code], timeout=20, capture_output=True)

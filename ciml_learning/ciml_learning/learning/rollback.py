@@ -13,7 +13,8 @@ than the model before it: online learning must keep helping, and a snapshot that
 held-back data better than nominal can still cost effort in the loop — results/LIVE_GRAPH.md,
 thirteenth, sixteenth and seventeenth sessions). The reference is the seconds just before the
 model, not a best level kept from earlier: under one fixed model the 5 s RMS effort moved from
-15.7 to ~30 Nm within a minute and from 30.7 to ~50 Nm within two (seventeenth session), so an
+15.7 to ~30 Nm within a minute and from 30.7 to ~50 Nm within two (seventeenth session; the trot
+leaning one way or the other at the old base gain, eighteenth), so an
 earlier level is no measure of what the model serving now achieves (judged against such a best
 level, candidates better than the model serving were refused for minutes). A model that passed
 its assessment (or served its probation) is not judged again when a rollback puts it back: it

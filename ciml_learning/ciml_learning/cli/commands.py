@@ -1,5 +1,6 @@
 """The `ciml` verbs of ciml_learning, implemented (argument namespace in, exit code out); their
-options are in cli/verbs.py."""
+options are in cli/verbs.py. Each verb imports what it needs when it runs, so one verb does not
+load another's libraries."""
 from __future__ import annotations
 
 import argparse
@@ -11,9 +12,6 @@ import time
 
 from ciml_learning.cli.main import profile_from_args, robot_from_args
 from ciml_learning.core.errors import CimlError
-from ciml_learning.logs.inspect_log import draft_profile, inspect_bag, profile_yaml
-from ciml_learning.ros.launch_file import LaunchFileError
-from ciml_learning.ros.launcher import command, launch, process_plan, resolve_launch_path
 
 
 def play(args: argparse.Namespace) -> int:
@@ -121,6 +119,7 @@ def robot_arguments(args, declared: set[str], given: dict[str, str], path: str) 
     robot's name stays a name, a file becomes absolute); LaunchFileError when the file declares no
     such argument (its nodes could not take the robot) or it is given both ways."""
     from ciml_learning.core.profile import is_robot_name
+    from ciml_learning.ros.launch_file import LaunchFileError
 
     out: dict[str, str] = {}
     if getattr(args, "robot", None) is not None:
@@ -140,7 +139,8 @@ def robot_arguments(args, declared: set[str], given: dict[str, str], path: str) 
 
 def launch_command(args) -> int:
     """The `ciml launch` verb."""
-    from ciml_learning.ros.launch_file import describe, load, parse_arguments
+    from ciml_learning.ros.launch_file import LaunchFileError, describe, load, parse_arguments
+    from ciml_learning.ros.launcher import command, launch, process_plan, resolve_launch_path
 
     rest = list(args.arguments)
     second = rest.pop(0) if rest and ":=" not in rest[0] and not os.path.isfile(args.file) else None
@@ -166,6 +166,7 @@ def launch_command(args) -> int:
 def inspect_command(args: argparse.Namespace) -> int:
     """`ciml inspect --bag BAG [--out profile.yaml]`."""
     from ciml_learning.core.fileio import atomic_write_text
+    from ciml_learning.logs.inspect_log import draft_profile, inspect_bag, profile_yaml
 
     robot = None
     if getattr(args, "robot", None) or getattr(args, "urdf", None):

@@ -18,7 +18,7 @@ from ciml_learning.ros.launch_file import find_package_prefix
 @pytest.mark.parametrize("after", [0.0, 0.3], ids=["at-once", "0.3s-later"])
 def test_a_node_interrupted_while_importing_exits_0_without_traceback(pkg, executable, sig, after):
     path = os.path.join(find_package_prefix(pkg), "lib", pkg, executable)
-    env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "ROS_DOMAIN_ID": "97"}
+    env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}  # and the run's own ROS_DOMAIN_ID
     args = ["--node", "ciml_learning", "state_filter"] if executable == "ciml_container" else []
     proc = subprocess.Popen([path, *args, "--ros-args", "-r", "__node:=start_interrupt"], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

@@ -27,9 +27,10 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 from experiment import NEW_MOTIONS, ROOT, SCENARIO, TRAIN_MOTIONS  # noqa: E402  (tools/experiment.py)
 
 from ciml_control.references import default_duration
+from ciml_learning.core.physical_bounds import N_BASE
 from ciml_learning.core.robot import load_robot
 from ciml_learning.learning.model_epsilon import load_epsilon_function
-from ciml_learning.learning.models import N_BASE, ModelSet, joint_state_names, rbd_input_names
+from ciml_learning.learning.models import ModelSet, joint_state_names, rbd_input_names
 from ciml_learning.logs.pipeline import load_dataset
 from ciml_sim.recorder import run_headless
 from ciml_sim.scenario import resolve_scenario

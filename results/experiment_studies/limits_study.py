@@ -29,10 +29,11 @@ from ciml_control.references import default_duration
 from ciml_learning.core.dynamics import ReferenceTorque, selection_matrix
 from ciml_learning.core.extraction import combined_error
 from ciml_learning.core.filters import delay_samples, derivative_taps
+from ciml_learning.core.physical_bounds import N_BASE
 from ciml_learning.core.robot import load_robot
 from ciml_learning.diagnosis import load_effect_model
 from ciml_learning.learning.model_epsilon import EpsilonFunction
-from ciml_learning.learning.models import N_BASE, ModelSet
+from ciml_learning.learning.models import ModelSet
 from ciml_sim.plant import Plant
 from ciml_sim.recorder import CONTROL_RATE, make_reference, run_headless
 from ciml_sim.scenario import resolve_scenario

@@ -26,6 +26,7 @@ from ciml_learning.core.robot import RobotDescription
 GRAVITY = 9.81
 """[m/s²]"""
 N_BASE = 6
+"""The first rigid-body dimensions: the base wrench; the others are the leg joints'."""
 
 
 @dataclass(frozen=True)

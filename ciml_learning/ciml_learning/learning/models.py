@@ -72,6 +72,7 @@ from typing import Any
 import numpy as np
 
 from ciml_learning.core.errors import CimlError
+from ciml_learning.core.physical_bounds import N_BASE
 from ciml_learning.learning.learners import LWPR, Learner, LearnerError, LWPRStack, learner_class
 from ciml_learning.learning.model_files import (
     KERNELS,
@@ -114,8 +115,6 @@ DEFAULT_PARAMS: dict[str, dict[str, dict[str, Any]]] = {
 dimension). Override per group with ModelSet(..., params={"base": {...}, "leg": {...},
 "actuation": {...}})."""
 GROUPS = ("base", "leg", "actuation")
-N_BASE = 6
-"""The first rigid-body dimensions: the base wrench (group "base"); the others are the leg joints'."""
 
 MIN_SAMPLES = 10
 """A dimension with fewer usable samples than this keeps no model (zero error)."""

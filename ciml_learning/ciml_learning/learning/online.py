@@ -30,10 +30,11 @@ import numpy as np
 from ciml_learning.core.conversions import model_error_arrays, robot_state_arrays, stamp_to_ns
 from ciml_learning.core.dynamics import RigidBodyDynamics
 from ciml_learning.core.extraction import learning_inputs
+from ciml_learning.core.physical_bounds import N_BASE
 from ciml_learning.core.projection import contact_invariant_basis, generalized_rbd_error, leg_coupling
 from ciml_learning.core.robot import RobotDescription
 from ciml_learning.learning.learners import learner_class
-from ciml_learning.learning.models import N_BASE, ModelSet, ModelSetError
+from ciml_learning.learning.models import ModelSet, ModelSetError
 from ciml_learning.learning.serving import probe_inputs
 from ciml_learning.learning.snapshot_gate import HELD_BACK, HeldBackWindow, ValidationConfig
 from ciml_learning.learning.snapshots import Snapshot

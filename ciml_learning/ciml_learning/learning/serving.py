@@ -22,11 +22,12 @@ import numpy as np
 
 from ciml_learning.core.dynamics import ReferenceState, ReferenceTorque, RigidBodyDynamics
 from ciml_learning.core.extraction import learning_inputs
+from ciml_learning.core.physical_bounds import N_BASE
 from ciml_learning.core.projection import contact_invariant_basis
 from ciml_learning.core.robot import RobotDescription
 from ciml_learning.learning.model_epsilon import EpsilonFunction
 from ciml_learning.learning.model_files import ModelFileError, read_metadata, read_model_file
-from ciml_learning.learning.models import N_BASE, ModelSet, default_scaling
+from ciml_learning.learning.models import ModelSet, default_scaling
 from ciml_learning.learning.snapshots import PROBE_FILE
 
 

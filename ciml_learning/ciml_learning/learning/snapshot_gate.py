@@ -31,10 +31,14 @@ chance decide.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ciml_learning.learning.models import N_BASE, ModelSet
+from ciml_learning.core.physical_bounds import N_BASE
+
+if TYPE_CHECKING:  # the learners' kernels are not loaded by the nodes that only read the settings
+    from ciml_learning.learning.models import ModelSet
 
 HELD_BACK = "held_back_samples"
 """The learner's counter of samples kept for validation instead of learned."""

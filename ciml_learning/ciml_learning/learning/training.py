@@ -56,7 +56,7 @@ def evaluate(model_set: ModelSet, inputs: np.ndarray, rbd_error: np.ndarray, rbd
     wrench is compared as measured, in the base entries of Φ̃' (model-free): w' = Φ̃_base −
     Σ_swing C e (measured) against ŵ − Σ_all C ê (predicted; the variance of ŵ only); a leg
     joint's error where its leg swings; Γ everywhere."""
-    from ciml_learning.learning.models import N_BASE
+    from ciml_learning.core.physical_bounds import N_BASE
 
     X, rbd_error, rbd_observed, actuation_error, valid, C = model_set._check_data(
         inputs, rbd_error, rbd_observed, actuation_error, valid, leg_coupling)

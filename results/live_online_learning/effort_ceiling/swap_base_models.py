@@ -3,7 +3,8 @@ models, to see which dimensions make two models' closed-loop efforts differ.
     python swap_base_models.py MODEL_A MODEL_B OUT_DIR"""
 import sys
 
-from ciml_learning.learning.models import N_BASE, ModelSet
+from ciml_learning.core.physical_bounds import N_BASE
+from ciml_learning.learning.models import ModelSet
 
 a, b = ModelSet.load(sys.argv[1]), ModelSet.load(sys.argv[2])
 for i in range(N_BASE):

@@ -22,20 +22,18 @@ if _WORKER.startswith("gw"):
 
 LIVE_GROUP = "live"
 """The xdist group of every test that runs ROS nodes (marker `ros`): they run one after another
-on one worker, as the graph's rates and timing assume, beside the other worker's tests."""
+on one worker, as the graph's rates and timing assume (two graphs at once need four cores), beside
+the other worker's tests."""
 
 
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the groups into the test ids
 def pytest_collection_modifyitems(config, items):
-    """Under xdist (`--dist loadgroup`): the `ros` tests form one group, those also marked
-    `load_tolerant` another; every other test is grouped with its file, so a module's fixtures
-    (recorded bags, fitted models) are built once."""
+    """Under xdist (`--dist loadgroup`): the `ros` tests form one group; every other test is
+    grouped with its file, so a module's fixtures (recorded bags, fitted models) are built once.
+    (xdist 3.8 reads the group into the test id, which pytest 9.2 no longer lets it do: pytest is
+    pinned to 9.1.)"""
     if not _WORKER and not getattr(config.option, "numprocesses", None):
         return
     for item in items:
-        if item.get_closest_marker("load_tolerant"):
-            group = "load_tolerant"
-        elif item.get_closest_marker("ros"):
-            group = LIVE_GROUP
-        else:
-            group = item.nodeid.split("::")[0]
+        group = LIVE_GROUP if item.get_closest_marker("ros") else item.nodeid.split("::")[0]
         item.add_marker(pytest.mark.xdist_group(group))

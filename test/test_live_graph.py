@@ -253,7 +253,6 @@ def test_a_node_killed_and_restarted_does_not_stall_the_control_loop(graph):
 SIGINT_ROUNDS = int(os.environ.get("CIML_SIGINT_ROUNDS", "20"))
 
 
-@pytest.mark.load_tolerant  # it must pass on a loaded machine: under xdist it runs beside the other worker
 @pytest.mark.parametrize("containers", ["", None], ids=["processes", "containers"])
 def test_sigint_20_times_per_node_exits_0_without_traceback(tmp_path, containers):
     """Each round starts every node of the shipped file at once, each in its own process or

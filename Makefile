@@ -18,12 +18,11 @@ install:
 demo: install
 	@tools/demo.sh
 
-# both cores: pytest-xdist, grouped by conftest.py (the ROS tests one after another, the rest by file)
 test: install
-	$(PY) -m pytest -q -n 2 --dist loadgroup
+	$(PY) -m pytest -q
 
 test-fast: install
-	$(PY) -m pytest -q -n 2 --dist loadgroup -m "not slow"
+	$(PY) -m pytest -q -m "not slow"
 
 bench: install
 	.venv/bin/ciml bench --out out/bench.json

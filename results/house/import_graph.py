@@ -7,16 +7,22 @@ functions) counted by (importer's floor → imported module's floor), and the im
 a floor. Before the floors existed (the flat package) a module is placed on the floor its
 namesake sits on today (cli.py → cli/main, cliargs → cli/args; learning_commands, commands
 and diagnosis/commands → cli, launcher → cli (its verb) as the floors commit moved them), so
-the same rule is applied to both layouts. Prints a Markdown table and a Mermaid graph.
+the same rule is applied to both layouts. The imports are read by the architecture test's own
+walker (test/test_architecture.py `imports_of`: statements anywhere, import and entry-point strings),
+given the revision's modules. Prints the imports that go up and a Mermaid graph.
 """
 from __future__ import annotations
 
-import ast
+import os
 import subprocess
 import sys
+import tempfile
 from collections import Counter
 
-FLOORS = ("core", "effects", "logs", "learning", "diagnosis", "ros", "nodes", "cli")
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "test"))
+import test_architecture as arch  # noqa: E402  (the floors and the import walker, defined once)
+
+FLOORS = arch.FLOORS
 PKG = "ciml_learning/ciml_learning/"
 RENAMED = {"cli": "cli", "cliargs": "cli", "commands": "cli", "learning_commands": "cli", "launcher": "cli",
            "inspect_log": "cli", "bench": "cli", "benchmarks": "cli", "verbs": "cli"}
@@ -51,34 +57,27 @@ def floor(module: str, today: dict[str, str]) -> str:
     return RENAMED.get(base) or today.get(base, "?")
 
 
-def imports(source: str, me: str, known: set[str], package: bool) -> list[str]:
-    """ciml_learning modules imported anywhere in `source` (relative imports resolved; `package`:
-    `me` is a package's __init__, whose `.` is itself)."""
-    found = []
-    for node in ast.walk(ast.parse(source)):
-        if isinstance(node, ast.Import):
-            found += [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                parts = me.split(".")
-                pkg = parts[: len(parts) - node.level + int(package)]
-                base = ".".join([*pkg, base] if base else pkg)
-            found += [f"{base}.{a.name}" if f"{base}.{a.name}" in known else base for a in node.names]
-    return [m for m in found if m.startswith("ciml_learning")]
-
-
 def graph(rev: str, today: dict[str, str]) -> tuple[Counter, list[str]]:
     mods = modules(rev)
     edges: Counter = Counter()
     up = []
-    for me, path in mods.items():
-        src = git("show", f"{rev}:{path}")
-        for target in set(imports(src, me, set(mods), path.endswith("__init__.py"))):
-            a, b = floor(me, today), floor(target, today)
-            edges[a, b] += 1
-            if a in FLOORS and b in FLOORS and FLOORS.index(b) > FLOORS.index(a):
-                up.append(f"{me} → {target}")
+    with tempfile.TemporaryDirectory() as tmp:
+        archive = subprocess.run(["git", "archive", rev, PKG], capture_output=True, check=True).stdout
+        subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
+        saved = dict(arch.MODULES)
+        arch.MODULES.clear()  # the walker resolves `from m import n` against the revision's modules
+        arch.MODULES.update({m: os.path.join(tmp, p) for m, p in mods.items()})
+        try:
+            for me, path in mods.items():
+                for target in {i.target for i in arch.imports_of(os.path.join(tmp, path), me=me)
+                               if i.target.startswith("ciml_learning")}:
+                    a, b = floor(me, today), floor(target, today)
+                    edges[a, b] += 1
+                    if a in FLOORS and b in FLOORS and FLOORS.index(b) > FLOORS.index(a):
+                        up.append(f"{me} → {target}")
+        finally:
+            arch.MODULES.clear()
+            arch.MODULES.update(saved)
     return edges, sorted(up)
 
 

@@ -3,7 +3,8 @@
     python results/live_online_learning/tally.py A.json B.json ...
 
 Every run with learning in the files is compared, minute by minute, with the mean of the runs
-without learning in the same files (the baselines of one code version); prints one Markdown row
+without learning in the same files (the baselines of one code version), by the benchmark's own
+`live_bench.learning_summary`; prints one Markdown row
 per run (seed, last-minute effort and cut, worst minute from the third on, falls, swaps,
 judged / unjudged, rolled back) and a summary line.
 """
@@ -13,6 +14,8 @@ import json
 import sys
 
 import numpy as np
+
+from ciml_sim.live_bench import learning_summary
 
 
 def runs(paths: list[str]) -> list[dict]:
@@ -30,28 +33,26 @@ def last(periods: list[dict], key: str) -> float:
 
 def main(paths: list[str]) -> None:
     all_runs = runs(paths)
-    baselines = [r for r in all_runs if not r["online"]]
-    minutes = min(len(r["periods"]) for r in all_runs)
-    base = np.mean([[p["effort_rms_nm"] for p in r["periods"][:minutes]] for r in baselines], axis=0)
-    print(f"baselines: {', '.join(str(r['seed']) for r in baselines)}; per minute [Nm]: "
+    summary = learning_summary(all_runs)["scenarios"]["default_gap"]  # the benchmark's own comparison
+    base = np.array([p["effort_without_nm"] for p in summary["per_period"]])
+    minutes = summary["periods_compared"]
+    print(f"baselines: {', '.join(str(r['seed']) for r in all_runs if not r['online'])}; per minute [Nm]: "
           + ", ".join(f"{b:.2f}" for b in base))
     print("\n| seed | commit | last minute [Nm] | last-minute cut | lowest cut, minutes 3–end | fell | swaps | "
           "judged / unjudged | rolled back (worse than before) |\n|---|---|---|---|---|---|---|---|---|")
-    cuts = []
-    for r in (r for r in all_runs if r["online"]):
+    online = [r for r in all_runs if r["online"]]
+    cuts = summary["last_period_cut_pct_per_run"]
+    for r, last_cut in zip(online, cuts):
         effort = np.array([p["effort_rms_nm"] for p in r["periods"][:minutes]])
-        cut = 1.0 - effort / base
-        cuts.append(cut[-1])
         p = r["periods"]
-        print(f"| {r['seed']} | {r['commit']} | {effort[-1]:.2f} | {100 * cut[-1]:.1f} % | "
-              f"{100 * cut[2:].min():.1f} % | "
+        print(f"| {r['seed']} | {r['commit']} | {effort[-1]:.2f} | {last_cut:.1f} % | "
+              f"{100 * (1.0 - effort[2:] / base[2:]).min():.1f} % | "
               f"{r.get('fell')} | {last(p, 'model_server.model_swaps'):.0f} | "
               f"{last(p, 'id_controller.models_judged'):.0f} / {last(p, 'id_controller.models_unjudged'):.0f} | "
               f"{last(p, 'id_controller.rollbacks_worse_than_before'):.0f} |")
-    online = [r for r in all_runs if r["online"]]
     print(f"\nruns with learning: {len(online)}; falls: {sum(bool(r.get('fell')) for r in all_runs)} in "
-          f"{len(all_runs)} runs; last-minute cut ≥ 30 %: {sum(c >= 0.30 for c in cuts)} of {len(cuts)} "
-          f"(range {100 * min(cuts):.1f}–{100 * max(cuts):.1f} %)")
+          f"{len(all_runs)} runs; last-minute cut ≥ 30 %: {sum(c >= 30.0 for c in cuts)} of {len(cuts)} "
+          f"(range {min(cuts):.1f}–{max(cuts):.1f} %)")
 
 
 if __name__ == "__main__":

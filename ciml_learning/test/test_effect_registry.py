@@ -84,10 +84,14 @@ def test_stribeck_friction_named_with_parameters_and_intervals():
     sel = select(LAYOUT, grams(tr), grams(ho))
     assert [c.label for c in sel.effects] == [f"joint_stribeck_friction:{JOINT}"]
     p = physical_parameters(sel.model)[1]
-    std = parameter_uncertainty(sel, tr, grams(ho), n_boot=30)[0][1]
+    stds, info = parameter_uncertainty(sel, tr, grams(ho), n_boot=30)
+    std, parts = stds[1], info["components"][1]
     for key, rel in (("breakaway", 0.05), ("coulomb", 0.05), ("velocity", 0.1)):
         assert p[key] == pytest.approx(truth[key], rel=rel), (key, p)
         assert 0 < std[key] < 0.2 * truth[key], (key, std)
+        # the components kept for calibration are the ones combined, in quadrature
+        assert np.hypot.reduce([c[key] for c in parts.values()]) == pytest.approx(std[key], rel=1e-9)
+    assert parts["sampling"]["breakaway"] > 0 and parts["conversion"]["breakaway"] == 0.0
 
 
 def test_coulomb_friction_rows_are_not_named_stribeck():

@@ -164,13 +164,17 @@ def _leg_of(name: str) -> str:
 Z95, Z68 = 1.959964, 0.994458
 
 
-def _coverage(truth: dict, found: dict) -> tuple[int, int, int, list[float | None]]:
-    """(inside 95 %, inside 68 %, count, |error|/std of each) over the true parameters' scalar components
-    that the found effect reports with a standard deviation (value ± z·std); the ratios give the
-    coverage at any level (the random bench's calibration curve)."""
+def _coverage(truth: dict, found: dict) -> dict:
+    """Over the true parameters' scalar components that the found effect reports with a standard
+    deviation (value ± z·std): how many lie inside the 95 % and 68 % intervals, |error|/std of each
+    (the coverage at any level: the random bench's calibration curve), and |error| with the std's
+    components (diagnosis.json std_components, where given: which component is too wide or narrow)."""
     params, std = found.get("params", {}), found.get("std", {})
+    parts = found.get("std_components", {})
     n95 = n68 = n = 0
     ratios: list[float | None] = []
+    errors: list[float] = []
+    components: dict[str, list[float]] = {}
     for k, v in truth.items():
         if k not in params or k not in std:
             continue
@@ -182,7 +186,13 @@ def _coverage(truth: dict, found: dict) -> tuple[int, int, int, list[float | Non
         n68 += int(np.sum(err <= Z68 * sd))
         n += t.size
         ratios += [float(e / s) if s > 0 else (0.0 if e == 0 else None) for e, s in zip(err, sd)]
-    return n95, n68, n, ratios
+        errors += err.tolist()
+        for name, by_key in parts.items():
+            components.setdefault(name, []).extend(np.atleast_1d(np.asarray(by_key[k], float)).tolist())
+    out = {"in_95": n95, "in_68": n68, "params": n, "error_over_std": ratios}
+    if parts:
+        out.update({"abs_error": errors, "std_components": components})
+    return out
 
 
 def confident_outside_bounds(diagnosis: dict) -> list[str]:
@@ -272,11 +282,10 @@ def score_case(truth_effects: Sequence[dict], diagnosis: dict, all_joints: Seque
             rel = float(np.median(errs)) if errs else None
             exact = [i for i in loc_hits if _location(found[i]) == t_loc] or loc_hits[:1]
             row_cov = _coverage(truth_p, found[exact[0]])
-            cov += np.asarray(row_cov[:3])
+            cov += np.asarray([row_cov["in_95"], row_cov["in_68"], row_cov["params"]])
         rows.append({"type": t["type"], "location": sorted(t_loc), "type_right": type_ok,
                      "location_right": bool(loc_hits), "param_rel_error": rel,
-                     "coverage": None if row_cov is None else {"in_95": row_cov[0], "in_68": row_cov[1],
-                                                                "params": row_cov[2], "error_over_std": row_cov[3]}})
+                     "coverage": row_cov})
     spurious = [f for i, f in enumerate(found) if i not in used and float(f.get("share", 0.0)) > SPURIOUS_SHARE]
     shr = diagnosis.get("shrink", {})
     out = {"effects": rows, "spurious": [{"type": f.get("type"), "location": sorted(_location(f)),

@@ -92,11 +92,17 @@ def test_coverage_bounds_and_reference_scoring():
         {"type": "payload", "params": {"mass": 5.9, "com": [0.14, 0.0, 0.2]},
          "std": {"mass": 0.1, "com": [0.01, 0.01, 0.01]}, "share": 0.6, "confidence": "high"},
         {"type": "actuator_lag", "joints": "all", "params": {"time_constant": 0.0077},
-         "std": {"time_constant": 0.0005}, "share": 0.3, "confidence": "high"}],
+         "std": {"time_constant": 0.0005}, "share": 0.3, "confidence": "high",
+         "std_components": {"sampling": {"time_constant": 0.0003}, "conversion": {"time_constant": 0.0004}}}],
         "bounds": {"payload": {"mass": [0.0, 5.0]}}, "shrink": {}, "localization": []}
     s = gapbench.score_case(truth, diag, JOINTS)
     # mass 5.9 ± 0.1 and com x 0.14 ± 0.01 are inside at 95 % only, com y at both, com z and the lag at neither
     assert s["coverage"] == {"in_95": 3, "in_68": 1, "params": 5}
+    # the lag's row keeps |error| and each std component (the calibration's which-part question)
+    lag = next(r["coverage"] for r in s["effects"] if r["type"] == "actuator_lag")
+    assert lag["abs_error"] == [pytest.approx(0.0023)] and lag["error_over_std"] == [pytest.approx(4.6)]
+    assert lag["std_components"] == {"sampling": [0.0003], "conversion": [0.0004]}
+    assert "std_components" not in next(r["coverage"] for r in s["effects"] if r["type"] == "payload")
     assert s["confident_outside_bounds"] == ["payload:mass=5.9"]
     summary = gapbench.summarise([{"case": 1, **s, "diagnose_s": 1.0}])
     assert summary["coverage_95"] == 0.6 and summary["confident_outside_bounds"] == 1

@@ -1002,7 +1002,8 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
                           n_boot: int = BOOTSTRAP, seed: int = 0) -> tuple[list[dict], dict]:
     """Standard deviation of each candidate's physical parameters (uncertainty.py: block bootstrap
     with blocks from the residual's autocorrelation, held-out reproduction, the lag's conversion),
-    and a summary of how it was obtained (block length, components)."""
+    and a summary of how it was obtained (block length; `components`: per candidate, the standard
+    deviation of each component before they are combined)."""
     from ciml_learning.diagnosis import uncertainty as unc
 
     model = selection.model
@@ -1047,12 +1048,16 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
         misspecification[k:k + n] = unc.MISSPECIFICATION_SCALE * rel * np.abs(flat[k:k + n] - null)
         resolution[k:k + n] = unc.RESOLUTION * np.abs(flat[k:k + n] - null)
         k += n
-    std = unc.combine(sampling, reproduction, conversion, misspecification, resolution)
+    parts = {"sampling": sampling, "reproduction": reproduction, "conversion": conversion,
+             "misspecification": misspecification, "resolution": resolution}
+    std = unc.combine(*parts.values())
     info = {"method": "block bootstrap over time (blocks from the residual's autocorrelation), held-out "
                       "reproduction, the lag's conversion (timing of the torque readings), in quadrature",
             "block_seconds": block * unc.SPAN / fs, "block_starts_every_s": block / fs,
             "autocorrelation_time_s": unc.integrated_autocorrelation_time_max(_residual_series(selection, rows)) / fs,
-            "draws": int(len(draws))}
+            "draws": int(len(draws)),
+            # per candidate, each component's standard deviation (the bench's calibration reads them)
+            "components": [dict(zip(parts, per)) for per in zip(*(_unflatten(base, v) for v in parts.values()))]}
     return _unflatten(base, std), info
 
 

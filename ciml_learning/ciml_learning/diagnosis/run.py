@@ -223,10 +223,11 @@ def _confidence(cand, params: dict, std: dict, spread: float) -> str:
     return "low"
 
 
-def _effect_entry(cand, params: dict, std: dict, share: float, spread: float) -> dict:
+def _effect_entry(cand, params: dict, std: dict, share: float, spread: float, std_components: dict) -> dict:
     e = {"type": cand.type}
     e.update(cand.location())
-    e.update({"params": params, "std": std, "interval_95": _interval(params, std, Z95),
+    e.update({"params": params, "std": std, "std_components": std_components,
+              "interval_95": _interval(params, std, Z95),
               "interval_68": _interval(params, std, Z68), "share": float(share),
               "consistency_spread": float(spread), "status": "identified",
               "confidence": _confidence(cand, params, std, spread)})
@@ -306,6 +307,7 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     sel.model.sampling = pooled_command_sampling([i["stamp_report"].get("command_sampling") for i in ds_id.inputs],
                                                  1.0 / ds_id.rate_hz)
     std_all, uncertainty = parameter_uncertainty(sel, fit_id, g_ho, fs=ds_id.rate_hz)
+    parts_all = uncertainty.pop("components", [{}] * len(std_all))
     params_all = physical_parameters(sel.model)
     nb = sel.n_baseline
     baseline = sel.model.part(sel.model.candidates[:nb])
@@ -323,13 +325,13 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     shr["baseline"] = {"heldout_rms_before_baseline": raw["heldout_rms_nominal"],
                        "heldout_rms_after_baseline": raw["heldout_rms_with_effects"]}
     shares = effect_shares(sel, corr_ho, res, v_ho, stick)
-    found = list(zip(sel.effects, params_all[nb:], std_all[nb:], shares, sel.spread))
-    effects = [_effect_entry(c, p, s, sh, sp) for c, p, s, sh, sp in found if c.in_catalogue]
+    found = list(zip(sel.effects, params_all[nb:], std_all[nb:], parts_all[nb:], shares, sel.spread))
+    effects = [_effect_entry(c, p, s, sh, sp, parts) for c, p, s, parts, sh, sp in found if c.in_catalogue]
     effects.sort(key=lambda e: -e["share"])
     # what the out-of-catalogue probe explains stays unexplained, localised at its joint
     unexplained = 0.0 if sel.gap_at_noise_floor else 1.0 - sum(e["share"] for e in effects)
     outside = [_unmodelled_entry(layout, ds_id, id_idx, c, sel.model.params_of(c), sh)
-               for c, _, _, sh, _ in found if not c.in_catalogue]
+               for c, _, _, _, sh, _ in found if not c.in_catalogue]
     names = dimension_names(robot)
     result = {
         "format_version": FORMAT_VERSION,

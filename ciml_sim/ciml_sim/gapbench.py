@@ -39,6 +39,7 @@ import yaml
 
 from ciml_learning.core.fileio import atomic_write_json, atomic_write_text
 from ciml_learning.diagnosis.shrink import WORSE_TOLERANCE
+from ciml_learning.diagnosis.uncertainty import Z68, Z95
 from ciml_learning.effects.draws import REALISTIC_NOISE
 from ciml_learning.effects.scenario import TOP_LEVEL
 
@@ -161,7 +162,6 @@ def _leg_of(name: str) -> str:
     return name.split("_")[0]
 
 
-Z95, Z68 = 1.959964, 0.994458
 
 
 def _coverage(truth: dict, found: dict) -> dict:

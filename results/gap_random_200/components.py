@@ -24,9 +24,8 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ciml_learning.core.robot import load_robot
-from ciml_learning.diagnosis.uncertainty import MISSPECIFICATION_SCALE
+from ciml_learning.diagnosis.uncertainty import MISSPECIFICATION_SCALE, Z68, Z95
 from ciml_sim import gapbench
-from ciml_sim.gapbench import Z68, Z95
 
 
 def diagnose(case: str) -> str:

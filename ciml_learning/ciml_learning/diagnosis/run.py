@@ -42,6 +42,7 @@ from ciml_learning.diagnosis.identified import identified_scenario_yaml
 from ciml_learning.diagnosis.localization import dimension_names, leg_summary, localize
 from ciml_learning.diagnosis.report import render_report
 from ciml_learning.diagnosis.shrink import project_stuck, residual_series, residuals, shrink, stuck_ss
+from ciml_learning.diagnosis.uncertainty import Z68, Z95
 from ciml_learning.effects import EFFECTS
 from ciml_learning.logs.pipeline import load_dataset
 
@@ -131,8 +132,6 @@ def friction_speed_subsets(robot: RobotDescription, dataset, rows):
     return subsets
 
 
-Z95, Z68 = 1.959964, 0.994458
-"""Normal quantiles of the reported two-sided 95 % and 68 % intervals (value ± z·std)."""
 
 
 def effect_shares(sel, rows_ho, res, v_ho: np.ndarray, stick: list[int]) -> list[float]:

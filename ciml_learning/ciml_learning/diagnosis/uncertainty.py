@@ -47,6 +47,8 @@ MISSPECIFICATION_SCALE = 0.5
 """The misspecification bound (worst case) counts as 1/0.5 = 2 standard deviations."""
 RESOLUTION = 1e-6
 """The smallest standard deviation of a parameter, relative to the effect's size (component 5)."""
+Z95, Z68 = 1.959964, 0.994458
+"""Normal quantiles of the reported two-sided 95 % and 68 % intervals (value ± z·std)."""
 
 
 def integrated_autocorrelation_time(x: np.ndarray) -> float:

@@ -64,7 +64,8 @@ def main() -> None:
             for name, v in cov["std_components"].items():
                 acc[name] += v
     print(f"{len(cases)} cases\n")
-    names = ["sampling", "reproduction", "conversion", "misspecification", "resolution"]
+    # the components as the diagnosis names them (identification.parameter_uncertainty), in its order
+    names = list(dict.fromkeys(k for acc in by_type.values() for k in acc if k != "error"))
     print("| type | n | in 68 % | in 95 % | median abs(z) | " + " | ".join(
         f"{n}: var. share / 68 % without" for n in names) + " |")
     print("|---" * (5 + len(names)) + "|")

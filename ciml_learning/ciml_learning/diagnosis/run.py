@@ -306,7 +306,7 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
     sel.model.sampling = pooled_command_sampling([i["stamp_report"].get("command_sampling") for i in ds_id.inputs],
                                                  1.0 / ds_id.rate_hz)
     std_all, uncertainty = parameter_uncertainty(sel, fit_id, g_ho, fs=ds_id.rate_hz)
-    parts_all = uncertainty.pop("components", [{}] * len(std_all))
+    parts_all = uncertainty.pop("components", [])
     params_all = physical_parameters(sel.model)
     nb = sel.n_baseline
     baseline = sel.model.part(sel.model.candidates[:nb])

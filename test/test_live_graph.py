@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 from rosutil import fifo_permitted
 
@@ -213,12 +214,17 @@ def test_start_orders_end_standing_then_walking(graph, order):
 def test_a_node_killed_and_restarted_does_not_stall_the_control_loop(graph):
     """The file's containers as a user starts them (lockstep); the online learner is killed with
     SIGKILL and started again, three times, as a user restarts a crashed node. The robot keeps
-    trotting, no other process dies, and simulated time keeps at least half the wall clock's pace.
-    The target is 0.9 with no pause, and is not met: a learner killed while it holds its
-    shared-memory port's lock blocks every writer to that port for 1 s (Fast DDS's lock timeout;
-    cause caught with py-spy: the bridge's /clock publication; not fixable from the launch file
-    under LOCALHOST: docs/LIVE_GRAPH.md, Transports). Seen: 1.0 s pauses at this test's
-    subscriber (CI), ~0.36 s stalls of the bridge, and earlier 0.75 of the pace (14.1 s lost in 56 s).
+    trotting, no other process dies, the control loop never stalls 0.5 s (wall clock passing
+    without simulated time), and simulated time keeps 0.8 of the wall clock's pace (lockstep's own
+    pace here with the learner restarting beside it: 0.87–0.97).
+    A process killed while it holds its shared-memory port's lock blocks every writer to that
+    port for up to 1 s (Fast DDS; caught with py-spy: the bridge's /clock publication;
+    docs/LIVE_GRAPH.md, Transports): the learner reads no topic of the control path (its
+    /reference comes with each learning sample, its clock is the wall clock), so no control-path
+    node writes to it. What remains: pauses as the restarted learner comes up (its participant
+    reuses the dead one's port): 0.18 s of the bridge once in 126 kills of
+    results/kill_stall/killstall.py, 0.34 s at this test's probe once in 7 runs
+    (results/LIVE_GRAPH.md, twenty-first session).
     Not free-running: on a host where the control container needs ~0.95 of a core (AMD EPYC, 2
     cores) the kernel's real-time cap (sched_rt_runtime_us, 95 %) stalls it ~50 ms a second and
     HyQ falls against the wall clock without any kill (results/LIVE_GRAPH.md, fourteenth session)."""
@@ -231,6 +237,10 @@ def test_a_node_killed_and_restarted_does_not_stall_the_control_loop(graph):
     with probe.lock:
         t0, x0, i0 = probe.base_x[-1][0], probe.base_x[-1][1], len(probe.base_z)
     wall0 = time.monotonic()
+    with probe.lock:
+        probe.receipts.clear()
+        probe.recording = True
+        i_rec = len(probe.base_z)  # the probe's /base_state receipts from here pair with base_z[i_rec:]
     for _ in range(3):
         learner = next(n for n in launcher.nodes if n.label == "online_learner")
         learner.stopping = True
@@ -242,12 +252,20 @@ def test_a_node_killed_and_restarted_does_not_stall_the_control_loop(graph):
         time.sleep(7.0)
     wall = time.monotonic() - wall0
     with probe.lock:
+        probe.recording = False
+        wall_at = np.array(probe.receipts[topics.BASE_STATE])
+        sim_at = np.array([t for t, _z in probe.base_z[i_rec:]])
         t1, x1 = probe.base_x[-1]
         zmin = min(z for _t, z in probe.base_z[i0:])
+    n = min(len(wall_at), len(sim_at))
+    # the control loop stalled: wall clock passing without simulated time (lockstep); a pause of the
+    # delivery to this probe alone passes simulated time with it
+    stall = float(np.max(np.diff(wall_at[:n]) - np.diff(sim_at[:n])))
     assert zmin > STANDING_Z - 0.1, f"the robot fell (lowest base height {zmin:.2f} m)"
     assert x1 - x0 > 0.35 * (t1 - t0) * 0.5, f"the base advanced only {x1 - x0:.2f} m"
     assert [n.label for n in launcher.nodes if n.proc.poll() is not None] == [], "a process of the graph died"
-    assert (t1 - t0) / wall > 0.5, f"simulated {t1 - t0:.1f} s in {wall:.1f} s of wall clock"
+    assert stall < 0.5, f"the control loop stalled {stall:.2f} s"
+    assert (t1 - t0) / wall > 0.8, f"simulated {t1 - t0:.1f} s in {wall:.1f} s of wall clock"
 
 
 SIGINT_ROUNDS = int(os.environ.get("CIML_SIGINT_ROUNDS", "20"))

@@ -18,10 +18,10 @@ from ciml_learning.core.errors import CimlError
 from ciml_learning.core.extraction import dynamics_batch, learning_inputs
 from ciml_learning.core.projection import contact_invariant_bases, generalized_rbd_error, leg_coupling
 from ciml_learning.core.robot import load_robot
+from ciml_learning.learning.learning_gate import AwaitReference
 from ciml_learning.learning.model_files import ModelFileError, read_metadata, read_model_file
 from ciml_learning.learning.models import ModelSet, ModelSetError
 from ciml_learning.learning.online import (
-    AwaitReference,
     ErrorSample,
     OnlineLearner,
     SequenceGaps,
@@ -121,8 +121,8 @@ def test_learning_sample_matches_by_name_and_rejects_bad_messages():
     e.rbd_observed = [e.rbd_observed[i] for i in pr]
     e.actuation_names = [e.actuation_names[i] for i in pa]
     e.actuation_error = [e.actuation_error[i] for i in pa]
-    stamp, st, s = learning_sample(ROBOT, msg)
-    assert stamp == 5 and st.valid and valid
+    stamp, st, s, q_ref, heard = learning_sample(ROBOT, msg)
+    assert stamp == 5 and st.valid and valid and q_ref is None and not heard   # no reference attached
     np.testing.assert_array_equal(st.q, q)
     np.testing.assert_array_equal(st.tau_dot, tau_dot)
     np.testing.assert_array_equal(s.rbd_error, phi)
@@ -148,6 +148,22 @@ def test_learning_sample_matches_by_name_and_rejects_bad_messages():
     bad.state.joint_names = ["not_a_joint"] + list(bad.state.joint_names[1:])
     with pytest.raises(CimlError, match="joint names"):  # what the node catches
         learning_sample(ROBOT, bad)
+    # the extractor's /reference of the same instant, joints in another order: qᵈ in the robot's order
+    with_ref = _learning_sample_msg(phi, obs, gamma)
+    order = rng.permutation(12)
+    r = with_ref.reference
+    r.joint_names = [ROBOT.joint_names[i] for i in order]
+    r.position = [float(q[7 + i]) + 0.01 for i in order]
+    r.velocity = r.acceleration = [0.0] * 12
+    r.base_pose.position.z, r.base_pose.orientation.w = 0.6, 1.0
+    r.foot_names, r.in_contact = list(ROBOT.foot_frames), [True] * ROBOT.n_feet
+    with_ref.references_heard = 7
+    _stamp, _st, _s, q_ref, heard = learning_sample(ROBOT, with_ref)
+    assert heard and q_ref[2] == 0.6
+    np.testing.assert_allclose(q_ref[7:], q[7:] + 0.01)
+    r.position = r.position[:-1]
+    with pytest.raises(CimlError):                       # a malformed reference rejects the sample
+        learning_sample(ROBOT, with_ref)
 
 
 def test_robot_reference_arrays_by_name_and_rejects_nan():
@@ -441,26 +457,32 @@ def test_learning_gate_pauses_on_a_fall_and_resumes_after_recovery():
 
 
 def test_learning_gate_checks_tracking_against_the_reference_of_the_same_stamp():
-    from ciml_learning.learning.learning_gate import NO_REFERENCE, TRACKING, GateConfig, LearningGate
+    from ciml_learning.learning.learning_gate import NO_REFERENCE, TRACKING, GateConfig, LearningGate, ReferenceHistory
 
     q, stamps = _gate_stream(10)
     zeros_r, zeros_a = np.zeros(18), np.zeros(12)
     # no reference ever: a replayed log is learned (tracking unchecked) unless required
     assert LearningGate(ROBOT).check(stamps[0], q, zeros_r, zeros_a) is None
     assert LearningGate(ROBOT, GateConfig(require_reference=True)).check(stamps[0], q, zeros_r, zeros_a) == NO_REFERENCE
+    # the extractor's history: the reference of a stamp is the nearest within max_reference_age
+    references = ReferenceHistory(max_age_ns=20_000_000)
+    for k, s in enumerate(stamps):
+        references.add(s, k)
+    assert references.at(stamps[3] + 1_000_000) == 3 and references.at(stamps[3] + 3_000_000) == 4
+    assert references.at(stamps[-1] + 21_000_000) is None and references.heard == len(stamps)
+    references.add(stamps[0], "restarted")                            # a stamp going back: a new stream
+    assert references.at(stamps[-1]) is None and references.at(stamps[0]) == "restarted"
     gate = LearningGate(ROBOT, GateConfig(resume_after=0.0))
-    for s in stamps:
-        gate.add_reference(s, q)
-    assert gate.check(stamps[3] + 1_000_000, q, zeros_r, zeros_a) is None   # nearest reference, 1 ms away
+    assert gate.check(stamps[3], q, zeros_r, zeros_a, q, True) is None
     off = q.copy()
     off[0] += 0.3                                                     # 0.3 m away from the reference
-    assert gate.check(stamps[4], off, zeros_r, zeros_a) == TRACKING and "base position 0.300 m" in gate.reason
+    assert gate.check(stamps[4], off, zeros_r, zeros_a, q, True) == TRACKING and "base position 0.300 m" in gate.reason
     bent = q.copy()
     bent[7:] += 0.5
-    assert gate.check(stamps[5], bent, zeros_r, zeros_a) == TRACKING and "RMS joint" in gate.reason
-    assert gate.check(stamps[6], q, zeros_r, zeros_a) is None         # resume_after 0: at once
-    # references seen, none near this stamp: paused (the reference stream stopped)
-    assert gate.check(stamps[-1] + 500_000_000, q, zeros_r, zeros_a) == NO_REFERENCE
+    assert gate.check(stamps[5], bent, zeros_r, zeros_a, q, True) == TRACKING and "RMS joint" in gate.reason
+    assert gate.check(stamps[6], q, zeros_r, zeros_a, q, True) is None   # resume_after 0: at once
+    # references heard, none near this stamp: paused (the reference stream stopped)
+    assert gate.check(stamps[7], q, zeros_r, zeros_a, None, True) == NO_REFERENCE
 
 
 def test_online_learner_does_not_learn_a_fall_or_targets_beyond_physics():
@@ -605,14 +627,14 @@ def test_lost_samples_are_counted_from_sequence_gaps():
 def test_pairs_wait_for_the_reference_of_their_stamp_in_order():
     ms = 1_000_000
     wait = AwaitReference(tolerance_ns=20 * ms, max_wait_ns=500 * ms)
-    wait.push((100 * ms, "s", "e"))
+    wait.push(100 * ms, "sample")
     assert [p[0] // ms for p in wait.ready(None)] == [100]               # no reference stream: at once
     for s in (104, 108, 112):
-        wait.push((s * ms, "s", "e"))
+        wait.push(s * ms, "sample")
     assert wait.ready(50 * ms) == []                                     # references behind: wait
     assert [p[0] // ms for p in wait.ready(90 * ms)] == [104, 108]        # within 20 ms of the newest reference
     assert [p[0] // ms for p in wait.ready(112 * ms)] == [112]
-    wait.push((120 * ms, "s", "e"))
-    wait.push((700 * ms, "s", "e"))                                      # the reference stream died: 120 waited 580 ms
+    wait.push(120 * ms, "sample")
+    wait.push(700 * ms, "sample")                                      # the reference stream died: 120 waited 580 ms
     assert [p[0] // ms for p in wait.ready(112 * ms)] == [120]
     assert len(wait.pending) == 1

@@ -1,5 +1,6 @@
 """Research script (results/LIVE_GRAPH.md, twelfth session), run from the repo with the venv:
-    [DUMP=0] [KILLS=6 DOWN=1.5 UP=5] [RMW_FASTRTPS_PUBLICATION_MODE=ASYNCHRONOUS] python killstall.py OUT_DIR
+    [DUMP=0] [DUMP_AFTER=0.25] [KILLS=6 DOWN=1.5 UP=5] [RMW_FASTRTPS_PUBLICATION_MODE=ASYNCHRONOUS] \
+        python killstall.py OUT_DIR
 (the A/B runs passed a third argument, the launch file's learning_dds_transports of commits
 75b802c..5ba5efc, since removed: rmw_fastrtps ignores it under LOCALHOST)
 Reproduce the post-SIGKILL stall: default containers, free-running
@@ -22,6 +23,7 @@ from ciml_learning.ros.launcher import Launcher
 out = sys.argv[1]
 os.makedirs(out, exist_ok=True)
 DUMP = os.environ.get("DUMP", "1") == "1"
+DUMP_AFTER = float(os.environ.get("DUMP_AFTER", "0.25"))  # [s] without /base_state before a dump
 probe = rate_probe()
 log = open(f"{out}/launch.log", "w")
 launcher = Launcher(load(shipped_file(), {"model_dir": f"{out}/model", "containers": DEFAULT, "lockstep": "false"}),
@@ -50,7 +52,7 @@ def watch():
                 dumps.append({"gap": round(now - last_wall, 3), "sim": round(sim_adv, 3),
                               "at": round(now - t_start, 1)})
             last_n, last_wall = n, now
-        elif DUMP and now - last_wall > 0.25 and k < 12:
+        elif DUMP and now - last_wall > DUMP_AFTER and k < 12:
             k += 1
             for label, pid in pids.items():
                 if label in ("control", "mujoco_bridge", "learning"):

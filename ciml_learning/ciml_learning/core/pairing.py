@@ -8,7 +8,9 @@ AGE_PERIODS periods of that role's topic (a topic slower than the joint states i
 paired with every joint sample between two of its messages).
 
 The one home of this rule: loginputs.load_log applies it to a whole log (partner_indices),
-the state_filter node to one joint sample at a time (add_to_history, partner). Pure module: numpy only.
+the state_filter node to one joint sample at a time (add_to_history, partner). A filtered state
+and the /reference of its instant pair by the nearest stamp instead (nearest; the online
+learner's tracking check: error_extractor). Pure module: numpy only.
 """
 from __future__ import annotations
 
@@ -82,3 +84,12 @@ def partner(history: deque[tuple[int, object]], stamp: int, max_age_s: float, st
         return history[i]
     stamps = np.fromiter((s for s, _ in history), dtype=np.int64, count=len(history))
     return history[i] if age <= age_limit_ns(max_age_s, stamps) else None
+
+
+def nearest(history: deque[tuple[int, object]], stamp: int, max_age_ns: int):
+    """The (stamp, value) of `history` (stamp order: add_to_history) nearest to `stamp` [ns] within
+    max_age_ns either way, or None."""
+    i = bisect.bisect_left(history, stamp, key=_stamp)
+    best = min((j for j in (i - 1, i) if 0 <= j < len(history)), key=lambda j: abs(history[j][0] - stamp),
+               default=None)
+    return history[best] if best is not None and abs(history[best][0] - stamp) <= max_age_ns else None

@@ -10,8 +10,10 @@ source. A (state, error) pair is learned only if, at its stamp,
   (physical_bounds.standing_height) and the base tilt (angle between the base's z axis and
   the vertical) ≤ `max_tilt`;
 - it tracks its reference (the /reference sample with the nearest stamp, within
-  `max_reference_age`): base position error ≤ `max_position_error`, attitude error (angle of
-  R_refᵀR) ≤ `max_attitude_error`, RMS joint error ≤ `max_joint_error`. With no reference
+  `max_reference_age`: ReferenceHistory, kept by error_extractor, which sends it with the
+  sample so that the learner reads no control-path topic): base position error
+  ≤ `max_position_error`, attitude error (angle of R_refᵀR) ≤ `max_attitude_error`, RMS joint
+  error ≤ `max_joint_error`. With no reference
   at all (learning from a replayed log) the tracking check is skipped unless
   `require_reference`; once references have been seen, a missing one pauses learning;
 - the target is physical: every Φ̃' and Γ entry within physical_bounds (m·g, m·g·leg span,
@@ -28,9 +30,11 @@ from __future__ import annotations
 import math
 from collections import Counter, deque
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+from ciml_learning.core.pairing import nearest
 from ciml_learning.core.physical_bounds import physical_bounds
 from ciml_learning.core.robot import RobotDescription
 
@@ -49,7 +53,6 @@ class GateConfig:
     max_position_error: float = 0.15   # [m]
     max_attitude_error: float = 0.35   # [rad]
     max_joint_error: float = 0.3       # [rad] RMS over joints
-    max_reference_age: float = 0.02    # [s] between the state's and the nearest reference's stamp
     resume_after: float = 1.0          # [s] of passing checks before learning resumes
     require_reference: bool = False
     bound_scale: float = 1.0           # × the physical bounds on targets (> 1: a robot pushed beyond its weight)
@@ -71,65 +74,104 @@ def attitude_error(quat_xyzw: np.ndarray, ref_xyzw: np.ndarray) -> float:
     return 2.0 * math.acos(min(1.0, abs(float(a @ b))))
 
 
+MAX_REFERENCE_AGE = 0.02
+"""[s] default largest stamp distance between a state and the reference of its instant."""
+
+
+class ReferenceHistory:
+    """The recent /reference samples (stamp [ns], value) of one stream, in stamp order, and the one
+    of a state's instant: the nearest stamp within `max_age_ns` (pairing.nearest). A stamp not
+    after the newest is a restarted stream (or out of order): the history starts over, never
+    mixing two streams. error_extractor keeps it and attaches the match to each LearningSample."""
+
+    def __init__(self, max_age_ns: int, max_references: int = 500) -> None:
+        self.max_age_ns = int(max_age_ns)
+        self._references: deque[tuple[int, Any]] = deque(maxlen=max_references)
+        self.heard = 0
+
+    def add(self, stamp_ns: int, value: Any) -> None:
+        stamp_ns = int(stamp_ns)
+        if self._references and stamp_ns <= self._references[-1][0]:
+            self._references.clear()
+        self._references.append((stamp_ns, value))
+        self.heard += 1
+
+    @property
+    def newest(self) -> int | None:
+        """Stamp [ns] of the newest reference kept (None before the first)."""
+        return self._references[-1][0] if self._references else None
+
+    def at(self, stamp_ns: int) -> Any | None:
+        """The value of the reference nearest `stamp_ns` within max_age_ns, else None."""
+        found = nearest(self._references, int(stamp_ns), self.max_age_ns)
+        return None if found is None else found[1]
+
+
+class AwaitReference:
+    """Learning samples wait here (error_extractor), in stamp order, until the /reference stream
+    has passed their stamp.
+
+    The tracking check needs the reference of the sample's own instant, but the streams arrive
+    independently: a state that comes before its reference and is sent without one pauses
+    learning for `resume_after` on a reference that is merely late. ready() releases, in order,
+    the samples whose stamp the newest reference has reached (within `tolerance_ns`: the
+    max_reference_age), all samples while no reference was ever heard (a replayed log), and
+    samples that waited more than `max_wait_ns` of stamps behind the newest sample (the reference
+    stream is late or dead: the learner's gate then pauses on "no reference", as it must)."""
+
+    def __init__(self, tolerance_ns: int, max_wait_ns: int) -> None:
+        self.tolerance_ns = int(tolerance_ns)
+        self.max_wait_ns = int(max_wait_ns)
+        self.pending: deque[tuple[int, Any]] = deque()
+
+    def push(self, stamp_ns: int, value: Any) -> None:
+        self.pending.append((int(stamp_ns), value))
+
+    def ready(self, newest_reference: int | None) -> list[tuple[int, Any]]:
+        out = []
+        newest = self.pending[-1][0] if self.pending else 0
+        while self.pending:
+            stamp = self.pending[0][0]
+            if (newest_reference is None or newest_reference >= stamp - self.tolerance_ns
+                    or newest - stamp > self.max_wait_ns):
+                out.append(self.pending.popleft())
+            else:
+                break
+        return out
+
+
 class LearningGate:
     """The checks of the module docstring with pause / resume; pure (no ROS).
 
-    add_reference(stamp_ns, q_ref) keeps the recent references (Pinocchio q: position,
-    quaternion x y z w, joints); check(stamp_ns, q, rbd_error, actuation_error) returns None
-    if the pair may be learned, else the pause reason (counted in `counts`). `paused` and
-    `reason` (one line, with the measured value) describe the current state.
+    check(stamp_ns, q, rbd_error, actuation_error, q_ref, references_heard) returns None if the
+    pair may be learned, else the pause reason (counted in `counts`); q_ref is the Pinocchio q
+    (position, quaternion x y z w, joints) of the reference of the pair's instant, or None, and
+    references_heard says whether a reference stream exists at all. `paused` and `reason` (one
+    line, with the measured value) describe the current state.
     """
 
-    def __init__(self, robot: RobotDescription, config: GateConfig | None = None, max_references: int = 500) -> None:
+    def __init__(self, robot: RobotDescription, config: GateConfig | None = None) -> None:
         self.robot = robot
         self.config = config or GateConfig()
         self.bounds = physical_bounds(robot)
         self.min_height = self.config.min_height_ratio * self.bounds.standing_height
-        self._references: deque[tuple[int, np.ndarray]] = deque(maxlen=max_references)
-        self.references_seen = 0
         self.paused = False
         self.reason = ""
         self.key = ""  # the current pause's reason (one of the paused_* keys)
         self._last_bad = 0  # stamp [ns] of the last refused sample (read while paused)
         self.counts: Counter[str] = Counter()
 
-    def add_reference(self, stamp_ns: int, q_ref: np.ndarray) -> None:
-        stamp_ns = int(stamp_ns)
-        if self._references and stamp_ns <= self._references[-1][0]:
-            # a restarted reference stream (or out of order): start over, never mix two streams
-            self._references.clear()
-        self._references.append((stamp_ns, np.asarray(q_ref, dtype=float)))
-        self.references_seen += 1
-
-    @property
-    def newest_reference(self) -> int | None:
-        """Stamp [ns] of the newest reference kept (None before the first)."""
-        return self._references[-1][0] if self._references else None
-
-    def reference_at(self, stamp_ns: int) -> np.ndarray | None:
-        """q of the reference with the nearest stamp within max_reference_age, else None."""
-        if not self._references:
-            return None
-        stamps = [s for s, _ in self._references]
-        i = int(np.searchsorted(stamps, stamp_ns))
-        best = min((j for j in (i - 1, i) if 0 <= j < len(stamps)), key=lambda j: abs(stamps[j] - stamp_ns))
-        if abs(stamps[best] - stamp_ns) > self.config.max_reference_age * 1e9:
-            return None
-        return self._references[best][1]
-
-    def _problem(self, stamp_ns: int, q: np.ndarray, rbd_error: np.ndarray,
-                 actuation_error: np.ndarray) -> tuple[str, str] | None:
+    def _problem(self, q: np.ndarray, rbd_error: np.ndarray, actuation_error: np.ndarray,
+                 q_ref: np.ndarray | None, references_heard: bool) -> tuple[str, str] | None:
         c = self.config
         z, tilt = float(q[2]), tilt_angle(q[3:7])
         if not z >= self.min_height:
             return FALL, f"fall: base height {z:.3f} m below {self.min_height:.3f} m"
         if not tilt <= c.max_tilt:
             return FALL, f"fall: base tilted {math.degrees(tilt):.0f}° (limit {math.degrees(c.max_tilt):.0f}°)"
-        q_ref = self.reference_at(stamp_ns)
         if q_ref is None:
-            if c.require_reference or self.references_seen:
-                return NO_REFERENCE, "no /reference within " \
-                                     f"{1e3 * c.max_reference_age:.0f} ms of the state's stamp"
+            if c.require_reference or references_heard:
+                return NO_REFERENCE, "no /reference at the state's stamp (error_extractor's max_reference_age)"
         else:
             pos = float(np.linalg.norm(q[:3] - q_ref[:3]))
             if not pos <= c.max_position_error:
@@ -146,10 +188,11 @@ class LearningGate:
             return TARGET, f"target beyond physical bounds: {bad}"
         return None
 
-    def check(self, stamp_ns: int, q: np.ndarray, rbd_error: np.ndarray, actuation_error: np.ndarray) -> str | None:
+    def check(self, stamp_ns: int, q: np.ndarray, rbd_error: np.ndarray, actuation_error: np.ndarray,
+              q_ref: np.ndarray | None = None, references_heard: bool = False) -> str | None:
         """None: learn this pair; else the pause reason (counted)."""
         stamp_ns = int(stamp_ns)
-        problem = self._problem(stamp_ns, np.asarray(q, float), rbd_error, actuation_error)
+        problem = self._problem(np.asarray(q, float), rbd_error, actuation_error, q_ref, references_heard)
         if problem is not None:
             self.key, self.reason = problem
             self.paused = True

@@ -4,8 +4,8 @@
 - learning_sample decodes what error_extractor sends the learner: a valid filtered state
   (q, q̇, q̈ of eq. 12, τ, τ̇) with its measured error (Φ̃' of eq. 11, Γ of eq. 14) in one
   message (/model_error/learning_samples), so no pairing of two streams is needed;
-  SequenceGaps counts the samples lost on the way, AwaitReference holds a sample until the
-  /reference of its instant is in.
+  SequenceGaps counts the samples lost on the way. The extractor attaches the /reference of
+  the sample's instant (learning_gate.ReferenceHistory, AwaitReference).
 - OnlineLearner feeds each valid pair, in increasing stamp order, to
   ModelSet.partial_fit_one with x = learning_inputs(q, q̇, q̈, τ, τ̇) and the measured Φ̃'
   turned into the set's targets Φ̃ = J'ᵀΦ̃' and leg coupling C with the contact-invariant
@@ -21,13 +21,12 @@ from __future__ import annotations
 
 import copy
 import time
-from collections import Counter, deque
+from collections import Counter
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from ciml_learning.core.conversions import model_error_arrays, robot_state_arrays, stamp_to_ns
+from ciml_learning.core.conversions import model_error_arrays, robot_reference_arrays, robot_state_arrays, stamp_to_ns
 from ciml_learning.core.dynamics import RigidBodyDynamics
 from ciml_learning.core.extraction import learning_inputs
 from ciml_learning.core.physical_bounds import N_BASE
@@ -66,13 +65,16 @@ class ErrorSample:
     actuation_observed: np.ndarray
 
 
-def learning_sample(robot: RobotDescription, msg) -> tuple[int, StateSample, ErrorSample]:
-    """A ciml_msgs/LearningSample as (stamp [ns], StateSample, ErrorSample) in the robot's orders
-    (joint_names, rbd_error_names): the conversions decode and check both parts (ConversionError)."""
+def learning_sample(robot: RobotDescription, msg) -> tuple[int, StateSample, ErrorSample, np.ndarray | None, bool]:
+    """A ciml_msgs/LearningSample as (stamp [ns], StateSample, ErrorSample, qᵈ of the reference of
+    its instant or None, whether the extractor heard any reference) in the robot's orders
+    (joint_names, rbd_error_names): the conversions decode and check every part (ConversionError)."""
     q, v, a, tau, tau_dot, _u, _contacts, valid = robot_state_arrays(robot, msg.state)
     e = model_error_arrays(robot, msg.error)
+    q_ref = robot_reference_arrays(robot, msg.reference)[0] if len(msg.reference.joint_names) else None
     return (stamp_to_ns(msg.header.stamp), StateSample(q, v, a, tau, tau_dot, valid),
-            ErrorSample(e.rbd_error, e.rbd_observed, e.actuation_error, e.actuation_observed))
+            ErrorSample(e.rbd_error, e.rbd_observed, e.actuation_error, e.actuation_observed), q_ref,
+            msg.references_heard > 0)
 
 
 # ---------------------------------------------------------------------- pairing by stamp
@@ -90,39 +92,6 @@ class SequenceGaps:
         if self.last is not None and sequence > self.last:
             self.lost += sequence - self.last - 1
         self.last = sequence
-
-
-class AwaitReference:
-    """Pairs wait here, in stamp order, until the /reference stream has passed their stamp.
-
-    The gate checks a pair against the reference of the same stamp, but the three streams
-    arrive independently: a learner that is behind takes a burst of states and errors before the
-    references of the same instants, and judging a pair then pauses learning for `resume_after`
-    on a reference that is merely in the queue. ready() releases, in order, the pairs whose stamp
-    the newest reference has reached (within `tolerance_ns`: the gate's own max_reference_age),
-    all pairs while no reference was ever seen (a replayed log), and pairs that waited more than
-    `max_wait_ns` of stamps behind the newest pair (the reference stream is late or dead: the
-    gate then pauses on "no reference", as it must)."""
-
-    def __init__(self, tolerance_ns: int, max_wait_ns: int) -> None:
-        self.tolerance_ns = int(tolerance_ns)
-        self.max_wait_ns = int(max_wait_ns)
-        self.pending: deque[tuple[int, Any, Any]] = deque()
-
-    def push(self, pair: tuple[int, Any, Any]) -> None:
-        self.pending.append(pair)
-
-    def ready(self, newest_reference: int | None) -> list[tuple[int, Any, Any]]:
-        out = []
-        newest = self.pending[-1][0] if self.pending else 0
-        while self.pending:
-            stamp = self.pending[0][0]
-            if (newest_reference is None or newest_reference >= stamp - self.tolerance_ns
-                    or newest - stamp > self.max_wait_ns):
-                out.append(self.pending.popleft())
-            else:
-                break
-        return out
 
 
 # ---------------------------------------------------------------------- learning
@@ -183,14 +152,16 @@ class OnlineLearner:
         self.counts[reason] += 1
         return reason
 
-    def learn(self, stamp: int, state: StateSample, error: ErrorSample) -> str | None:
+    def learn(self, stamp: int, state: StateSample, error: ErrorSample, q_ref: np.ndarray | None = None,
+              references_heard: bool = False) -> str | None:
         if self.last_stamp is not None and stamp <= self.last_stamp:
             return self._reject("out_of_order_pairs")
         if not state.valid or not (error.rbd_observed.any() or error.actuation_observed.any()):
             return self._reject("invalid_samples")
         if self.gate is not None:
             paused = self.gate.check(stamp, state.q, np.where(error.rbd_observed, error.rbd_error, 0.0),
-                                     np.where(error.actuation_observed, error.actuation_error, 0.0))
+                                     np.where(error.actuation_observed, error.actuation_error, 0.0), q_ref,
+                                     references_heard)
             if paused is not None:
                 return self._reject(paused)
         x = learning_inputs(state.q, state.v, state.a, state.tau, state.tau_dot)[0]

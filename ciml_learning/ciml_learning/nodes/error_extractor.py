@@ -10,11 +10,18 @@ States are extracted in batches, every `batch_period` of wall-clock time: extrac
 and one state alone costs ~4× its share of a batch of 5 (results/LIVE_GRAPH.md, third session),
 which on a 2-core machine is the difference between keeping up at 250 Hz and not. The outputs are the same, in order,
 at most `batch_period` later.
+
+Each learning sample carries the /reference sample nearest its stamp (within `max_reference_age`;
+learning_gate.ReferenceHistory), for the learner's tracking check; a sample waits for the
+reference stream to pass its stamp (learning_gate.AwaitReference, at most `max_pair_age` of
+stamps). So the online learner reads no topic of the control path: a process killed while a
+control-path node writes to it can stall that node (docs/LIVE_GRAPH.md, "Transports"), and the
+learner is the process most likely to die.
 """
 from __future__ import annotations
 
 import numpy as np
-from ciml_msgs.msg import LearningSample, ModelError, RobotState
+from ciml_msgs.msg import LearningSample, ModelError, RobotReference, RobotState
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.timer import Timer
@@ -24,6 +31,7 @@ from ciml_learning.core import topics
 from ciml_learning.core.errors import CimlError
 from ciml_learning.core.extraction import extract
 from ciml_learning.core.profile import load_profile
+from ciml_learning.learning.learning_gate import AwaitReference, ReferenceHistory
 from ciml_learning.ros.node_params import ERROR_EXTRACTOR
 from ciml_learning.ros.ros_common import STREAM_QOS, Health, declare_schema, run_node
 
@@ -37,11 +45,14 @@ class ErrorExtractorNode(Node):
         self.health = Health(self)
         self.pending: list[tuple] = []  # (state msg, stamp ns, q, v, q̈, τ, τ̇, u, contacts, valid) awaiting a batch
         self.sequence = 0               # learning samples published
+        self.references = ReferenceHistory(int(p["max_reference_age"] * 1e9))
+        self.waiting = AwaitReference(self.references.max_age_ns, int(p["max_pair_age"] * 1e9))
         self.timer: Timer | None = None
         self._set_batch_period(p["batch_period"])
         self.pub = self.create_publisher(ModelError, topics.MODEL_ERROR_MEASURED, STREAM_QOS)
         self.sample_pub = self.create_publisher(LearningSample, topics.LEARNING_SAMPLES, STREAM_QOS)
         self.create_subscription(RobotState, topics.FILTERED_STATE, self.on_state, STREAM_QOS)
+        self.create_subscription(RobotReference, topics.REFERENCE, self.on_reference, STREAM_QOS)
 
     def _apply_parameters(self, changes: dict) -> str | None:
         self.gamma = changes.get("gamma", self.gamma)  # used by the next extraction
@@ -68,8 +79,13 @@ class ErrorExtractorNode(Node):
         if self.batch_period <= 0:
             self.flush()
 
+    def on_reference(self, msg) -> None:
+        self.references.add(cv.stamp_to_ns(msg.header.stamp), msg)  # decoded by the learner
+
     def flush(self) -> None:
-        """Extract and publish every pending state, in arrival order."""
+        """Extract and publish every pending state, in arrival order; send the learning samples
+        whose reference is in."""
+        self._send_samples()
         if not self.pending:
             return
         batch, self.pending = self.pending, []
@@ -85,10 +101,17 @@ class ErrorExtractorNode(Node):
                                        res.actuation_error[i], observed_act)
             self.pub.publish(error)
             if valid[i]:
-                self.sequence += 1
-                self.sample_pub.publish(LearningSample(header=error.header, sequence=self.sequence,
-                                                       state=states[i], error=error))
+                self.waiting.push(ns, LearningSample(header=error.header, state=states[i], error=error))
         self.health.counts["batch_max"] = max(self.health.counts["batch_max"], len(batch))
+        self._send_samples()
+
+    def _send_samples(self) -> None:
+        for ns, sample in self.waiting.ready(self.references.newest):
+            self.sequence += 1
+            sample.sequence = self.sequence
+            sample.reference = self.references.at(ns) or RobotReference()
+            sample.references_heard = self.references.heard
+            self.sample_pub.publish(sample)
 
 
 def main(args=None) -> None:

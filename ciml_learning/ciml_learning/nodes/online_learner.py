@@ -26,7 +26,9 @@ At shutdown a last snapshot of unsaved samples is written (not announced).
 
 Learning that cannot poison the loop (ciml_learning.learning.learning_gate, docs/LIVE_GRAPH.md):
 valid pairs are learned only while the robot is up (base height, tilt), tracks the
-/reference sample of the same stamp (base position, attitude, joints), and the measured
+/reference sample of the same stamp (base position, attitude, joints; error_extractor sends it
+with the sample: this node reads no topic of the control path, not even /clock, so that its
+death cannot stall a control-path writer: docs/LIVE_GRAPH.md, "Transports"), and the measured
 error is within the robot's physical bounds (m·g, m·g·leg span, torque limits). Otherwise
 learning pauses: /diagnostics WARN "learning paused: <reason>" and the paused_* counters (OK and INFO
 for a /reference that never came: nothing a user must act on);
@@ -48,7 +50,7 @@ import dataclasses
 import os
 import time
 
-from ciml_msgs.msg import LearningSample, ModelUpdate, RobotReference
+from ciml_msgs.msg import LearningSample, ModelUpdate
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
@@ -58,7 +60,7 @@ from ciml_learning.core.errors import CimlError
 from ciml_learning.core.profile import load_profile
 from ciml_learning.learning.learning_gate import NO_REFERENCE, GateConfig, LearningGate
 from ciml_learning.learning.models import ModelSet
-from ciml_learning.learning.online import AwaitReference, OnlineLearner, SequenceGaps, learning_sample, warm_up
+from ciml_learning.learning.online import OnlineLearner, SequenceGaps, learning_sample, warm_up
 from ciml_learning.learning.snapshot_gate import HELD_BACK, ValidationConfig
 from ciml_learning.learning.snapshots import SnapshotWriter
 from ciml_learning.learning.workers import LatestOnlyWorker
@@ -75,7 +77,7 @@ class OnlineLearnerNode(Node):
         p = declare_schema(self, ONLINE_LEARNER)  # node_params.py: the one schema (all read-only)
         model_dir, self.snapshot_period, keep = p["model_dir"], p["snapshot_period"], p["keep_snapshots"]
         learner, initial, calib = p["learner"], p["initial_model"], p["calibration_samples"]
-        max_age, depth, record = p["max_pair_age"], p["queue_depth"], p["record_stamps"]
+        depth, record = p["queue_depth"], p["record_stamps"]
         gate = GateConfig(**{f.name: p[f.name] for f in dataclasses.fields(GateConfig)})
         validation = ValidationConfig(block=p["hold_back_block"], every=p["hold_back_every"],
                                       window=p["validation_window"], min_learned=p["min_learned"],
@@ -92,7 +94,6 @@ class OnlineLearnerNode(Node):
                                      validation=validation)
         self.get_logger().info(f"learner code ready in {warm_up(self.robot, ms.learner):.2f} s")
         self._loss_mark: tuple[float, float] = (0, 0)  # (samples received + lost, lost) at the last loss check
-        self.waiting = AwaitReference(int(gate.max_reference_age * 1e9), int(max_age * 1e9))
         self.lost_samples = SequenceGaps()
         self.writer = SnapshotWriter(model_dir or DEFAULT_MODEL_DIR, keep, validation)
         self.worker = LatestOnlyWorker(self.writer.write, name="snapshot-writer")
@@ -106,7 +107,6 @@ class OnlineLearnerNode(Node):
         self.pub = self.create_publisher(ModelUpdate, topics.MODEL_UPDATE, COMMAND_QOS)
         qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(LearningSample, topics.LEARNING_SAMPLES, self.on_sample, qos)
-        self.create_subscription(RobotReference, topics.REFERENCE, self.on_reference, qos)
         self.create_timer(self.snapshot_period, self.snapshot)
         self.create_timer(0.05, self.announce)
         self.input_timeout = p["input_timeout"]
@@ -117,7 +117,7 @@ class OnlineLearnerNode(Node):
     def on_sample(self, msg) -> None:
         self._last_input = self.get_clock().now().nanoseconds * 1e-9
         try:
-            stamp, state, error = learning_sample(self.robot, msg)
+            sample = learning_sample(self.robot, msg)
         except CimlError as err:
             self.health.count("rejected_samples", f"learning sample rejected: {err}")
             return
@@ -126,17 +126,7 @@ class OnlineLearnerNode(Node):
         c["samples_received"] += 1
         c["samples_lost"] = self.lost_samples.lost
         self._watch_losses(c["samples_received"], c["samples_lost"])
-        self.waiting.push((stamp, state, error))
-        self._learn_ready()
-
-    def on_reference(self, msg) -> None:
-        try:
-            q = cv.robot_reference_arrays(self.robot, msg)[0]
-        except CimlError as err:
-            self.health.count("rejected_references", f"reference rejected: {err}")
-            return
-        self.gate.add_reference(cv.stamp_to_ns(msg.header.stamp), q)
-        self._learn_ready()
+        self._learn(sample)
 
     def watch_inputs(self) -> None:
         """A learner whose inputs stopped says so (the chain upstream died or stalls)."""
@@ -146,10 +136,6 @@ class OnlineLearnerNode(Node):
         self.health.condition("no_samples", silent > self.input_timeout, WARN,
                               f"no samples: no {topics.LEARNING_SAMPLES} for {silent:.1f} s (no valid state upstream, "
                               "or the chain stopped)")
-
-    def _learn_ready(self) -> None:
-        for sample in self.waiting.ready(self.gate.newest_reference):
-            self._learn(sample)
 
     def _learn(self, sample) -> None:
         t0 = time.perf_counter()
@@ -174,7 +160,7 @@ class OnlineLearnerNode(Node):
 
     def _sync_gate(self) -> None:
         """/diagnostics follows the gate: WARN with the reason while paused, OK when learning. A pause
-        for a /reference that never came (a learner behind its queue on a loaded machine) is nothing
+        for a /reference that never came (the extractor's wait for it timed out) is nothing
         the user must act on: OK and INFO, counted (paused_no_reference); `starved` warns on losses."""
         if self.gate.paused and (not self._paused or self.health.mode_message != self._pause_text()):
             waiting = self.gate.key == NO_REFERENCE

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from ciml_learning.core.params import NodeSchema, Param
-from ciml_learning.learning.learning_gate import GateConfig
+from ciml_learning.learning.learning_gate import MAX_REFERENCE_AGE, GateConfig
 from ciml_learning.learning.snapshot_gate import ValidationConfig
 from ciml_learning.ros import realtime
 
@@ -51,6 +51,10 @@ ERROR_EXTRACTOR = NodeSchema("ciml_learning", "error_extractor",
     Param("gamma", 0.02, "Regularisation of near-singular leg blocks", "m/rad", 1e-4, 0.2, read_only=False),
     Param("batch_period", 0.02, "Filtered states are extracted together every this often (wall clock); one state "
           "costs ~0.7 ms alone, ~0.2 ms in a batch of 5 (0: each state at once)", "s", 0.0, 0.5, read_only=False),
+    Param("max_reference_age", MAX_REFERENCE_AGE, "Largest stamp distance between a state and the /reference "
+          "sample sent with its learning sample", "s", 0.001, 1.0),
+    Param("max_pair_age", 0.5, "Longest wait of a learning sample for the /reference of its instant (in stamps "
+          "behind the newest sample)", "s", 0.004, 10.0),
     ROBOT,
 ))
 
@@ -78,10 +82,8 @@ ONLINE_LEARNER = NodeSchema("ciml_learning", "online_learner",
     Param("initial_model", "", "Model folder to continue learning from ('' = empty model set)"),
     Param("calibration_samples", 0, "Valid samples buffered to calibrate input/output scaling first "
           "(0 = default scaling)", "", 0, 100000),
-    Param("max_pair_age", 0.5, "Longest wait of a learning sample for the /reference of its instant (in stamps "
-          "behind the newest sample)", "s", 0.004, 10.0),
-    Param("queue_depth", 250, "Subscription queue depth (absorbs snapshot stalls; 1 s of /reference at 250 Hz, "
-          "longer of learning samples)", "", 10, 10000),
+    Param("queue_depth", 250, "Subscription queue depth (absorbs snapshot stalls; ≥ 1 s of learning samples at "
+          "250 Hz)", "", 10, 10000),
     Param("record_stamps", False, "Write the learned samples' stamps (learned_stamps.npy) into each snapshot"),
     Param("min_height_ratio", _GATE.min_height_ratio, "Pause learning (fall) below this fraction of the standing "
           "base height", "", 0.05, 1.0),
@@ -92,8 +94,6 @@ ONLINE_LEARNER = NodeSchema("ciml_learning", "online_learner",
           "rad", 0.001, 3.14),
     Param("max_joint_error", _GATE.max_joint_error, "Pause learning above this RMS joint error to /reference", "rad",
           0.001, 3.14),
-    Param("max_reference_age", _GATE.max_reference_age, "Largest stamp distance between a state and its /reference "
-          "sample", "s", 0.001, 1.0),
     Param("resume_after", _GATE.resume_after, "Resume learning after the checks passed this long (stamps)", "s",
           0.0, 60.0),
     Param("bound_scale", _GATE.bound_scale, "Multiplier of the physical bounds on learned targets (1: base force "

@@ -638,3 +638,20 @@ def test_pairs_wait_for_the_reference_of_their_stamp_in_order():
     wait.push(700 * ms, "sample")                                      # the reference stream died: 120 waited 580 ms
     assert [p[0] // ms for p in wait.ready(112 * ms)] == [120]
     assert len(wait.pending) == 1
+
+
+def test_a_serialized_reference_is_placed_by_its_stamp_without_decoding():
+    """error_extractor keeps /reference serialized (conversions.serialized_stamp_ns) and decodes only
+    the one sent with a learning sample: the stamp read from the CDR bytes is the header's, in either
+    byte order, and too few bytes are a ConversionError."""
+    from ciml_msgs.msg import RobotReference
+    from rclpy.serialization import serialize_message
+
+    msg = RobotReference(joint_names=list(ROBOT.joint_names), position=[0.1] * 12)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 1_795_962_576, 143_506_362
+    data = serialize_message(msg)
+    assert cv.serialized_stamp_ns(data) == 1_795_962_576_143_506_362
+    big_endian = b"\x00\x00\x00\x00" + (-2).to_bytes(4, "big", signed=True) + (7).to_bytes(4, "big")
+    assert cv.serialized_stamp_ns(big_endian) == -2_000_000_000 + 7
+    with pytest.raises(ConversionError):
+        cv.serialized_stamp_ns(data[:10])

@@ -23,6 +23,17 @@ def stamp_to_ns(stamp) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
+def serialized_stamp_ns(data: bytes) -> int:
+    """Header stamp [ns] of a serialized message whose first field is a std_msgs/Header, read from the
+    CDR bytes without decoding the rest (4-byte encapsulation header, then sec int32, nanosec uint32
+    in the byte order it names: 0x00 0x00/0x02 big-endian, 0x00 0x01/0x03 little-endian)."""
+    if len(data) < 12:
+        raise ConversionError(f"serialized message of {len(data)} bytes has no header stamp")
+    little = bool(data[1] & 1)
+    sec = int.from_bytes(data[4:8], "little" if little else "big", signed=True)
+    return sec * 1_000_000_000 + int.from_bytes(data[8:12], "little" if little else "big")
+
+
 def stamp_msg(ns: int):
     from builtin_interfaces.msg import Time
 

@@ -337,10 +337,11 @@ def test_swap_hold_serves_the_first_model_at_once_and_each_later_one_after_the_h
     hold = SwapHold(6.0)
     assert hold.may_swap()                      # the nominal model at start is not held
     hold.swapped()                              # model A serves
-    assert not hold.may_swap()                  # no reference served by it yet
+    assert not hold.may_swap() and hold.remaining_s() == 6.0  # no reference served by it yet
     for t in (10 * s, 13 * s, 15 * s + s // 2):
         hold.reference(t)
         assert not hold.may_swap()
+    assert hold.remaining_s() == 0.5            # what the model server waits for before it loads the next
     hold.reference(16 * s)
     assert hold.may_swap()                      # A has served 6 s of reference stamps
     hold.swapped()                              # B serves …

@@ -50,15 +50,13 @@ def contact_invariant_bases(
     n, n_feet, _, nv = foot_jacobians.shape
     basis = np.zeros((n, nv, nv))
     basis[:, :6, :6] = np.eye(6)
-    for i in range(n_feet):
-        r0 = 6 + 3 * i
-        basis[:, r0:r0 + 3, :] = foot_jacobians[:, i]
-        cols = 6 + np.asarray(leg_joints[i])
-        blocks = foot_jacobians[:, i][:, :, cols]
-        low = np.flatnonzero(np.linalg.svd(blocks, compute_uv=False)[:, -1] < gamma)
-        for k in low:  # rare: full SVD only where needed
-            U, s, Vt = np.linalg.svd(blocks[k])
-            basis[k, r0:r0 + 3, cols] = ((U * np.maximum(s, gamma)) @ Vt).T
+    basis[:, 6:6 + 3 * n_feet, :] = foot_jacobians.reshape(n, 3 * n_feet, nv)
+    cols = [6 + np.asarray(leg) for leg in leg_joints]
+    # every leg's block in one SVD call (a prediction per reference computes one basis: 4 calls cost 4×)
+    blocks = np.stack([foot_jacobians[:, i][:, :, c] for i, c in enumerate(cols)], axis=1)  # n × n_feet × 3 × 3
+    for k, i in zip(*np.nonzero(np.linalg.svd(blocks, compute_uv=False)[..., -1] < gamma)):
+        U, s, Vt = np.linalg.svd(blocks[k, i])  # rare: full SVD only where needed
+        basis[k, 6 + 3 * i:9 + 3 * i, cols[i]] = ((U * np.maximum(s, gamma)) @ Vt).T
     return basis
 
 

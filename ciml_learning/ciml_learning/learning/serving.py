@@ -163,12 +163,16 @@ class SwapHold:
         """The current choice's hold [s]: `hold`, doubled per rollback in a row for a model put back."""
         return self.hold_ns * 2 ** (0 if self.on_trial else self.backoff) * 1e-9
 
-    def may_swap(self) -> bool:
+    def remaining_s(self) -> float:
+        """[s] of reference stamps until a loaded model may swap in (0: now)."""
         if not self.changed_once or self.hold_ns <= 0:
-            return True
+            return 0.0
         if self.since_ns is None or self.now_ns is None:
-            return False
-        return (self.now_ns - self.since_ns) * 1e-9 >= self.hold_s()
+            return self.hold_s()
+        return max(0.0, self.hold_s() - (self.now_ns - self.since_ns) * 1e-9)
+
+    def may_swap(self) -> bool:
+        return self.remaining_s() <= 0.0
 
     def swapped(self) -> None:
         """A model was swapped in: on trial; the hold starts again at the next reference."""

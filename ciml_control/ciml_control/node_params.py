@@ -79,7 +79,7 @@ ID_CONTROLLER = NodeSchema("ciml_control", "id_controller",
           5.0),
     Param("rollback_probation", _ROLLBACK.probation, "A newly served model is watched this long", "s", 0.1, 600.0),
     Param("rollback_rise", _ROLLBACK.rise, "Rollback above this × the RMS of the seconds before the model (plus "
-          "15 Nm, 3 cm)", "", 1.0, 10.0),
+          "a tenth of the robot's largest joint torque limit, 3 cm)", "", 1.0, 10.0),
     Param("rollback_assess", _ROLLBACK.assess, "A newly served model's RMS effort over this long is compared with "
           "the seconds before it (≤ rollback_probation)", "s", 0.1, 600.0),
     Param("rollback_worse", _ROLLBACK.worse, "Rollback when that RMS effort is more than this share above the "

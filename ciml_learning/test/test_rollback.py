@@ -133,3 +133,24 @@ def test_feedback_effort_is_the_joint_loops_pd_plus_linearization():
     q_t, qd_t, lin = np.array([0.2, 0.2, 0.2]), np.zeros(3), np.array([1.0, 2.0, 3.0])
     expected = np.linalg.norm(kp * (q_t - q) + kd * (qd_t - qd) + lin)
     assert feedback_effort(kp, kd, q_t, qd_t, lin, q, qd) == pytest.approx(expected)
+
+
+def test_the_effort_margin_scales_with_the_robot():
+    """A tenth of the largest joint torque limit: HyQ's 15 Nm, go1's 3.6 Nm (a fixed 15 Nm against
+    go1's ~3 Nm trot would never see a sudden rise in effort)."""
+    from ciml_learning.core.profile import load_profile
+    from ciml_learning.learning.rollback import margins_for
+
+    hyq, go1 = (margins_for(load_profile(n).robot().torque_limits) for n in ("hyq", "go1"))
+    assert hyq == (15.0, 0.03) and go1 == (pytest.approx(3.555), 0.03)
+    for margins, rolled_back in ((go1, True), (hyq, False)):
+        w = EffortWatch(RollbackConfig(margins=margins))
+        backs = []
+        for k in range(int(7.0 / DT)):   # go1's trot (3.2 Nm) 5 s, then a model that takes it to 9 Nm
+            t = k * DT
+            effort = 3.2 * (1.0 + 0.1 * np.sin(2 * np.pi * 1.7 * t)) if t < 5.0 else 9.0
+            back = w.update(t, NOMINAL_SOURCE if t < 5.0 else "m1", (effort, 0.01))
+            if back is not None:
+                backs.append(back)
+        assert [b.kind for b in backs] == ([SUDDEN_RISE] if rolled_back else []), margins
+        assert not rolled_back or backs[0].detected_after <= 0.3

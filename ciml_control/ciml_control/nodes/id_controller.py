@@ -87,6 +87,7 @@ from ciml_learning.learning.rollback import (
     EffortWatch,
     RollbackConfig,
     feedback_effort,
+    margins_for,
 )
 from ciml_learning.ros.ros_common import (
     COMMAND_QOS,
@@ -128,11 +129,12 @@ class IdControllerNode(Node):
         self.state_timeout, self.reference_timeout = p["state_timeout"], p["reference_timeout"]
         self.reference_hold = p["reference_hold"]
         self.model_error_timeout, self.use_model_error = p["model_error_timeout"], p["use_model_error"]
-        self.watch = EffortWatch(RollbackConfig(window=p["rollback_window"], probation=p["rollback_probation"],
-                                                rise=p["rollback_rise"], assess=p["rollback_assess"],
-                                                worse=p["rollback_worse"]))
         profile = load_profile(p["robot"])
         self.robot = profile.robot()
+        self.watch = EffortWatch(RollbackConfig(window=p["rollback_window"], probation=p["rollback_probation"],
+                                                rise=p["rollback_rise"], assess=p["rollback_assess"],
+                                                worse=p["rollback_worse"],
+                                                margins=margins_for(self.robot.torque_limits)))
         self.feedforward_only = p["feedforward_only"]
         self.effort_order = effort_joint_order(profile, self.robot)  # the array's order: checked at start
         self.damping_gain = p["damping_gain"] or safe_damping_gain(self.robot)  # 0: derived from the robot's size

@@ -25,8 +25,12 @@ model that has served its probation becomes the last safe one.
 Why these defaults: a model that is wrong where the robot is raises the effort from its first
 command on, and detection takes one `window` after it serves (measured live: 252 ms,
 test_live_safety); the one learned fall seen live took ~1 s from the served model to the ground
-(docs/LIVE_GRAPH.md). The margins (15 Nm, 3 cm) and the factor 1.5 leave room for a healthy
-trot's spread of the 0.25 s RMS between windows (results/LIVE_GRAPH.md). `worse` 8 %: under one
+(docs/LIVE_GRAPH.md). The margins and the factor 1.5 leave room for a healthy trot's spread of
+the 0.25 s RMS between windows (results/LIVE_GRAPH.md): the effort margin is a tenth of the robot's
+largest joint torque limit (margins_for: 15 Nm on HyQ, 3.6 Nm on go1; measured live, trot_35 under
+the nominal model, 60 s: a window's RMS at most 1.43 × (HyQ, 41 Nm) and 1.23 × (go1, 3.2 Nm) the 5 s
+before it, so 1.5 × alone was never exceeded; a fixed 15 Nm had left go1, whose effort is ~3 Nm,
+without the effort check), the position margin 3 cm. `worse` 8 %: under one
 model the RMS effort of the 10 s after an instant is within 1.024 × (p95; 1.04 at most) of the 5 s
 before it (trot_35, 97 instants; results/LIVE_GRAPH.md, sixteenth session), and a served snapshot
 that made a run worse raised the effort by 14–24 % from one minute to the next; `assess` 5 s: the model
@@ -61,7 +65,7 @@ class RollbackConfig:
     baseline: float = 5.0                     # [s] before the model served, its reference
     probation: float = 10.0                   # [s] a new model is watched this long
     rise: float = 1.5                         # × the baseline RMS …
-    margins: tuple[float, float] = (15.0, 0.03)  # … + these, per signal of SIGNALS [Nm, m]
+    margins: tuple[float, float] = (15.0, 0.03)  # … + these, per signal of SIGNALS [Nm, m] (HyQ's: margins_for)
     assess: float = 5.0                       # [s] after serving, the model's whole RMS effort …
     worse: float = 0.08                       # … may exceed the baseline's by this share at most
 
@@ -70,6 +74,17 @@ class RollbackConfig:
                 and self.rise >= 1.0 and len(self.margins) == len(SIGNALS) and min(self.margins) >= 0
                 and self.window <= self.assess <= self.probation and self.worse >= 0):
             raise ValueError(f"invalid rollback settings {self}")
+
+
+EFFORT_MARGIN_SHARE = 0.1
+"""The sudden-rise margin on the feedback effort, as a share of the robot's largest joint torque limit."""
+POSITION_MARGIN = 0.03
+"""[m] The sudden-rise margin on the base position error."""
+
+
+def margins_for(torque_limits: np.ndarray) -> tuple[float, float]:
+    """RollbackConfig.margins of a robot with these joint torque limits [Nm]: (effort [Nm], position [m])."""
+    return EFFORT_MARGIN_SHARE * float(np.max(torque_limits)), POSITION_MARGIN
 
 
 SUDDEN_RISE, WORSE_THAN_BEFORE = "sudden_rise", "worse_than_before"

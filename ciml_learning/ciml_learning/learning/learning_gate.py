@@ -13,9 +13,9 @@ source. A (state, error) pair is learned only if, at its stamp,
   `max_reference_age`: ReferenceHistory, kept by error_extractor, which sends it with the
   sample so that the learner reads no control-path topic): base position error
   ≤ `max_position_error`, attitude error (angle of R_refᵀR) ≤ `max_attitude_error`, RMS joint
-  error ≤ `max_joint_error`. With no reference
-  at all (learning from a replayed log) the tracking check is skipped unless
-  `require_reference`; once references have been seen, a missing one pauses learning;
+  error ≤ `max_joint_error`. With no reference at all (learning from a replayed log) the
+  tracking check is skipped unless `require_reference`; once references have been seen, a
+  missing one pauses learning;
 - the target is physical: every Φ̃' and Γ entry within physical_bounds (m·g, m·g·leg span,
   torque limits), times `bound_scale` (1 by default).
 

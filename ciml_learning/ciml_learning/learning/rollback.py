@@ -59,23 +59,6 @@ def feedback_effort(stiffness: np.ndarray, damping: np.ndarray, position_target:
     return float(np.sqrt(pd @ pd))
 
 
-@dataclass(frozen=True)
-class RollbackConfig:
-    window: float = 0.25                      # [s] RMS window of the served model
-    baseline: float = 5.0                     # [s] before the model served, its reference
-    probation: float = 10.0                   # [s] a new model is watched this long
-    rise: float = 1.5                         # × the baseline RMS …
-    margins: tuple[float, float] = (15.0, 0.03)  # … + these, per signal of SIGNALS [Nm, m] (HyQ's: margins_for)
-    assess: float = 5.0                       # [s] after serving, the model's whole RMS effort …
-    worse: float = 0.08                       # … may exceed the baseline's by this share at most
-
-    def __post_init__(self) -> None:
-        if not (self.window > 0 and self.baseline >= self.window and self.probation >= self.window
-                and self.rise >= 1.0 and len(self.margins) == len(SIGNALS) and min(self.margins) >= 0
-                and self.window <= self.assess <= self.probation and self.worse >= 0):
-            raise ValueError(f"invalid rollback settings {self}")
-
-
 EFFORT_MARGIN_SHARE = 0.1
 """The sudden-rise margin on the feedback effort, as a share of the robot's largest joint torque limit."""
 POSITION_MARGIN = 0.03
@@ -85,6 +68,23 @@ POSITION_MARGIN = 0.03
 def margins_for(torque_limits: np.ndarray) -> tuple[float, float]:
     """RollbackConfig.margins of a robot with these joint torque limits [Nm]: (effort [Nm], position [m])."""
     return EFFORT_MARGIN_SHARE * float(np.max(torque_limits)), POSITION_MARGIN
+
+
+@dataclass(frozen=True)
+class RollbackConfig:
+    window: float = 0.25                      # [s] RMS window of the served model
+    baseline: float = 5.0                     # [s] before the model served, its reference
+    probation: float = 10.0                   # [s] a new model is watched this long
+    rise: float = 1.5                         # × the baseline RMS …
+    margins: tuple[float, float] = (15.0, POSITION_MARGIN)  # … + these per signal [Nm, m] (HyQ's: margins_for)
+    assess: float = 5.0                       # [s] after serving, the model's whole RMS effort …
+    worse: float = 0.08                       # … may exceed the baseline's by this share at most
+
+    def __post_init__(self) -> None:
+        if not (self.window > 0 and self.baseline >= self.window and self.probation >= self.window
+                and self.rise >= 1.0 and len(self.margins) == len(SIGNALS) and min(self.margins) >= 0
+                and self.window <= self.assess <= self.probation and self.worse >= 0):
+            raise ValueError(f"invalid rollback settings {self}")
 
 
 SUDDEN_RISE, WORSE_THAN_BEFORE = "sudden_rise", "worse_than_before"

@@ -13,6 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ciml_learning.core import topics
 from ciml_learning.core.errors import CimlError
 from ciml_learning.core.robot import RobotDescription
 
@@ -98,9 +99,10 @@ def record(args: argparse.Namespace) -> int:
     result, counts = record_bag(robot, scenario, args.motion, args.duration, args.seed, args.out,
                                 ground_truth=not args.no_ground_truth, sensor_rate=args.sensor_rate)
     metrics = result.metrics()
+    # samples: the bag's joint-state samples (at the sensor rate); control_ticks: the controller's
     summary = {"out": args.out, "motion": args.motion, "duration_s": metrics["duration_s"],
-               "sensor_rate_hz": args.sensor_rate,
-               "samples": metrics["samples"], "fell": metrics["fell"], "ground_truth": not args.no_ground_truth,
+               "sensor_rate_hz": args.sensor_rate, "samples": counts.get(topics.JOINT_STATES, 0),
+               "control_ticks": metrics["samples"], "fell": metrics["fell"], "ground_truth": not args.no_ground_truth,
                "real_time_factor": metrics["real_time_factor"], "messages": sum(counts.values())}
     print(json.dumps(summary))
     if result.fell:

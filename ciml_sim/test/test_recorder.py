@@ -270,6 +270,21 @@ def test_committed_bags_are_readable_robot_logs(name, seconds, truth):
         assert resid.std() == pytest.approx(0.5, rel=0.1) and abs(resid.mean()) < 0.05
 
 
+def test_cli_extract_of_bags_at_two_rates_says_both(tmp_path):
+    """`ciml extract` of a 250 Hz and a 500 Hz bag prints both rates, not one of them."""
+    bags = []
+    for rate in ("250", "500"):
+        bags.append(str(tmp_path / f"bag{rate}"))
+        r = subprocess.run([CIML, "record", "--scenario", "nominal", "--motion", "stand", "--duration", "1.0",
+                            "--sensor-rate", rate, "--no-ground-truth", "--out", bags[-1]],
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+    r = subprocess.run([CIML, "extract", "--bag", *bags, "--out", str(tmp_path / "t.npz")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout.strip().splitlines()[-1])["rate_hz"] == [250.0, 500.0]
+
+
 def test_cli_sensor_rate_writes_sensors_at_that_rate(tmp_path):
     """`ciml record --sensor-rate 500`: sensor topics at 500 Hz, one /torque_command per 250 Hz tick."""
     out = tmp_path / "bag500"
@@ -277,7 +292,9 @@ def test_cli_sensor_rate_writes_sensors_at_that_rate(tmp_path):
                         "--sensor-rate", "500", "--no-ground-truth", "--out", str(out)],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
-    assert json.loads(r.stdout.strip().splitlines()[-1])["sensor_rate_hz"] == 500.0
+    summary = json.loads(r.stdout.strip().splitlines()[-1])
+    assert summary["sensor_rate_hz"] == 500.0
+    assert (summary["samples"], summary["control_ticks"]) == (200, 100)  # what the bag holds, and the ticks
     stamps = {}
     for topic, stamp, _raw, _ in bagio.iter_bag_messages(out):
         stamps.setdefault(topic, []).append(stamp)

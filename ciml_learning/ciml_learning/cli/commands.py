@@ -41,8 +41,10 @@ def extract(args: argparse.Namespace) -> int:
     inputs = {"rate_hz": ds.rate_hz, "actuation_observed": ds.u_observed, "warnings": ds.warnings,
               "inputs": [{k: i[k] for k in ("bag", "rate_hz", "u_observed", "sources")} for i in ds.inputs]}
     ds.targets.save(args.out, robot, {"bags": ds.bags, "rejected": ds.rejected, **inputs})
+    rates = sorted({float(i["rate_hz"]) for i in ds.inputs})
     print(json.dumps({"out": args.out, "samples": len(ds.targets.t), "valid": ds.n_valid, "rejected": ds.rejected,
-                      "rate_hz": ds.rate_hz, "actuation_observed": ds.u_observed}))
+                      # the bags' common rate, or each distinct one when they differ
+                      "rate_hz": rates[0] if len(rates) == 1 else rates, "actuation_observed": ds.u_observed}))
     for w in ds.warnings:
         print(f"ciml extract: warning: {w}", file=sys.stderr)
     return 0
@@ -109,6 +111,7 @@ def diagnose(args: argparse.Namespace) -> int:
     if getattr(args, "publish", None) is not None:  # after diagnosis.json is written
         from ciml_learning.ros.gap_publisher import publish_gap_diagnosis
 
+        print(f"publishing on /gap_diagnosis for {args.publish:g} s (Ctrl-C ends the wait)", flush=True)
         matched = publish_gap_diagnosis(result, linger=args.publish)
         print(f"published on /gap_diagnosis ({matched} subscriber(s) matched)")
     return 0

@@ -5,12 +5,14 @@ Compare numbers from one run only: the machines are shared and noisy.
 """
 from __future__ import annotations
 
+import copy
 import os
 import random
 import shutil
 import tempfile
 import time
 
+import mujoco
 import numpy as np
 import rclpy
 from ciml_msgs.msg import TorqueCommand
@@ -51,6 +53,8 @@ def speed_benchmark(motion: str = "trot_35", duration: float = 4.0, scenario: st
     process); the recording (bag with ground truth, zstd) also runs with the cached grid.
     `cpu_real_time_factor_reference_cached`: the cached run's simulated time per second of
     this process's CPU time — on a shared machine less disturbed by other load than wall time.
+    `bare_mj_step_real_time_factor`: the floor, MuJoCo's own step of the same model from the
+    standing state (`over_bare_mj_step`: each factor against it).
     """
     robot = load_robot()
     scen = resolve_scenario(scenario, robot)
@@ -93,6 +97,17 @@ def speed_benchmark(motion: str = "trot_35", duration: float = 4.0, scenario: st
     wall = time.perf_counter() - t0
     out["plant_only_real_time_factor"] = round(n * PHYSICS_STEPS_PER_TICK * 1e-3 / wall, 2)
     out["plant_us_per_physics_step"] = round(wall / (n * PHYSICS_STEPS_PER_TICK) * 1e6, 2)
+    # the floor: bare mj_step of the same model from the standing state just reached (the
+    # plant's last torques held in ctrl; no joint loop, sensors or controller), in Python
+    data = copy.copy(plant.data)
+    steps = n * PHYSICS_STEPS_PER_TICK
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        mujoco.mj_step(plant.model, data)
+    bare = steps * plant.model.opt.timestep / (time.perf_counter() - t0)
+    out["bare_mj_step_real_time_factor"] = round(bare, 2)
+    out["over_bare_mj_step"] = {k: round(out[k] / bare, 3) for k in (
+        "real_time_factor", "real_time_factor_reference_cached", "plant_only_real_time_factor")}
     return out
 
 

@@ -11,7 +11,8 @@ smooth model error are well determined by a few thousand samples, so:
    of up to `kmeans_samples` points, in per-dimension standardised coordinates; M = n_inducing
    (paper: 100 per actuation dimension, 250 per rigid-body dimension);
 2. hyper-parameters: GPy SparseGPRegression (Titsias' variational bound, VarDTC) on a
-   random subset of `n_hyper_samples` points, Z fixed, L-BFGS-B for `max_iters`;
+   random subset of `n_hyper_samples` points, Z fixed (or `hyper_inducing` k-means inputs:
+   the step costs O(n M²)), L-BFGS-B for `max_iters`;
 3. posterior on all N samples, once, with the hyper-parameters and Z fixed, from GPy's
    kernel evaluations K(Z, X) in chunks (O(N M²), no N × N matrix). In the whitened
    parameterisation v = L⁻¹u, Kuu = L Lᵀ, V = L⁻¹ Kuf:
@@ -32,6 +33,7 @@ std is the latent function's (noise-free) uncertainty; noise_variance_ is availa
 """
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from typing import ClassVar
@@ -84,33 +86,33 @@ def kmeans(X: np.ndarray, k: int, iters: int, rng: np.random.Generator) -> np.nd
     return centers
 
 
-_FIXED_Z_REGRESSION = None
-
-
 def _regression_class(fixed_inducing: bool):
-    """GPy's SparseGPRegression; with fixed inducing inputs, one that skips the gradient with
-    respect to Z (GPy computes it whether Z is fixed or not: two kernel gradients_X calls per
-    optimiser step, ~18 % of a fit here; the kernel's and the noise's gradients are GPy's own)."""
+    """GPy's SparseGPRegression, or with fixed inducing inputs _fixed_inducing_regression()."""
     import GPy
 
-    global _FIXED_Z_REGRESSION
-    if not fixed_inducing:
-        return GPy.models.SparseGPRegression
-    if _FIXED_Z_REGRESSION is None:
-        class FixedInducingRegression(GPy.models.SparseGPRegression):
-            def _update_gradients(self) -> None:
-                g = self.grad_dict
-                self.likelihood.update_gradients(g["dL_dthetaL"])
-                self.kern.update_gradients_diag(g["dL_dKdiag"], self.X)
-                kerngrad = self.kern.gradient.copy()
-                self.kern.update_gradients_full(g["dL_dKnm"], self.X, self.Z)
-                kerngrad += self.kern.gradient
-                self.kern.update_gradients_full(g["dL_dKmm"], self.Z, None)
-                self.kern.gradient += kerngrad
-                self.Z.gradient = 0.0
+    return _fixed_inducing_regression() if fixed_inducing else GPy.models.SparseGPRegression
 
-        _FIXED_Z_REGRESSION = FixedInducingRegression
-    return _FIXED_Z_REGRESSION
+
+@functools.cache
+def _fixed_inducing_regression():
+    """SparseGPRegression without the gradient with respect to Z: GPy computes it whether Z is
+    fixed or not (two kernel gradients_X calls per optimiser step, on both cores: ~40 % of a fit's
+    CPU here); the kernel's and the noise's gradients are GPy's own, so every number is GPy's."""
+    import GPy
+
+    class FixedInducingRegression(GPy.models.SparseGPRegression):
+        def _update_gradients(self) -> None:
+            g = self.grad_dict
+            self.likelihood.update_gradients(g["dL_dthetaL"])
+            self.kern.update_gradients_diag(g["dL_dKdiag"], self.X)
+            kerngrad = self.kern.gradient.copy()
+            self.kern.update_gradients_full(g["dL_dKnm"], self.X, self.Z)
+            kerngrad += self.kern.gradient
+            self.kern.update_gradients_full(g["dL_dKmm"], self.Z, None)
+            self.kern.gradient += kerngrad
+            self.Z.gradient = 0.0
+
+    return FixedInducingRegression
 
 
 class SparseGPR(Learner):
@@ -123,7 +125,8 @@ class SparseGPR(Learner):
         kmeans_samples, kmeans_iters: data and Lloyd iterations for the inducing inputs.
         optimize_inducing: also optimise Z on the subset (slow in high dimension).
         hyper_inducing: inducing inputs of the hyper-parameter step (None: n_inducing); fewer
-            cost O(n M²) less per optimiser step, the posterior still uses n_inducing.
+            cost O(n M²) less per optimiser step, the posterior still uses n_inducing (k-means
+            inputs; an optimize_inducing result of the smaller set is not kept).
         noise_init: initial noise variance as a fraction of the mean square target.
         lengthscale_init: initial ARD lengthscales (None: std of each input × √n_inputs).
         jitter: added to diag(Kuu), relative to σ_f².

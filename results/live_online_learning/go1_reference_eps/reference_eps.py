@@ -79,5 +79,6 @@ print("rms of P(learned - truth):", " ".join(f"{n}={np.sqrt(np.mean(D[:, i] ** 2
 C = np.array(stance)
 for leg, foot in enumerate(robot.foot_frames):
     calf = [i for i, n in enumerate(robot.dof_names) if n.startswith(foot.split("_")[0]) and "calf" in n][0]
-    print(f"{robot.dof_names[calf]}: rms of P(learned - truth) in stance {np.sqrt(np.mean(D[C[:, leg], calf] ** 2)):.3f}"
-          f" ({C[:, leg].mean():.0%} of the references), in swing {np.sqrt(np.mean(D[~C[:, leg], calf] ** 2)):.3f}")
+    in_stance, in_swing = (np.sqrt(np.mean(D[rows, calf] ** 2)) for rows in (C[:, leg], ~C[:, leg]))
+    print(f"{robot.dof_names[calf]}: rms of P(learned - truth) in stance {in_stance:.3f}"
+          f" ({C[:, leg].mean():.0%} of the references), in swing {in_swing:.3f}")

@@ -63,17 +63,24 @@ def test_replayed_bag_through_nodes_matches_offline_extraction(tmp_path):
         matched += 1
     assert matched > 0.3 * offline.n_valid
 
-    # the learner's stream: the valid errors only, each with the state it came from, numbered
+    # the learner's stream, each sample with the state it came from, numbered: every valid error
+    # (the base rows are observed in valid states only), and every 4th (effort_sample_every) of the
+    # states whose torques alone are usable (near a contact change), with only Γ observed
     samples = listener.messages["/model_error/learning_samples"]
     by_stamp = {m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec: m for m in received}
-    valid = {ns for ns, m in by_stamp.items() if all(m.actuation_observed)}
+    valid = {ns for ns, m in by_stamp.items() if m.rbd_observed[0]}
+    effort_only = {ns for ns, m in by_stamp.items() if not m.rbd_observed[0] and all(m.actuation_observed)}
     assert samples and np.all(np.diff([m.sequence for m in samples]) > 0)
-    seen = 0
+    seen = seen_effort_only = 0
     for m in samples:
         ns = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
-        assert m.state.valid and m.state.header.stamp == m.header.stamp and all(m.error.actuation_observed)
+        assert m.state.effort_valid and m.state.header.stamp == m.header.stamp and all(m.error.actuation_observed)
+        assert m.state.valid or not any(m.error.rbd_observed)
         if ns in by_stamp:  # both topics are best effort: either may have lost it
-            assert ns in valid
+            assert m.state.valid == (ns in valid) and (ns in valid or ns in effort_only)
             np.testing.assert_array_equal(m.error.rbd_error, by_stamp[ns].rbd_error)
-            seen += 1
+            seen += ns in valid
+            seen_effort_only += ns in effort_only
     assert seen >= 0.8 * len(valid) and len(valid) < 0.9 * len(received), (seen, len(valid), len(received))
+    assert 0.8 * len(effort_only) / 4 <= seen_effort_only <= 1.2 * len(effort_only) / 4 + 2, \
+        (seen_effort_only, len(effort_only))

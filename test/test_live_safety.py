@@ -154,7 +154,7 @@ def _good_model(path) -> dict:
         phi[2] = -40.0 + rng.normal(scale=2.0)
         gamma = -3.0 * np.sign(v[6:])
         learner.learn(1_000_000_000 + 4_000_000 * k,
-                      StateSample(q, v, np.zeros(ROBOT.nv), np.zeros(nj), np.zeros(nj), True),
+                      StateSample(q, v, np.zeros(ROBOT.nv), np.zeros(nj), np.zeros(nj), True, True),
                       ErrorSample(phi, np.r_[np.ones(6, bool), np.zeros(12, bool)], gamma, np.ones(nj, bool)))
     saved = SnapshotWriter(str(path)).write(learner.snapshot())
     return {"learner": learner, "saved": saved}

@@ -221,7 +221,8 @@ def test_dataset_extracted_in_chunks_matches_the_whole_log(tmp_path, monkeypatch
     whole["segment"] = np.concatenate([log.segment + o for log, o in zip(logs, offsets)])
     n = len(whole["t"])
     reference = extract(ROBOT, whole["q"], whole["v"], whole["a"], whole["tau"], whole["u"], whole["contacts"],
-                        whole["t"], whole["valid"], tau_dot=whole["tau_dot"], chunk=n)
+                        whole["t"], whole["valid"], tau_dot=whole["tau_dot"], chunk=n,
+                        effort_valid=whole["effort_valid"])
 
     monkeypatch.setattr(pipeline, "extract", functools.partial(extract, chunk=173))
     ds = pipeline.load_dataset(ROBOT, bags, progress=False)

@@ -119,7 +119,7 @@ def _assert_online_equals_offline(outs, off):
         np.testing.assert_allclose(s.q, off.q[i], atol=1e-9)
         np.testing.assert_allclose(s.a, off.a[i], atol=1e-9)
         np.testing.assert_allclose(s.u, off.u[i], atol=1e-9)
-        assert s.valid == off.valid[i]
+        assert s.valid == off.valid[i] and s.effort_valid == off.effort_valid[i]
 
 
 def test_online_state_filter_matches_offline_log():
@@ -130,6 +130,10 @@ def test_online_state_filter_matches_offline_log():
     assert [s.t for s in outs] == list(t[15:n - 15])
     _assert_online_equals_offline(outs, off)
     assert counts["contact_change"] == off.invalid_counts["contact_change"] > 0  # the same reasons as offline
+    # the torques stay usable across the contact change (Γ = τ − u does not see the contacts)
+    near_change = ~off.valid & off.effort_valid
+    assert near_change[135:165].all() and not off.valid[140:160].any()
+    assert counts["effort_valid"] == sum(s.effort_valid for s in outs) == off.effort_valid[15:n - 15].sum()
 
 
 def test_dropped_samples_are_bridged_alike_online_and_offline():
@@ -153,6 +157,8 @@ def test_dropped_samples_are_bridged_alike_online_and_offline():
     # outputs whose window saw interpolated input are not for training
     valid_t = {round(s.t * 1e9) for s in outs if s.valid}
     assert round(101 / FS * 1e9) not in valid_t and round(116 / FS * 1e9) in valid_t
+    effort_t = {round(s.t * 1e9) for s in outs if s.effort_valid}  # nor for the actuation error's
+    assert round(101 / FS * 1e9) not in effort_t and round(116 / FS * 1e9) in effort_t
     assert off.invalid_counts["bridged_gap_window"] > 0
     # interpolation is exact for a linear signal: a bridged gap leaves a ramp's filtered value intact
     ramp = np.arange(n) / FS

@@ -87,6 +87,36 @@ def test_observed_mask_and_valid_flag_are_respected(data):
     np.testing.assert_allclose(pred.rbd_var[:, 6:9], np.tile(ms2.output_scale_[6:9] ** 2, (10, 1)))
 
 
+
+def test_actuation_models_learn_where_the_torques_are_usable(data):
+    """With effort_valid, Γ's models learn from its rows (here: also the contact changes, which
+    are not valid) and the rigid-body models still from the valid rows only: garbage (±1e3) in
+    the entries neither may use changes nothing. partial_fit takes the same rows."""
+    X, R, M, A, V, C = fit_args(data)
+    effort_valid = np.ones(len(X), bool)
+    effort_valid[::7] = False
+    assert (~V & effort_valid).sum() > 1000  # rows Γ gains
+    rbd = np.where(M & V[:, None], R, 1e3)
+    act = np.where(effort_valid[:, None], A, -1e3)
+    ms = ModelSet.for_robot(ROBOT, "lwpr").fit(X, rbd, M, act, V, C, effort_valid=effort_valid)
+    clean = ModelSet.for_robot(ROBOT, "lwpr").fit(X, R, M, A, V, C, effort_valid=effort_valid)
+    np.testing.assert_array_equal(ms.n_samples_[:18], (M & V[:, None]).sum(axis=0))
+    np.testing.assert_array_equal(ms.n_samples_[18:], effort_valid.sum())
+    test = synthetic_training_set(ROBOT, 4_000, seed=1)
+    pred, pred_clean = ms.predict(test["inputs"]), clean.predict(test["inputs"])
+    np.testing.assert_array_equal(pred.rbd, pred_clean.rbd)
+    np.testing.assert_array_equal(pred.actuation, pred_clean.actuation)
+    assert relative_rmse(ms, test)["actuation_relative_rmse_max"] < 0.15
+    online = ModelSet.for_robot(ROBOT, "lwpr")
+    online.calibrate(X[:3000], rbd[:3000], M[:3000], act[:3000], V[:3000], effort_valid=effort_valid[:3000])
+    online.partial_fit(X[:3000], rbd[:3000], M[:3000], act[:3000], V[:3000], C[:3000],
+                       effort_valid=effort_valid[:3000])
+    np.testing.assert_array_equal(online.n_samples_[:18], (M[:3000] & V[:3000, None]).sum(axis=0))
+    np.testing.assert_array_equal(online.n_samples_[18:], effort_valid[:3000].sum())
+    with pytest.raises(ModelSetError, match="effort_valid"):
+        ms.fit(X, rbd, M, act, V, C, effort_valid=effort_valid[:10])
+
+
 def test_stance_legs_learned_errors_are_added_back_to_the_base_wrench(data):
     """The measured base rows lack the stance legs' joint errors (C e, through the contact-
     invariant basis); with the leg coupling the set learns the true base wrench (payload,

@@ -82,8 +82,8 @@ def stream(n: int, seed: int = 0):
 
 
 def state_sample(s, k, valid=None) -> StateSample:
-    return StateSample(s["q"][k], s["v"][k], s["a"][k], s["tau"][k], s["tau_dot"][k],
-                       bool(s["valid"][k]) if valid is None else valid)
+    valid = bool(s["valid"][k]) if valid is None else valid
+    return StateSample(s["q"][k], s["v"][k], s["a"][k], s["tau"][k], s["tau_dot"][k], valid, valid)
 
 
 def reference(s, k) -> ReferenceState:
@@ -112,7 +112,7 @@ def test_learning_sample_matches_by_name_and_rejects_bad_messages():
     phi, gamma = rng.normal(size=18), rng.normal(size=12)
     obs = rng.uniform(size=18) > 0.5
     msg = _learning_sample_msg(phi, obs, gamma)
-    q, v, a, tau, tau_dot, _u, _c, valid = cv.robot_state_arrays(ROBOT, msg.state)
+    q, v, a, tau, tau_dot, _u, _c, valid, _effort_valid = cv.robot_state_arrays(ROBOT, msg.state)
     # reorder every named array consistently: the result must not change
     pr, pa = rng.permutation(18), rng.permutation(12)
     e = msg.error
@@ -238,6 +238,14 @@ def test_online_learner_rejects_out_of_order_and_unobserved_pairs():
     none = ErrorSample(s["phi"][0], np.zeros(18, bool), s["gamma"][0], np.zeros(12, bool))
     assert learner.learn(11, st, none) == "invalid_samples"
     assert learner.n_learned == 1 and learner.counts == {"out_of_order_pairs": 2, "invalid_samples": 1}
+    # near a contact change (not valid, effort_valid): Γ is learned, Φ̃' not, whatever its mask says
+    near_change = StateSample(st.q, st.v, st.a, st.tau, st.tau_dot, False, True)
+    before = learner.model_set.n_samples_.copy()
+    assert learner.learn(12, near_change, error_sample(s, 1)) is None
+    gained = learner.model_set.n_samples_ - before
+    assert not gained[:18].any() and (gained[18:] == 1).all()
+    neither = StateSample(st.q, st.v, st.a, st.tau, st.tau_dot, False, False)
+    assert learner.learn(13, neither, error_sample(s, 2)) == "invalid_samples"
     with pytest.raises(ModelSetError, match="lwpr"):
         OnlineLearner(ROBOT, ModelSet.for_robot(ROBOT, "sgpr"))
 

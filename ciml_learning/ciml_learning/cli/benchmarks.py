@@ -226,7 +226,7 @@ def online_nodes_benchmark(n_warmup: int = 20_000, n_samples: int = 2_000, seed:
         k = n_warmup + s
         stamp = k * 4_000_000
         t0 = time.perf_counter()
-        learner.learn(stamp, StateSample(q[k], v[k], a[k], tau[k], tau_dot[k], bool(V[k])),
+        learner.learn(stamp, StateSample(q[k], v[k], a[k], tau[k], tau_dot[k], bool(V[k]), bool(V[k])),
                       ErrorSample(R[k], M[k], A[k], np.ones(nj, bool)))
         t1 = time.perf_counter()
         predict_at_reference(robot, served, ReferenceState(stamp * 1e-9, q[k], v[k], a[k], contacts[k]))

@@ -353,8 +353,10 @@ def _six(msg) -> np.ndarray:
 
 
 def robot_state_msg(robot: RobotDescription, stamp_ns: int, q: np.ndarray, v: np.ndarray, a: np.ndarray,
-                    tau: np.ndarray, tau_dot: np.ndarray, u: np.ndarray, contacts: np.ndarray, valid: bool):
-    """Filtered full state (Pinocchio q, v, q̈; τ, τ̇, u) as ciml_msgs/RobotState."""
+                    tau: np.ndarray, tau_dot: np.ndarray, u: np.ndarray, contacts: np.ndarray, valid: bool,
+                    effort_valid: bool | None = None):
+    """Filtered full state (Pinocchio q, v, q̈; τ, τ̇, u) as ciml_msgs/RobotState (effort_valid
+    None: valid)."""
     from ciml_msgs.msg import RobotState
 
     return RobotState(
@@ -363,12 +365,13 @@ def robot_state_msg(robot: RobotDescription, stamp_ns: int, q: np.ndarray, v: np
         position=q[7:].tolist(), velocity=v[6:].tolist(), acceleration=a[6:].tolist(),
         effort_measured=np.asarray(tau, float).tolist(), effort_rate=np.asarray(tau_dot, float).tolist(),
         effort_commanded=np.asarray(u, float).tolist(),
-        foot_names=list(robot.foot_frames), in_contact=[bool(c) for c in contacts], valid=bool(valid))
+        foot_names=list(robot.foot_frames), in_contact=[bool(c) for c in contacts], valid=bool(valid),
+        effort_valid=bool(valid if effort_valid is None else effort_valid))
 
 
 def robot_state_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                              np.ndarray, np.ndarray, np.ndarray, bool]:
-    """(q, v, q̈, τ, τ̇, u, contacts, valid) in the robot's orders from a RobotState."""
+                                                              np.ndarray, np.ndarray, np.ndarray, bool, bool]:
+    """(q, v, q̈, τ, τ̇, u, contacts, valid, effort_valid) in the robot's orders from a RobotState."""
     perm = robot.joint_permutation(list(msg.joint_names))
     n = len(msg.joint_names)
     p, o = msg.base_pose.position, msg.base_pose.orientation
@@ -382,7 +385,8 @@ def robot_state_arrays(robot: RobotDescription, msg) -> tuple[np.ndarray, np.nda
     flags = np.asarray(msg.in_contact, dtype=bool)
     if flags.shape != (len(msg.foot_names),):
         raise ConversionError("filtered_state: foot names and contact flags differ in length")
-    return q, v, a, tau, tau_dot, u, flags[robot.foot_permutation(list(msg.foot_names))], bool(msg.valid)
+    return (q, v, a, tau, tau_dot, u, flags[robot.foot_permutation(list(msg.foot_names))], bool(msg.valid),
+            bool(msg.effort_valid))
 
 
 # --- ciml_msgs/RobotReference (read side, for the model server) ----------------------

@@ -147,6 +147,8 @@ class ExtractionResult:
     generalized_error: np.ndarray     # N × nv, Φ̃ = J'ᵀΦ̃' of the observed entries (the models' targets)
     generalized_observed: np.ndarray  # N × nv
     leg_coupling: np.ndarray          # N × 6 × n_j, C of projection.leg_coupling
+    effort_valid: np.ndarray          # N, rows whose Γ is usable: valid but near contact changes too
+                                      # (filters.contact_change_mask)
 
     def save(self, path: str, robot: RobotDescription, extra: dict | None = None) -> None:
         """Write an .npz (arrays only, loadable with allow_pickle=False), atomically, straight to
@@ -161,6 +163,7 @@ class ExtractionResult:
         atomic_write_stream(path, lambda f: np.savez(
             f, t=self.t, inputs=self.inputs, rbd_error=self.rbd_error, rbd_observed=self.rbd_observed,
             actuation_error=self.actuation_error, contacts=self.contacts, valid=self.valid,
+            effort_valid=self.effort_valid,
             metadata=np.array(json.dumps(meta))))
 
 
@@ -202,10 +205,12 @@ def extract(
     gamma: float = DEFAULT_GAMMA,
     tau_dot: np.ndarray | None = None,
     chunk: int = EXTRACTION_CHUNK,
+    effort_valid: np.ndarray | None = None,
 ) -> ExtractionResult:
     """Batch extraction of Φ̃' (eq. 11), Γ (eq. 14) and the learning inputs from a filtered log
     (τ̇: the filtered torque rate; None leaves its inputs NaN, unusable for learning), `chunk`
-    samples at a time into the result's rows (EXTRACTION_CHUNK)."""
+    samples at a time into the result's rows (EXTRACTION_CHUNK). effort_valid: the rows whose Γ
+    is usable (FilteredLog.effort_valid; None: `valid`)."""
     q, v, a, tau, u = (np.asarray(x, float) for x in (q, v, a, tau, u))
     n = len(q)
     rows = {
@@ -214,6 +219,7 @@ def extract(
         "valid": np.ones(n, dtype=bool) if valid is None else np.asarray(valid, dtype=bool),
         "tau_dot": np.full(np.shape(tau), np.nan) if tau_dot is None else np.asarray(tau_dot, float),
     }
+    rows["effort_valid"] = rows["valid"] if effort_valid is None else np.asarray(effort_valid, dtype=bool)
     if n <= chunk:
         return _extract_chunk(robot, gamma, **rows)
     out = {"t": rows["t"], "contacts": rows["contacts"]}  # passed through, as in one chunk
@@ -230,7 +236,7 @@ def extract(
 
 def _extract_chunk(robot: RobotDescription, gamma: float, q: np.ndarray, v: np.ndarray, a: np.ndarray,
                    tau: np.ndarray, u: np.ndarray, contacts: np.ndarray, t: np.ndarray, valid: np.ndarray,
-                   tau_dot: np.ndarray) -> ExtractionResult:
+                   tau_dot: np.ndarray, effort_valid: np.ndarray) -> ExtractionResult:
     """extract() of one chunk (its arguments as arrays of one length)."""
     S = selection_matrix(robot)
     id_terms, jac = dynamics_batch(robot, q, v, a)
@@ -253,4 +259,5 @@ def _extract_chunk(robot: RobotDescription, gamma: float, q: np.ndarray, v: np.n
         generalized_error=generalized,
         generalized_observed=generalized_mask,
         leg_coupling=leg_coupling(basis, robot.leg_joints),
+        effort_valid=effort_valid.copy(),
     )

@@ -114,7 +114,10 @@ def contact_change_mask(contacts: np.ndarray, half_window: int = delay_samples()
     """True where no contact flag changes within ±half_window samples (usable for training).
 
     Impacts make the velocity discontinuous, so filtered accelerations near a touchdown
-    or lift-off are wrong (paper §III-C).
+    or lift-off are wrong (paper §III-C). This masks the rigid-body error only: the actuation
+    error Γ = τ − u (eq. 14) is made of torques, which an impact does not make jump, and a
+    trot's largest torque rates are near its contact changes — left out, the actuation models
+    never see the τ̇ a reference asks for there (`effort_valid`: valid but for this mask).
     """
     contacts = np.asarray(contacts, dtype=bool)
     n = len(contacts)
@@ -223,7 +226,8 @@ class FilteredLog:
     q (N × nq): low-passed joints and base position, low-passed normalised base quaternion;
     v, a (N × nv): low-passed velocities and their filtered derivative (base twist in the
     base frame); tau, u (N × n_j): low-passed torques; tau_dot: filtered derivative of τ;
-    contacts (N × n_feet); valid: usable for training; invalid_counts: why samples were not.
+    contacts (N × n_feet); valid: usable for training; invalid_counts: why samples were not;
+    effort_valid: τ, τ̇ and u usable — valid but for the contact changes (contact_change_mask).
     """
 
     t: np.ndarray
@@ -242,6 +246,8 @@ class FilteredLog:
     """Rate the filters were designed for [Hz] (the log's measured rate)."""
     segment_rate_hz: np.ndarray | None = None
     """Per segment id, its log's rate [Hz] (logs of different rates concatenated), else None."""
+    effort_valid: np.ndarray | None = None
+    """(N,) the rows Γ = τ − u learns from (contact_change_mask); None: `valid`."""
 
     def __len__(self) -> int:
         return len(self.t)
@@ -316,17 +322,19 @@ def filter_state_log(
         counts["filter_edges"] += int((~ok & valid[seg]).sum())
         valid[seg] &= ok
     d = delay_samples(len(lp))
+    near_fill = np.convolve(filled.astype(float), np.ones(2 * d + 1), mode="same") > 0
+    effort_valid = valid & ~near_fill
     cmask = contact_change_mask(contacts, half_window=d)
     counts["contact_change"] = int((~cmask & valid & ~filled).sum())
     valid &= cmask
-    near_fill = np.convolve(filled.astype(float), np.ones(2 * d + 1), mode="same") > 0
     counts["bridged_gap_window"] = int((near_fill & valid & ~filled).sum())
     valid &= ~near_fill
     keep = ~filled  # filled instants are never output
     counts["filled_samples"] = int(filled.sum())
     return FilteredLog(t=t_in, q=out_q[keep], v=out_v[keep], a=out_a[keep], tau=out_tau[keep],
                        tau_dot=out_tau_dot[keep], u=out_u[keep], contacts=contacts[keep], valid=valid[keep],
-                       invalid_counts=counts, segment=segment[keep], rate_hz=float(fs))
+                       invalid_counts=counts, segment=segment[keep], rate_hz=float(fs),
+                       effort_valid=effort_valid[keep])
 
 
 @dataclass
@@ -342,6 +350,8 @@ class FilteredSample:
     u: np.ndarray
     contacts: np.ndarray
     valid: bool
+    effort_valid: bool
+    """τ, τ̇, u usable: valid but for a contact change (contact_change_mask)."""
 
 
 class OnlineStateFilter:
@@ -420,8 +430,10 @@ class OnlineStateFilter:
         changed = not bool(np.all(flags == flags[0]))
         near_fill = any(f for _, _, f in self._history)
         valid = not changed and not near_fill
+        self.counts["effort_valid"] += not near_fill
         self.counts["valid" if valid else "contact_change" if changed else "bridged_gap_window"] += 1
         qf = low[:nq].copy()
         qf[3:7] /= np.linalg.norm(qf[3:7])
         out.append(FilteredSample(t=t_out, q=qf, v=low[nq:nq + nv], a=der[:nv], tau=low[nq + nv:nq + nv + nj],
-                                  tau_dot=der[nv:], u=low[nq + nv + nj:], contacts=c_out, valid=valid))
+                                  tau_dot=der[nv:], u=low[nq + nv + nj:], contacts=c_out, valid=valid,
+                                  effort_valid=not near_fill))

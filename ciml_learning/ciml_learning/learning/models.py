@@ -34,7 +34,9 @@ earlier formats they replaced: results/MODEL_HISTORY.md.
 
 Observed mask: the base rows are observed in every valid sample, a leg joint's row while its
 leg swings (extraction.ExtractionResult.generalized_observed); each model learns only from
-valid samples where its row is observed. The actuation models learn from every valid sample.
+valid samples where its row is observed. The actuation models learn from every sample whose
+torques are usable (`effort_valid`: valid, and near contact changes too: Γ = τ − u does not see
+the contacts, and a trot's largest torque rates are there; filters.contact_change_mask).
 A dimension with no usable sample keeps no model: it predicts zero (the nominal model) with
 its prior variance, as every learner does away from its data.
 
@@ -323,7 +325,10 @@ class ModelSet:
         return learner_class(self.learner).from_params(self.params[self.group(i)])
 
     # ------------------------------------------------------------------ data handling
-    def _check_data(self, X, rbd_error, rbd_observed, actuation_error, valid, leg_coupling=None):
+    def _check_data(self, X, rbd_error, rbd_observed, actuation_error, valid, leg_coupling=None, effort_valid=None):
+        """Arrays checked and typed. With effort_valid (N,), the rows whose Γ is usable
+        (extraction.ExtractionResult.effort_valid), the two masks become one set of rows: valid
+        = either, a rigid-body row observed only where it was valid, Γ NaN where not usable."""
         X = np.asarray(X, dtype=float)
         n = len(X)
         rbd_error = np.asarray(rbd_error, dtype=float)
@@ -339,6 +344,13 @@ class ModelSet:
         if bad:
             raise ModelSetError(f"data shapes {bad} do not match {len(self.input_names)} inputs, "
                                 f"{self.n_rbd} RBD and {self.n_actuation} actuation outputs")
+        if effort_valid is not None:
+            effort_valid = np.asarray(effort_valid, dtype=bool)
+            if effort_valid.shape != valid.shape:
+                raise ModelSetError(f"effort_valid has shape {effort_valid.shape}, not {valid.shape}")
+            rbd_observed = rbd_observed & valid[:, None]
+            actuation_error = np.where(effort_valid[:, None], actuation_error, np.nan)
+            valid = valid | effort_valid
         valid = valid & np.all(np.isfinite(X), axis=1) & np.all(np.isfinite(C), axis=(1, 2))
         return X, rbd_error, rbd_observed, actuation_error, valid, C
 
@@ -347,12 +359,12 @@ class ModelSet:
             return valid & rbd_observed[:, i] & np.isfinite(rbd_error[:, i])
         return valid & np.isfinite(actuation_error[:, i - self.n_rbd])
 
-    def calibrate(self, X, rbd_error, rbd_observed, actuation_error, valid=None) -> "ModelSet":
+    def calibrate(self, X, rbd_error, rbd_observed, actuation_error, valid=None, effort_valid=None) -> "ModelSet":
         """Set the input mean/scale and output scales from data (before any learning)."""
         if self.is_fitted():
             raise ModelSetError("calibrate() must come before learning: the models use the old scaling")
         X, rbd_error, rbd_observed, actuation_error, valid, _ = self._check_data(
-            X, rbd_error, rbd_observed, actuation_error, valid)
+            X, rbd_error, rbd_observed, actuation_error, valid, effort_valid=effort_valid)
         if valid.sum() >= 2:
             Xv = X[valid]
             self.input_mean_ = Xv.mean(axis=0)
@@ -398,7 +410,7 @@ class ModelSet:
 
     # ------------------------------------------------------------------ learning
     def fit(self, X, rbd_error, rbd_observed, actuation_error, valid=None, leg_coupling=None, n_jobs: int = 1,
-            progress: bool = False, calibrate: bool = True) -> "ModelSet":
+            progress: bool = False, calibrate: bool = True, effort_valid=None) -> "ModelSet":
         """Learn every dimension from scratch, in parallel (parallel.fit_dimensions): the leg
         joints and the actuators first, then the base wrench with the stance legs' learned
         errors added back (base_wrench_targets).
@@ -406,10 +418,10 @@ class ModelSet:
         X: learning inputs (N × 74, extraction.learning_inputs); rbd_error: Φ̃ = J'ᵀΦ̃' (N × 18,
         anything where unobserved); rbd_observed: (N × 18) bool; actuation_error: Γ (N × n_j);
         valid: (N,) bool; leg_coupling: C (N × 6 × n_j, projection.leg_coupling; None: no
-        coupling). Returns self.
+        coupling); effort_valid: (N,) bool, the rows Γ learns from (None: valid). Returns self.
         """
         X, rbd_error, rbd_observed, actuation_error, valid, C = self._check_data(
-            X, rbd_error, rbd_observed, actuation_error, valid, leg_coupling)
+            X, rbd_error, rbd_observed, actuation_error, valid, leg_coupling, effort_valid)
         self.models_ = [None] * self.n_outputs
         if calibrate:
             self.calibrate(X, rbd_error, rbd_observed, actuation_error, valid)
@@ -418,8 +430,8 @@ class ModelSet:
         self.n_samples_ = np.zeros(self.n_outputs, dtype=np.int64)
         for stage in (range(N_BASE, self.n_outputs), range(N_BASE)):
             if stage.start == 0:
-                targets[valid, :N_BASE] = self.base_wrench_targets(Xs[valid], rbd_error[valid], rbd_observed[valid],
-                                                                   C[valid])
+                b = valid & rbd_observed[:, :N_BASE].any(axis=1)
+                targets[b, :N_BASE] = self.base_wrench_targets(Xs[b], rbd_error[b], rbd_observed[b], C[b])
             jobs = []
             for i in stage:
                 rows = self._usable_rows(i, rbd_error, rbd_observed, actuation_error, valid)
@@ -436,12 +448,13 @@ class ModelSet:
         if not learner_class(self.learner).supports_partial_fit:
             raise ModelSetError(f"learner {self.learner!r} has no partial_fit (batch only); use 'lwpr' online")
 
-    def partial_fit(self, X, rbd_error, rbd_observed, actuation_error, valid=None, leg_coupling=None) -> "ModelSet":
+    def partial_fit(self, X, rbd_error, rbd_observed, actuation_error, valid=None, leg_coupling=None,
+                    effort_valid=None) -> "ModelSet":
         """Incremental learning on a batch of samples in time order: partial_fit_one on each
         valid sample, in order (the base targets depend on the leg models at that time)."""
         self._require_incremental()
         X, rbd_error, rbd_observed, actuation_error, valid, C = self._check_data(
-            X, rbd_error, rbd_observed, actuation_error, valid, leg_coupling)
+            X, rbd_error, rbd_observed, actuation_error, valid, leg_coupling, effort_valid)
         for k in np.flatnonzero(valid):
             self.partial_fit_one(X[k], rbd_error[k], rbd_observed[k], actuation_error[k], C[k])
         return self

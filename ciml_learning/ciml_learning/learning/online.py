@@ -45,7 +45,8 @@ N_PROBES = 64
 # ---------------------------------------------------------------------- messages → arrays
 @dataclass
 class StateSample:
-    """The part of a filtered state the learner uses (Pinocchio q, v, q̈; τ, τ̇; `valid` flag)."""
+    """The part of a filtered state the learner uses (Pinocchio q, v, q̈; τ, τ̇; its `valid` and
+    `effort_valid` flags: ciml_msgs/RobotState)."""
 
     q: np.ndarray
     v: np.ndarray
@@ -53,6 +54,7 @@ class StateSample:
     tau: np.ndarray
     tau_dot: np.ndarray
     valid: bool
+    effort_valid: bool
 
 
 @dataclass
@@ -69,10 +71,10 @@ def learning_sample(robot: RobotDescription, msg) -> tuple[int, StateSample, Err
     """A ciml_msgs/LearningSample as (stamp [ns], StateSample, ErrorSample, qᵈ of the reference of
     its instant or None, whether the extractor heard any reference) in the robot's orders
     (joint_names, rbd_error_names): the conversions decode and check every part (ConversionError)."""
-    q, v, a, tau, tau_dot, _u, _contacts, valid = robot_state_arrays(robot, msg.state)
+    q, v, a, tau, tau_dot, _u, _contacts, valid, effort_valid = robot_state_arrays(robot, msg.state)
     e = model_error_arrays(robot, msg.error)
     q_ref = robot_reference_arrays(robot, msg.reference)[0] if len(msg.reference.joint_names) else None
-    return (stamp_to_ns(msg.header.stamp), StateSample(q, v, a, tau, tau_dot, valid),
+    return (stamp_to_ns(msg.header.stamp), StateSample(q, v, a, tau, tau_dot, valid, effort_valid),
             ErrorSample(e.rbd_error, e.rbd_observed, e.actuation_error, e.actuation_observed), q_ref,
             msg.references_heard > 0)
 
@@ -101,8 +103,8 @@ class OnlineLearner:
     learn() returns None when the pair was learned (or buffered for calibration), else
     the name of the rejection, which is also counted in `counts`:
     - "out_of_order_pairs": stamp not after the last learned one (learning order matters);
-    - "invalid_samples": the state is not valid (near a contact change, filter warm-up,
-      after a rejected input) or nothing in the error is observed;
+    - "invalid_samples": nothing in the error is observed where the state is usable (Φ̃' where
+      it is `valid`: not near a contact change or a bridged gap; Γ where it is `effort_valid`);
     - "non_finite_inputs": x is not finite (cannot happen after the conversions' checks);
     - with a `gate` (learning_gate.LearningGate): its pause reasons (fall, tracking error,
       target beyond physical bounds, no reference, recovering);
@@ -156,7 +158,10 @@ class OnlineLearner:
               references_heard: bool = False) -> str | None:
         if self.last_stamp is not None and stamp <= self.last_stamp:
             return self._reject("out_of_order_pairs")
-        if not state.valid or not (error.rbd_observed.any() or error.actuation_observed.any()):
+        # a part is learned only where the state says it is usable, whatever the error's masks say
+        error = ErrorSample(error.rbd_error, error.rbd_observed & state.valid, error.actuation_error,
+                            error.actuation_observed & state.effort_valid)
+        if not (error.rbd_observed.any() or error.actuation_observed.any()):
             return self._reject("invalid_samples")
         if self.gate is not None:
             paused = self.gate.check(stamp, state.q, np.where(error.rbd_observed, error.rbd_error, 0.0),

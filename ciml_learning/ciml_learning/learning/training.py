@@ -29,11 +29,12 @@ def train_from_bags(robot, bags: Sequence[str], learner: str, n_jobs: int = -1, 
     ms = ModelSet.for_robot(robot, learner, params)
     t1 = time.perf_counter()
     ms.fit(tg.inputs, tg.generalized_error, tg.generalized_observed, tg.actuation_error, tg.valid, tg.leg_coupling,
-           n_jobs=n_jobs, progress=progress)
+           n_jobs=n_jobs, progress=progress, effort_valid=tg.effort_valid)
     ms.training_ = {
         "bags": ds.bags,
         "samples": int(len(tg.t)),
         "valid_samples": ds.n_valid,
+        "effort_valid_samples": int(tg.effort_valid.sum()),
         "rejected": ds.rejected,
         "rate_hz": ds.rate_hz,
         "actuation_observed": ds.u_observed,
@@ -47,7 +48,8 @@ def train_from_bags(robot, bags: Sequence[str], learner: str, n_jobs: int = -1, 
 
 
 def evaluate(model_set: ModelSet, inputs: np.ndarray, rbd_error: np.ndarray, rbd_observed: np.ndarray,
-             actuation_error: np.ndarray, valid: np.ndarray, leg_coupling: np.ndarray) -> dict[str, Any]:
+             actuation_error: np.ndarray, valid: np.ndarray, leg_coupling: np.ndarray,
+             effort_valid: np.ndarray | None = None) -> dict[str, Any]:
     """Prediction RMSE per dimension on observed, valid samples: nominal (zero error) vs
     learned (measured − predicted), as the paper's Fig. 4/5; plus the fraction of samples
     whose residual lies within ±2 predicted std (calibration of the uncertainty).
@@ -55,11 +57,12 @@ def evaluate(model_set: ModelSet, inputs: np.ndarray, rbd_error: np.ndarray, rbd
     Data as for ModelSet.fit (Φ̃ = J'ᵀΦ̃' and its mask, Γ, the leg coupling C). The base
     wrench is compared as measured, in the base entries of Φ̃' (model-free): w' = Φ̃_base −
     Σ_swing C e (measured) against ŵ − Σ_all C ê (predicted; the variance of ŵ only); a leg
-    joint's error where its leg swings; Γ everywhere."""
+    joint's error where its leg swings; Γ where its torques are usable (effort_valid, as fit)."""
     from ciml_learning.core.physical_bounds import N_BASE
 
+    n_valid = int(np.asarray(valid, bool).sum())
     X, rbd_error, rbd_observed, actuation_error, valid, C = model_set._check_data(
-        inputs, rbd_error, rbd_observed, actuation_error, valid, leg_coupling)
+        inputs, rbd_error, rbd_observed, actuation_error, valid, leg_coupling, effort_valid)
     pred = model_set.predict(X, return_var=True)
     joints_measured = np.where(rbd_observed[:, N_BASE:], rbd_error[:, N_BASE:], 0.0)
     measured = np.hstack([rbd_error[:, :N_BASE] - np.einsum("nbj,nj->nb", C, joints_measured),
@@ -94,7 +97,7 @@ def evaluate(model_set: ModelSet, inputs: np.ndarray, rbd_error: np.ndarray, rbd
                 "reduction": (1.0 - rms_lea / rms_nom) if rms_nom > 0 else 0.0,
                 "improved_dimensions": int(np.sum(lea < nom))}
 
-    return {"learner": model_set.learner, "samples": int(len(X)), "valid_samples": int(valid.sum()),
+    return {"learner": model_set.learner, "samples": int(len(X)), "valid_samples": n_valid,
             "dimensions": dims,
             "summary": {"rbd": group("rbd"), "actuation": group("actuation"), "all": group(None),
                         "note": "RMS over dimensions of per-dimension RMSE; rbd units N/Nm, actuation Nm"}}
@@ -109,7 +112,7 @@ def evaluate_on_bags(robot, model_set: ModelSet, bags: Sequence[str], progress: 
     ds = load_dataset(robot, bags, progress=progress, profile=profile)
     tg = ds.targets
     metrics = evaluate(model_set, tg.inputs, tg.generalized_error, tg.generalized_observed, tg.actuation_error,
-                       tg.valid, tg.leg_coupling)
+                       tg.valid, tg.leg_coupling, tg.effort_valid)
     metrics["bags"] = ds.bags
     metrics["rejected"] = ds.rejected
     return metrics

@@ -42,7 +42,7 @@ class Dataset:
         return int(self.targets.valid.sum())
 
 
-LOG_COLUMNS = ("t", "q", "v", "a", "tau", "tau_dot", "u", "contacts", "valid", "segment")
+LOG_COLUMNS = ("t", "q", "v", "a", "tau", "tau_dot", "u", "contacts", "valid", "segment", "effort_valid")
 """The per-sample arrays of a FilteredLog."""
 
 
@@ -108,7 +108,8 @@ def load_dataset(robot: RobotDescription, bags: Sequence[str], progress: bool = 
     # eq. (11) per sample, in chunks (extraction.EXTRACTION_CHUNK): its per-sample intermediates are
     # freed chunk by chunk. Filtering cannot be streamed this way: the zero-phase filters need whole
     # segments, so each bag is read and filtered whole (one bag's raw log at a time).
-    targets = extract(robot, log.q, log.v, log.a, log.tau, log.u, log.contacts, log.t, log.valid, tau_dot=log.tau_dot)
+    targets = extract(robot, log.q, log.v, log.a, log.tau, log.u, log.contacts, log.t, log.valid, tau_dot=log.tau_dot,
+                      effort_valid=log.effort_valid)
     for k, c in log.invalid_counts.items():
         rejected[k] = rejected.get(k, 0) + c
     ds = Dataset(log=log, targets=targets, bag_index=joiner.bag_index(), bags=[str(b) for b in bags],

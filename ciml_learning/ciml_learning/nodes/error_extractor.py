@@ -2,10 +2,13 @@
 
 Thin adapter around ciml_learning.core.extraction.extract; rejected inputs are counted on
 /diagnostics and never produce an output. Every extracted error goes to /model_error/measured
-(for plots and recording); each valid one (its state valid: not near a contact change, filter
-warmed up) also goes, with the state it came from, to /model_error/learning_samples as one
-ciml_msgs/LearningSample with a running `sequence`: the online learner then takes only what it
-can learn (most states of a trot are not valid) and counts a sequence gap as lost samples.
+(for plots and recording); each one with a usable part also goes, with the state it came from, to
+/model_error/learning_samples as one ciml_msgs/LearningSample with a running `sequence`: the
+rigid-body error observed where the state is `valid` (not near a contact change, no bridged gap),
+the actuation error where it is `effort_valid` (no bridged gap: Γ = τ − u does not see the
+contacts, filters.contact_change_mask) — of the states with only Γ usable, every
+`effort_sample_every`-th (the learner's CPU, not the data, bounds how many it can take). The
+online learner then takes only what it can learn and counts a sequence gap as lost samples.
 States are extracted in batches, every `batch_period` of wall-clock time: extract is vectorised,
 and one state alone costs ~4× its share of a batch of 5 (results/LIVE_GRAPH.md, third session),
 which on a 2-core machine is the difference between keeping up at 250 Hz and not. The outputs are the same, in order,
@@ -44,8 +47,10 @@ class ErrorExtractorNode(Node):
         self.gamma = p["gamma"]
         self.robot = load_profile(p["robot"]).robot()
         self.health = Health(self)
-        self.pending: list[tuple] = []  # (state msg, stamp ns, q, v, q̈, τ, τ̇, u, contacts, valid) awaiting a batch
+        self.pending: list[tuple] = []  # (state msg, stamp ns, q, v, q̈, τ, τ̇, u, contacts, valid, effort_valid)
         self.sequence = 0               # learning samples published
+        self.effort_sample_every = p["effort_sample_every"]
+        self.effort_only = 0            # states with only Γ usable, seen (effort_sample_every picks from them)
         self.references = ReferenceHistory(int(p["max_reference_age"] * 1e9))
         self.waiting = AwaitReference(self.references.max_age_ns, int(p["max_pair_age"] * 1e9))
         self.timer: Timer | None = None
@@ -95,21 +100,25 @@ class ErrorExtractorNode(Node):
         if not self.pending:
             return
         batch, self.pending = self.pending, []
-        states, stamps, q, v, a, tau, tau_dot, u, contacts, valid = (list(x) for x in zip(*batch))
+        states, stamps, q, v, a, tau, tau_dot, u, contacts, valid, effort_valid = (list(x) for x in zip(*batch))
         res = extract(self.robot, np.array(q), np.array(v), np.array(a), np.array(tau), np.array(u),
                       np.array(contacts), gamma=self.gamma, tau_dot=np.array(tau_dot))
         for i, ns in enumerate(stamps):
             if not res.valid[i]:
                 self.health.count("non_finite_extraction", "extraction produced a non-finite value")
                 continue
-            observed_act = np.full(self.robot.n_joints, bool(valid[i]))
+            observed_act = np.full(self.robot.n_joints, bool(effort_valid[i]))
             error = cv.model_error_msg(self.robot, ns, "measured", res.rbd_error[i], res.rbd_observed[i] & valid[i],
                                        res.actuation_error[i], observed_act)
             self.pub.publish(error)
-            if valid[i]:
+            if valid[i] or (effort_valid[i] and self._take_effort_only()):
                 self.waiting.push(ns, LearningSample(header=error.header, state=states[i], error=error))
         self.health.counts["batch_max"] = max(self.health.counts["batch_max"], len(batch))
         self._send_samples()
+
+    def _take_effort_only(self) -> bool:
+        self.effort_only += 1
+        return self.effort_sample_every > 0 and self.effort_only % self.effort_sample_every == 0
 
     def _send_samples(self) -> None:
         for ns, sample in self.waiting.ready(self.references.newest):

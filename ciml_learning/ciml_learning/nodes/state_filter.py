@@ -143,12 +143,13 @@ class StateFilterNode(Node):
         self.health.counts["joint_samples_filled"] = self.filter.filled
         self.health.counts["filter_restarts"] = self.filter.restarts
         # the share the learning chain can use: states away from contact changes and bridged gaps
-        for key in ("valid", "contact_change", "bridged_gap_window"):
+        # (the rigid-body error), states away from bridged gaps (the actuation error)
+        for key in ("valid", "contact_change", "bridged_gap_window", "effort_valid"):
             self.health.counts[f"states_{key}"] = self.filter.counts[key]
         for out in ready:
             ns = int(round(out.t * 1e9))
             self.pub.publish(cv.robot_state_msg(self.robot, ns, out.q, out.v, out.a, out.tau, out.tau_dot, out.u,
-                                                out.contacts, out.valid))
+                                                out.contacts, out.valid, out.effort_valid))
             self.periods.mark()
 
 

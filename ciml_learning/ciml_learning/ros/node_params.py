@@ -46,8 +46,8 @@ STATE_FILTER = NodeSchema("ciml_learning", "state_filter",
 ))
 
 ERROR_EXTRACTOR = NodeSchema("ciml_learning", "error_extractor",
-                             "/filtered_state → /model_error/measured (eq. 11 and 14) and, for valid states, "
-                             "/model_error/learning_samples", (
+                             "/filtered_state → /model_error/measured (eq. 11 and 14) and, for states with a "
+                             "usable part, /model_error/learning_samples", (
     Param("gamma", 0.02, "Regularisation of near-singular leg blocks", "m/rad", 1e-4, 0.2, read_only=False),
     Param("batch_period", 0.02, "Filtered states are extracted together every this often (wall clock); one state "
           "costs ~0.7 ms alone, ~0.2 ms in a batch of 5 (0: each state at once)", "s", 0.0, 0.5, read_only=False),
@@ -55,6 +55,9 @@ ERROR_EXTRACTOR = NodeSchema("ciml_learning", "error_extractor",
           "sample sent with its learning sample", "s", 0.001, 1.0),
     Param("max_pair_age", 0.5, "Longest wait of a learning sample for the /reference of its instant (in stamps "
           "behind the newest sample)", "s", 0.004, 10.0),
+    Param("effort_sample_every", 4, "Of the states whose torques are usable but not the rigid-body error (near a "
+          "contact change: most of a trot), every this-th goes to the learner, for Γ only (1: all; 0: none): the "
+          "learner's share of the CPU bounds how many it can take", "", 0, 1000),
     ROBOT,
 ))
 

@@ -1,9 +1,10 @@
 """`online_learner`: /model_error/learning_samples → LWPR snapshots + /model_update.
 
 Thin adapter around ciml_learning.learning.online (learning_sample, OnlineLearner) and snapshots
-(SnapshotWriter): each learning sample — a valid filtered state (q, q̇, q̈ → x of eq. 12) and
-its measured error of eq. (11)/(14), sent together by error_extractor for valid states only —
-is learned at once with ModelSet.partial_fit_one (all 30 dimensions, ~0.5 ms per sample).
+(SnapshotWriter): each learning sample — a filtered state (q, q̇, q̈ → x of eq. 12) and its
+measured error of eq. (11)/(14), sent together by error_extractor for valid states, and for some
+near contact changes with Γ alone observed — is learned at once with ModelSet.partial_fit_one
+(the observed dimensions, ~0.5 ms per sample for all 30).
 The extractor sends only what can be learned: most states of a trot are near a contact change,
 and a learner niced below every other job, taking every state and error to drop most of them,
 got through a third of the stream on a full 2-core machine and learned a fraction of what it

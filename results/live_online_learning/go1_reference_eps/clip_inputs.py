@@ -6,35 +6,17 @@ The model set learned online from MINUTES of BAG drives the closed loop (trot_35
 the references' joint inputs q, q̇, q̈ given to the models as they are, and clipped per column to the
 1st–99th percentile of the learned rows (what the swing data support); RMS feedback effort [Nm].
 """
-import os
 import sys
 
 import numpy as np
+from go1_log import effort, learning_order, load, robot
 
 from ciml_learning.core.extraction import learning_inputs
-from ciml_learning.core.profile import load_profile
 from ciml_learning.learning.model_epsilon import EpsilonFunction
 from ciml_learning.learning.models import ModelSet
-from ciml_learning.logs.pipeline import load_dataset
-from ciml_sim.recorder import run_headless
-from ciml_sim.scenario import resolve_scenario
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-profile = load_profile(os.path.join(HERE, "..", "go1_ciml_topics_profile.yaml"))
-robot = profile.robot()
-tg = load_dataset(robot, [sys.argv[1]], progress=False, profile=profile).targets
-scenario = resolve_scenario("go1_gap", robot)
-rows = tg.valid | (tg.effort_valid & (np.cumsum(tg.effort_valid & ~tg.valid) % 4 == 0))
-rng = np.random.default_rng(0)
-slots, order = [], []
-for r in np.flatnonzero(rows):  # drift.py's streaming shuffle of 1,000 samples
-    if len(slots) < 1000:
-        slots.append(r)
-        continue
-    k = int(rng.integers(1000))
-    order.append(slots[k])
-    slots[k] = r
-order = np.array(order)
+tg, rows = load(sys.argv[1])
+order = learning_order(np.flatnonzero(rows), 1000)  # drift.py's streaming shuffle
 order = order[(tg.t[order] - tg.t[0]) < 60.0 * float(sys.argv[2])]
 ms = ModelSet.for_robot(robot, "lwpr")
 ms.partial_fit(tg.inputs[order], tg.generalized_error[order], tg.generalized_observed[order],
@@ -54,11 +36,6 @@ class Clipped(EpsilonFunction):
             return None
         rbd, rbd_var = self.model_set.predict_part_one(x, "rbd")
         return (rbd, rbd_var, *out[2:])
-
-
-def effort(fn):
-    return round(run_headless(robot, scenario, "trot_35", 30.0, 11, epsilon_fn=fn,
-                              progress=False).metrics()["rms_feedback_effort_nm"], 3)
 
 
 outside = []

@@ -14,54 +14,19 @@ rigid-body error against the true calf friction there (go1_gap: 0.8 Nm Coulomb, 
 0.03 rad/s, + 0.3 N m s/rad viscous).
 """
 import copy
-import os
 import sys
 
 import numpy as np
+from go1_log import effort, learning_order, load, robot, scenario
 
 from ciml_learning.core.extraction import learning_inputs
 from ciml_learning.core.physical_bounds import N_BASE
-from ciml_learning.core.profile import load_profile
-from ciml_learning.learning.model_epsilon import EpsilonFunction
 from ciml_learning.learning.models import ModelSet
-from ciml_learning.logs.pipeline import load_dataset
 from ciml_sim.recorder import run_headless
-from ciml_sim.scenario import resolve_scenario
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-profile = load_profile(os.path.join(HERE, "..", "go1_ciml_topics_profile.yaml"))
-robot = profile.robot()
-tg = load_dataset(robot, [sys.argv[1]], progress=False, profile=profile).targets
-scenario = resolve_scenario("go1_gap", robot)
-effort_rows = tg.valid | (tg.effort_valid & (np.cumsum(tg.effort_valid & ~tg.valid) % 4 == 0))
+tg, effort_rows = load(sys.argv[1])
 buffer = int(sys.argv[3]) if len(sys.argv) > 3 else 0
-
-
-def learning_order(rows: np.ndarray, rng=np.random.default_rng(0)) -> np.ndarray:
-    """rows in the order a streaming shuffle of `buffer` samples learns them (the buffer's last
-    content stays unlearned, as it would live)."""
-    if buffer <= 0:
-        return rows
-    slots, out = [], []
-    for r in rows:
-        if len(slots) < buffer:
-            slots.append(r)
-            continue
-        k = int(rng.integers(buffer))
-        out.append(slots[k])
-        slots[k] = r
-    return np.array(out, dtype=np.int64)
-
-
-order = learning_order(np.flatnonzero(tg.valid | effort_rows))
-
-
-def effort(ms):
-    fn = None if ms is None else EpsilonFunction(robot, ms)
-    return round(run_headless(robot, scenario, "trot_35", 30.0, 11, epsilon_fn=fn,
-                              progress=False).metrics()["rms_feedback_effort_nm"], 3)
-
-
+order = learning_order(np.flatnonzero(effort_rows), buffer)
 print("nominal", effort(None), flush=True)
 ms = ModelSet.for_robot(robot, "lwpr")
 t = tg.t - tg.t[0]

@@ -113,3 +113,14 @@ def test_bag_without_metadata_names_what_is_missing(tmp_path, capsys):
     assert main(["extract", "--bag", str(bag), "--out", str(tmp_path / "t.npz")]) == 1
     err = capsys.readouterr().err.strip()
     assert "metadata.yaml is missing" in err and "None" not in err and err.count("\n") == 0
+
+
+@pytest.mark.parametrize("option", ["seeds=x1", "baseline_seeds=1,,2", "seeds=1.5"])
+def test_bench_seed_options_that_are_not_integers_give_one_line(option, tmp_path, capsys, monkeypatch):
+    """Checked before any graph starts: nothing is written."""
+    monkeypatch.delenv("CIML_DEBUG", raising=False)
+    out = tmp_path / "bench.json"
+    assert main(["bench", "--only", "live_online_learning", "--set", option, "--out", str(out)]) == 1
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip() and not ln.startswith("[")]
+    assert len(err) == 1 and err[0].startswith("ciml bench: error: ") and "integers or none" in err[0], err
+    assert not out.exists()

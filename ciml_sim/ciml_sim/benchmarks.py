@@ -23,6 +23,7 @@ from sensor_msgs.msg import JointState
 from ciml_control.standing import StandingController
 from ciml_learning.core import conversions as cv
 from ciml_learning.core import topics
+from ciml_learning.core.errors import CimlError
 from ciml_learning.core.robot import load_robot
 from ciml_learning.diagnosis.run import diagnose
 from ciml_learning.logs.bagio import BagWriter
@@ -146,16 +147,22 @@ def live_online_learning(seeds: str = "0,1,2,3,4", scenarios: str = "default_gap
     """Online learning on the live graph, with and without, per seed and scenario, per period
     (ciml_sim.live_bench.online_learning_runs); `plot`: also a PNG of the effort per period.
     Options (ciml bench --set NAME=VALUE): seeds, baseline_seeds (the runs without learning;
-    default: seeds; `none`: no such run, e.g. to add runs to a baseline measured before) and
+    default: seeds; `none`: no such run, e.g. to add runs to a baseline measured before; seeds
+    `none`: only runs without learning, e.g. with launch=model:=DIR) and
     scenarios comma-separated (a scenario: a shipped name or a YAML file),
     duration and period in simulated seconds, robot (a shipped name or a profile; the scenarios
     must be its own, e.g. go1_gap for go1), launch (more launch arguments, NAME:=VALUE
     comma-separated, e.g. learner_nice:=0)."""
-    def ints(text: str) -> tuple[int, ...]:
-        return tuple(int(s) for s in text.split(","))
+    def ints(name: str, text: str) -> tuple[int, ...]:
+        if text == "none":
+            return ()
+        try:
+            return tuple(int(s) for s in text.split(","))
+        except ValueError:
+            raise CimlError(f"{name} must be comma-separated integers or none, got {text!r}") from None
 
-    baseline = None if not baseline_seeds else () if baseline_seeds == "none" else ints(baseline_seeds)
-    result = live_bench.online_learning_runs(ints(seeds), tuple(scenarios.split(",")), float(duration),
+    baseline = ints("baseline_seeds", baseline_seeds) if baseline_seeds else None
+    result = live_bench.online_learning_runs(ints("seeds", seeds), tuple(scenarios.split(",")), float(duration),
                                              float(period), baseline, robot,
                                              dict(a.split(":=", 1) for a in launch.split(",")) if launch else None)
     if plot:

@@ -6,6 +6,7 @@ import numpy as np
 from ciml_learning.core.profile import load_profile
 from ciml_learning.learning.model_epsilon import EpsilonFunction
 from ciml_learning.logs.pipeline import load_dataset
+from ciml_learning.ros.node_params import ERROR_EXTRACTOR
 from ciml_sim.recorder import run_headless
 from ciml_sim.scenario import resolve_scenario
 
@@ -15,11 +16,17 @@ robot = profile.robot()
 scenario = resolve_scenario("go1_gap", robot)
 
 
+def learner_rows(tg) -> np.ndarray:
+    """The rows the live learner gets: the valid ones and every effort_sample_every-th (the error
+    extractor's default) of those usable for Γ only, near a contact change."""
+    every = ERROR_EXTRACTOR.get("effort_sample_every").default
+    return tg.valid | (tg.effort_valid & (np.cumsum(tg.effort_valid & ~tg.valid) % every == 0))
+
+
 def load(bag: str):
-    """(targets, rows the live learner gets: the valid ones and every 4th near a contact change,
-    the extractor's effort_sample_every)."""
+    """(targets, learner_rows) of a go1_gap bag on CIML's topics."""
     tg = load_dataset(robot, [bag], progress=False, profile=profile).targets
-    return tg, tg.valid | (tg.effort_valid & (np.cumsum(tg.effort_valid & ~tg.valid) % 4 == 0))
+    return tg, learner_rows(tg)
 
 
 def learning_order(rows: np.ndarray, buffer: int, rng=None) -> np.ndarray:

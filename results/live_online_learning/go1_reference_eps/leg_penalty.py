@@ -8,9 +8,8 @@ ROBOT: a shipped profile name or a profile path (go1: ../go1_ciml_topics_profile
 on CIML's topics). PARAMS_JSON overrides ModelSet's LWPR defaults per group (e.g.
 '{"leg": {"penalty": 1e-2}}'), or 'nominal' for no model.
 
-online: the bag's samples are learned as the online learner gets them (the valid states and every
-4th near a contact change) through a streaming shuffle of 1,000 samples with rng SEED
-(go1_log.learning_order), by partial_fit; after 1, 3 and 10 minutes of the log the model so far
+online: the bag's samples are learned as the online learner gets them (go1_log.learner_rows)
+through a streaming shuffle of 1,000 samples with rng SEED (go1_log.learning_order), by partial_fit; after 1, 3 and 10 minutes of the log the model so far
 drives a closed loop (trot_35 30 s, seed 11; RMS feedback effort [Nm]).
 offline: `ciml train`'s fit of every bag in BAG_DIR (here the demo's nine 20 s recordings: `ciml
 record [--robot …] --scenario SCENARIO --motion M --duration 20 --seed S` for M in base_only,
@@ -26,7 +25,7 @@ import os
 import sys
 
 import numpy as np
-from go1_log import learning_order
+from go1_log import learner_rows, learning_order
 
 from ciml_learning.core.profile import load_profile, profile_path
 from ciml_learning.learning.model_epsilon import EpsilonFunction
@@ -64,7 +63,7 @@ elif mode == "online":
         print(f"{spec} nominal: effort {effort(None, 'trot_35', 30.0)}")
         sys.exit()
     tg = load_dataset(robot, [data], progress=False, profile=profile).targets
-    rows = tg.valid | (tg.effort_valid & (np.cumsum(tg.effort_valid & ~tg.valid) % 4 == 0))
+    rows = learner_rows(tg)
     order = learning_order(np.flatnonzero(rows), 1000, np.random.default_rng(seed))
     ms = ModelSet.for_robot(robot, "lwpr", json.loads(params))
     t = tg.t - tg.t[0]

@@ -9,8 +9,9 @@ on CIML's topics). PARAMS_JSON overrides ModelSet's LWPR defaults per group (e.g
 '{"leg": {"penalty": 1e-2}}'), or 'nominal' for no model.
 
 online: the bag's samples are learned as the online learner gets them (go1_log.learner_rows)
-through a streaming shuffle of 1,000 samples with rng SEED (go1_log.learning_order), by partial_fit; after 1, 3 and 10 minutes of the log the model so far
-drives a closed loop (trot_35 30 s, seed 11; RMS feedback effort [Nm]).
+through a streaming shuffle of 1,000 samples with rng SEED (go1_log.learning_order), by
+partial_fit; after 1, 3 and 10 minutes of the log the model so far drives a closed loop
+(trot_35 30 s, seed 11; RMS feedback effort [Nm]).
 offline: `ciml train`'s fit of every bag in BAG_DIR (here the demo's nine 20 s recordings: `ciml
 record [--robot …] --scenario SCENARIO --motion M --duration 20 --seed S` for M in base_only,
 walk_35, trot_35 and S = 1, 2, 3); closed loops of 20 s, seed 11, on six motions, four of them

@@ -330,3 +330,38 @@ def test_model_server_nominal_hot_swap_refusal_and_nan(tmp_path):
         np.testing.assert_array_equal(np.r_[m.rbd_observed, m.actuation_observed],
                                       np.r_[expected.rbd_observed, expected.actuation_observed])
     assert np.abs(np.r_[expected.rbd_error, expected.actuation_error]).max() > 1.0   # it predicts something
+
+
+@pytest.mark.ros
+def test_the_launch_model_serves_from_the_first_reference(tmp_path):
+    """model_dir (the launch's `model`) is loaded before the server answers a reference: the first
+    prediction is the model's, not the nominal model's while a worker loads it (the controller's
+    rollback judged such a late model against the nominal start and rolled it back); a corrupt one
+    is refused at start (counted) and the nominal model serves."""
+    import random
+
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from ciml_learning.nodes.model_server import ModelServerNode
+
+    good = tmp_path / "model_a"
+    _trained_model(good)
+    bad = tmp_path / "model_b"
+    shutil.copytree(good, bad)
+    (bad / "model.npz").write_bytes(b"not a model")
+    q, v, a = _reference_states(1)
+    for model_dir, source in ((good, "lwpr:model_a"), (bad, "nominal")):
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=random.SystemRandom().randint(1, 101))
+        try:
+            node = ModelServerNode(context=ctx, parameter_overrides=[Parameter("model_dir", value=str(model_dir))])
+            out: list = []
+            node.pub.publish = out.append
+            node.on_reference(_reference_msg(1_000_000_000, q[0], v[0], a[0]))
+            assert [m.source for m in out] == [source]
+            assert node.health.counts["refused_models"] == (source == "nominal")
+            assert node.health.counts["model_swaps"] == (source != "nominal")
+            node.destroy_node()
+        finally:
+            rclpy.try_shutdown(context=ctx)

@@ -12,7 +12,8 @@ Nominal model (source "nominal"): zeros, all observed flags false and the prior 
 of serving.nominal_prediction (large: (5 % of the weight-derived force scale)²) — served
 when no model is loaded (model_dir '') or when a prediction is non-finite (counted).
 
-Hot swap without a gap: a /model_update (or the initial model_dir) is loaded and
+The launch's model (model_dir) is loaded and validated before the node answers any reference,
+so it serves from the first one. Hot swap without a gap: a /model_update is loaded and
 validated on a worker thread (serving.load_served_model: ModelSet.load's checks with the
 whole-model checksum; an announcement must carry that checksum; predictions on the model's
 own training inputs within the robot's physical bounds); the node swaps its served model
@@ -80,7 +81,24 @@ class ModelServerNode(Node):
         self.create_subscription(String, topics.MODEL_ROLLBACK, self.on_rollback, COMMAND_QOS)
         self.create_timer(swap_period, self.swap)
         if model_dir:
-            self.loader.submit((model_dir, None))  # not announced: its own checksum is verified
+            self._serve_initial(model_dir)
+
+    def _serve_initial(self, model_dir: str) -> None:
+        """The launch's model serves from the first reference: loaded here, before any prediction
+        (not announced: its own checksum is verified). Loaded on the worker, it reached the
+        controller ~1 s after the first references, and the controller's rollback judged it
+        against those nominal standing seconds: the trot that followed rolled it back (go1,
+        results/LIVE_GRAPH.md, twenty-fifth session). A refused one leaves the nominal model."""
+        try:
+            self.served = load_served_model(self.robot, model_dir)
+        except CimlError as err:
+            self.health.count("refused_models", f"model {model_dir} refused ({err}); serving the nominal model")
+            self.get_logger().error(f"model refused: {err}")
+            return
+        self.hold.swapped()
+        self.health.counts["model_swaps"] += 1
+        self.health.set(0, f"serving {self.served.name}")
+        self.get_logger().info(f"serving {self.served.model_dir}")
 
     def _load(self, item: tuple[str, str | None]) -> ServedModel:
         # a load is ~1 s of CPU: it must not take the real-time priority the predictions have

@@ -22,6 +22,11 @@ REFERENCE_GENERATOR = NodeSchema("ciml_control", "reference_generator",
           0.0, 60.0),
     Param("foot_height", 0.002, "Height of the foot frames above the ground when standing (sphere foot radius "
           "of the simulation)", "m", 0.0, 0.2),
+    Param("lookahead", 0.008, "Each /reference is published this long before its stamp (the motion sampled "
+          "ahead), so the controller and the model server hold the reference of a robot sample's own instant "
+          "when the sample arrives (two periods: one for the model server's prediction; 0: stamped now, one "
+          "period behind the sample that uses it)", "s", 0.0, 0.1,
+          read_only=False),
     THREAD_PRIORITY,
     ROBOT,
 ))

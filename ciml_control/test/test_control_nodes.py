@@ -62,6 +62,82 @@ def test_reference_generator_stands_until_torque_control_then_runs_the_motion():
 
 
 @pytest.mark.ros
+def test_the_reference_is_published_ahead_and_the_controller_takes_its_samples_instant():
+    """reference_generator stamps each /reference `lookahead` ahead of its clock with the motion
+    sampled at that instant; id_controller, given references and predictions of several instants,
+    steps a joint sample on the reference stamped like it and that reference's own prediction
+    (lag 0), not the newest of each (one period ahead here)."""
+    import rclpy
+
+    from ciml_control.nodes.id_controller import IdControllerNode
+    from ciml_control.nodes.reference_generator import ReferenceGeneratorNode
+
+    node, ctx = _in_process(ReferenceGeneratorNode, motion="trot_35", start_on_command=False, start_delay=0.0,
+                            lookahead=0.004)
+    try:
+        out: list = []
+        node.pub.publish = out.append
+        before = node.get_clock().now().nanoseconds
+        node.tick()
+        after = node.get_clock().now().nanoseconds
+        stamp = cv.stamp_to_ns(out[0].header.stamp)
+        assert before + 4_000_000 <= stamp <= after + 4_000_000
+        expected = make_reference(ROBOT, "trot_35", standing_configuration(ROBOT, 0.002)).sample(
+            (stamp - node.start_ns) * 1e-9)
+        assert np.allclose(reference_point(ROBOT, out[0]).q, expected.q, atol=1e-9)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+    node, ctx = _in_process(IdControllerNode)
+    try:
+        node.pub.publish = lambda msg: None
+        ns = 10**9
+        q_stand = standing_configuration(ROBOT, 0.002)
+        ref = make_reference(ROBOT, "stand", q_stand).sample(0.0)
+        zeros = np.zeros(ROBOT.n_joints)
+        for k in (0, 1):  # the sample's instant and one period ahead
+            node.on_reference(reference_msg(ROBOT, ns + 4_000_000 * k, ref))
+            node.on_model_error(cv.model_error_msg(ROBOT, ns + 4_000_000 * k, "test", np.zeros(18),
+                                                   np.zeros(18, bool), zeros, np.zeros(ROBOT.n_joints, bool)))
+        node.on_base(cv.odometry_msg(ns, q_stand[:3], q_stand[3:7], np.zeros(3), np.zeros(3)))
+        node.on_contacts(cv.contact_state_msg(ROBOT, ns, np.ones(ROBOT.n_feet, bool)))
+        node.on_joints(cv.joint_state_msg(ROBOT, ns, q_stand[7:], zeros, zeros))
+        assert node.reference[1] == ns + 4_000_000  # the newest is ahead …
+        assert node.reference_lags[-1] == 0.0        # … the step took the sample's own
+        assert node.prediction_lags[-1] == 0.0       # and the prediction made for it
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+@pytest.mark.ros
+def test_steps_before_any_prediction_are_no_reference_for_the_first_model():
+    """Until the first /model_error/predicted arrives (the model server not yet discovered at start)
+    the rollback watch is not fed: the model launched with the graph, whose predictions come
+    seconds after the first command, is not judged against that standing start."""
+    import rclpy
+
+    from ciml_control.nodes.id_controller import IdControllerNode
+
+    node, ctx = _in_process(IdControllerNode)
+    try:
+        node.pub.publish = lambda msg: None
+        ns = 10**9
+        for k in range(800):  # 3.2 s of standing steps without a prediction (> half the 5 s baseline)
+            _feed_standing(node, ROBOT, ns + 4_000_000 * k)
+        zeros = np.zeros(ROBOT.n_joints)
+        k = 800
+        prediction = cv.model_error_msg(ROBOT, ns + 4_000_000 * k, "lwpr:launched", np.zeros(18),
+                                        np.zeros(18, bool), zeros, np.zeros(ROBOT.n_joints, bool))
+        _feed_standing(node, ROBOT, ns + 4_000_000 * k, model_error=prediction)
+        assert node.watch.current == "lwpr:launched"
+        assert node.watch.unjudged == 1 and node.watch._pending is False  # no baseline: not judged
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+@pytest.mark.ros
 def test_id_controller_waits_then_commands_limited_trusted_torque_and_damps_without_state():
     from ciml_msgs.msg import ContactState, ModelError, RobotReference, TorqueCommand
     from diagnostic_msgs.msg import DiagnosticArray
@@ -434,7 +510,7 @@ def test_feedforward_only_publishes_the_learned_correction_and_commands_nothing(
         assert list(msg.name) == list(ROBOT.joint_names) and cv.stamp_to_ns(msg.header.stamp) == ns
         # the same correction from the controller law itself, with the ε the node trusted
         ref = node.reference[2]
-        eps, _ = node.epsilon(ref, node._now())
+        eps, _ = node.epsilon(ref, node.reference[1], node._now())
         q_stand = standing_configuration(ROBOT, 0.002)
         v = np.r_[np.zeros(6), np.full(ROBOT.n_joints, 0.1)]
         ctl = IdController(ROBOT)

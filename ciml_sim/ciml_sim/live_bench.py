@@ -229,7 +229,8 @@ LEARNING_COUNTERS = {
     "id_controller": ("commands", "rollbacks", "rollbacks_worse_than_before", "rollback_detect_ms", "models_judged",
                       "models_unjudged", "epsilon_gated",
                       "qp_failures", "reference_held", "stale_reference", "prediction_behind_reference",
-                      "prediction_lag_p50_ms", "prediction_lag_p99_ms"),
+                      "prediction_lag_p50_ms", "prediction_lag_p99_ms", "reference_lag_mean_ms",
+                      "reference_lag_p99_ms"),
 }
 """The counters `live_online_learning` samples from /diagnostics at the end of every period."""
 

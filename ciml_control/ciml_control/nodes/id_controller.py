@@ -30,10 +30,13 @@ Safety once it has commanded torque (counted on /diagnostics):
 - non-finite or mismatched inputs are dropped by the conversions (never used);
 - a controller error (ControllerInputError) → damping for that step;
 - QP failures → the controller's documented fallback; counted.
-Model error: the newest /model_error/predicted (if younger than `model_error_timeout`, and
-made for a reference stamped within `max_prediction_lag` of the reference in use: a model
-server that falls behind answers for another instant of the gait; counted:
-prediction_behind_reference, prediction_lag_p50_ms / _p99_ms) gives ε = J'ᵀ Φ̃' − Sᵀ Γ
+Reference and model error by stamp: a step tracks the /reference stamped like its joint sample
+(the reference_generator publishes ahead: `lookahead`), else the newest (counted:
+reference_lag_mean_ms / _p50_ms / _p99_ms, the sample's stamp minus its reference's), and uses the
+/model_error/predicted made for that reference, else the nearest within `max_prediction_lag` (a
+model server that falls behind answers for another instant of the gait), if the newest is
+younger than `model_error_timeout` (counted: prediction_behind_reference, prediction_lag_mean_ms /
+_p50_ms / _p99_ms) gives ε = J'ᵀ Φ̃' − Sᵀ Γ
 (eq. 17) with the contact-invariant basis at the reference configuration; otherwise ε = 0
 (nominal model: a model server that is late, restarted or absent never stops the controller).
 All 18 + 12 predicted entries pass the trust law
@@ -81,6 +84,7 @@ from ciml_learning.core import topics
 from ciml_learning.core.errors import CimlError
 from ciml_learning.core.profile import load_profile
 from ciml_learning.core.projection import contact_invariant_basis
+from ciml_learning.learning.learning_gate import ReferenceHistory
 from ciml_learning.learning.rollback import (
     NOMINAL_SOURCE,
     WORSE_THAN_BEFORE,
@@ -111,6 +115,9 @@ from ..trust import TrustLaw
 
 MODE_TORQUE = 0
 MODE_DAMPING = 1
+
+HISTORY = 16
+"""References and predictions kept by stamp (64 ms at 250 Hz)."""
 
 STATE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
 """State topics: only the newest sample matters to a controller (a backlog only adds latency)."""
@@ -151,10 +158,15 @@ class IdControllerNode(Node):
         self.joints: Stamped[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None  # (q, qd, tau)
         self.base: Stamped[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None  # (position, quaternion, twist)
         self.contacts: Stamped[np.ndarray] | None = None
-        self.reference: Stamped[ReferencePoint] | None = None
-        self.model_error: Stamped[cv.ModelErrorArrays] | None = None
+        self.reference: Stamped[ReferencePoint] | None = None      # the newest (freshness)
+        self.model_error: Stamped[cv.ModelErrorArrays] | None = None  # the newest (freshness)
+        # by stamp: a step takes the reference of its joint sample's instant and that reference's
+        # prediction, which a reference published ahead (reference_generator's lookahead) provides
+        self.references = ReferenceHistory(0, HISTORY)
+        self.predictions = ReferenceHistory(0, HISTORY)
         self.compute_times: deque = deque(maxlen=1000)
         self.prediction_lags: deque = deque(maxlen=1000)  # |reference stamp − its prediction's| [s]
+        self.reference_lags: deque = deque(maxlen=1000)   # joint sample stamp − its reference's [s]
         self.pub = self.create_publisher(TorqueCommand, topics.TORQUE_COMMAND, COMMAND_QOS)
         self.effort_pub = (self.create_publisher(Float64MultiArray, p["effort_command_topic"], COMMAND_QOS)
                            if p["effort_command_topic"] else None)
@@ -231,14 +243,19 @@ class IdControllerNode(Node):
                          or self.contacts)
 
     def on_reference(self, msg: RobotReference) -> None:
-        self.reference = self._convert("reference", lambda m: reference_point(self.robot, m), msg) or self.reference
+        reference = self._convert("reference", lambda m: reference_point(self.robot, m), msg)
+        if reference is not None:
+            self.reference = reference
+            self.references.add(reference[1], reference)
         if self._awaiting_reference:  # the joint sample that waited for it (wait_for_reference)
             self._awaiting_reference = False
             self.control()
 
     def on_model_error(self, msg: ModelError) -> None:
-        self.model_error = (self._convert("model_error", lambda m: cv.model_error_arrays(self.robot, m), msg)
-                            or self.model_error)
+        model_error = self._convert("model_error", lambda m: cv.model_error_arrays(self.robot, m), msg)
+        if model_error is not None:
+            self.model_error = model_error
+            self.predictions.add(model_error[1], model_error)
 
     def on_joints(self, msg: JointState) -> None:
         joints = self._convert("joint_states", lambda m: cv.joint_state_arrays(self.robot, m), msg)
@@ -271,18 +288,19 @@ class IdControllerNode(Node):
             if not self._fresh(item, timeout, now)]
         self.health.set(WARN, f"waiting for {', '.join(missing) or 'inputs'} before the first command")
 
-    def epsilon(self, ref: ReferencePoint, now: float) -> tuple[np.ndarray, str]:
-        """(ε, the source of the prediction it comes from: NOMINAL_SOURCE for ε = 0)."""
+    def epsilon(self, ref: ReferencePoint, ref_stamp: int, now: float) -> tuple[np.ndarray, str]:
+        """(ε, the source of the prediction it comes from: NOMINAL_SOURCE for ε = 0) at the reference
+        stamped ref_stamp [ns]: the prediction made for it, else the nearest one."""
         if not self.use_model_error or not self._fresh(self.model_error, self.model_error_timeout, now):
             return np.zeros(self.robot.nv), NOMINAL_SOURCE
-        assert self.reference is not None  # control() asks only once a reference has arrived
         # a prediction made for another instant of the gait is the wrong correction for this one
-        lag = abs(self.reference[1] - self.model_error[1]) * 1e-9
-        self.prediction_lags.append(lag)
-        if lag > self.params["max_prediction_lag"]:
+        self.predictions.max_age_ns = int(self.params["max_prediction_lag"] * 1e9)
+        found = self.predictions.at(ref_stamp)
+        self.prediction_lags.append(abs(ref_stamp - (found or self.model_error)[1]) * 1e-9)
+        if found is None:
             self.health.counts["prediction_behind_reference"] += 1
             return np.zeros(self.robot.nv), NOMINAL_SOURCE
-        prediction: cv.ModelErrorArrays = self.model_error[2]
+        prediction: cv.ModelErrorArrays = found[2]
         source = prediction.source
         if source in self.watch.rolled_back:  # until the model server has put the model before it back
             self.health.counts["rolled_back_predictions_ignored"] += 1
@@ -325,6 +343,9 @@ class IdControllerNode(Node):
                 self.health.counts["reference_waits"] += 1
                 return
         assert base is not None and contacts is not None and reference is not None  # fresh or held: received
+        self.references.max_age_ns = int(self.params["max_reference_lag"] * 1e9)
+        reference = self.references.at(stamp) or reference  # the sample's own instant, when published ahead
+        self.reference_lags.append((stamp - reference[1]) * 1e-9)
         # a late reference (its node stalled, or restarts) is not a dead one: safe stop, not a fall
         ref, stop = self.safe_stop.track(reference[2], fresh, stamp * 1e-9)  # the robot's sample time
         if stop != LIVE:
@@ -338,7 +359,7 @@ class IdControllerNode(Node):
         pos, quat, twist = base[2]
         q = np.concatenate([pos, quat, qj])
         v = np.concatenate([twist, qdj])
-        epsilon, source = self.epsilon(ref, now)
+        epsilon, source = self.epsilon(ref, reference[1], now)
         try:
             out = self.controller.compute(q, v, contacts[2], ref, epsilon)
         except CimlError as err:
@@ -367,6 +388,11 @@ class IdControllerNode(Node):
         self.compute_times.append(time.perf_counter() - t0)
 
     def _watch(self, now: float, source: str, cmd, qj, qdj, q, q_ref) -> None:
+        if self.model_error is None:
+            # no prediction heard yet (the model server not yet discovered at start): these steps are
+            # no reference for a model, and the one launched with the graph then came ~2.5 s late and
+            # was judged against the nominal standing start (go1: rolled back as 25 % worse)
+            return
         effort = feedback_effort(cmd.stiffness, cmd.damping, cmd.position_target, cmd.velocity_target,
                                  cmd.feedback_linearization, qj, qdj)
         back = self.watch.update(now, source, (effort, EffortWatch.base_position_error(q, q_ref)))
@@ -420,10 +446,12 @@ class IdControllerNode(Node):
             t = np.array(self.compute_times) * 1e6
             self.health.counts["compute_p50_us"] = int(np.percentile(t, 50))
             self.health.counts["compute_p99_us"] = int(np.percentile(t, 99))
-        if self.prediction_lags:
-            lag = np.array(self.prediction_lags) * 1e3
-            self.health.counts["prediction_lag_p50_ms"] = round(float(np.percentile(lag, 50)), 1)
-            self.health.counts["prediction_lag_p99_ms"] = round(float(np.percentile(lag, 99)), 1)
+        for name, lags in (("prediction", self.prediction_lags), ("reference", self.reference_lags)):
+            if lags:
+                lag = np.array(lags) * 1e3
+                self.health.counts[f"{name}_lag_mean_ms"] = round(float(np.mean(lag)), 2)
+                self.health.counts[f"{name}_lag_p50_ms"] = round(float(np.percentile(lag, 50)), 1)
+                self.health.counts[f"{name}_lag_p99_ms"] = round(float(np.percentile(lag, 99)), 1)
 
 
 def main(args: list[str] | None = None) -> None:

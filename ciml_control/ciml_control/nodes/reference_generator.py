@@ -1,8 +1,15 @@
 """`reference_generator`: publishes the full-body reference of a motion on /reference.
 
 Thin adapter around ciml_control.references: at `rate` Hz it samples the motion at the
-time elapsed since the motion started (node clock: simulation time with use_sim_time)
-and publishes ciml_msgs/RobotReference (qᵈ, q̇ᵈ, q̈ᵈ and the contact schedule).
+time elapsed since the motion started (node clock: simulation time with use_sim_time) plus
+`lookahead`, and publishes ciml_msgs/RobotReference (qᵈ, q̇ᵈ, q̈ᵈ and the contact schedule)
+stamped with that instant, ahead of the clock. Why ahead: stamped now, the reference of an
+instant arrives after the robot's sample of that instant (both follow the same clock tick), so
+the controller tracked the reference of one period before and mostly used a model-error
+prediction of two periods before; on go1 a learned ε one 4 ms period late costs 14 % more
+feedback effort than ε on time (headless). Why two periods (8 ms at 250 Hz): with one, the model
+server (another process) still answered 12–70 % of the references after the sample that needed
+them; with two, none (live, lockstep; results/LIVE_GRAPH.md, twenty-fifth session).
 The motion starts `start_delay` seconds after the robot comes under torque control (the
 first MODE_TORQUE /torque_command), so it starts from the standing pose whatever the
 order in which the nodes start and whoever subscribes first (a dashboard, a recorder or
@@ -42,6 +49,7 @@ class ReferenceGeneratorNode(Node):
         self.health = Health(self)
         self.pub = self.create_publisher(RobotReference, topics.REFERENCE, COMMAND_QOS)
         self.start_delay_ns = int(p["start_delay"] * 1e9)
+        self.lookahead_ns = int(round(p["lookahead"] * 1e9))
         self.start_ns: int | None = None
         if p["start_on_command"]:
             self.create_subscription(TorqueCommand, topics.TORQUE_COMMAND, self.on_command, COMMAND_QOS, raw=True)
@@ -51,7 +59,9 @@ class ReferenceGeneratorNode(Node):
         self.get_logger().info(f"publishing {motion} on {topics.REFERENCE} at {rate:.0f} Hz")
 
     def _apply_parameters(self, changes: dict) -> str | None:
-        """`rate` at run time: the publish timer is replaced (the motion's clock goes on)."""
+        """`rate` and `lookahead` at run time: the publish timer is replaced (the motion's clock goes on)."""
+        if "lookahead" in changes:
+            self.lookahead_ns = int(round(changes["lookahead"] * 1e9))
         if "rate" in changes:
             self.destroy_timer(self.timer)
             self.timer = self.create_timer(1.0 / changes["rate"], self.tick)
@@ -67,13 +77,13 @@ class ReferenceGeneratorNode(Node):
                                    f"{self.start_delay_ns * 1e-9:g} s")
 
     def tick(self) -> None:
-        now = self.get_clock().now().nanoseconds
+        at = self.get_clock().now().nanoseconds + self.lookahead_ns
         try:
-            point = self.reference.sample(0.0 if self.start_ns is None else max(0.0, (now - self.start_ns) * 1e-9))
+            point = self.reference.sample(0.0 if self.start_ns is None else max(0.0, (at - self.start_ns) * 1e-9))
         except CimlError as err:  # e.g. an unreachable foot target: publish nothing
             self.health.count("reference_errors", str(err), level=ERROR)  # ERROR while it lasts
             return
-        self.pub.publish(reference_msg(self.robot, now, point))
+        self.pub.publish(reference_msg(self.robot, at, point))
         self.health.counts["published"] += 1
 
 

@@ -315,8 +315,10 @@ def test_id_controller_holds_a_late_reference_then_damps_a_dead_one():
         listener.close()
     assert np.linalg.norm(last_ref.v[6:]) > 1e-3  # the held reference was moving
     by_age = [(sent[cv.stamp_to_ns(m.header.stamp)], m) for m in cmds if cv.stamp_to_ns(m.header.stamp) in sent]
-    held = [m for age, m in by_age if 0.15 <= age <= 0.4]
-    dead = [m for age, m in by_age if age >= 0.65]
+    # ages by this sender's clock; the controller's are by receipt, later under load by the delivery
+    # latency (a CI run once saw a command 0.4 s after the last reference already damped)
+    held = [m for age, m in by_age if 0.15 <= age <= 0.3]
+    dead = [m for age, m in by_age if age >= 0.75]
     assert len(held) >= 20 and len(dead) >= 20, (len(held), len(dead), log[-800:])
     for m in held:
         arr = cv.torque_command_arrays(ROBOT, m)

@@ -208,3 +208,20 @@ def test_trot_sway_cuts_the_moment_the_contacts_cannot_give(robot, q_stand, moti
     straight = make_reference(robot, motion, q_stand)
     straight.trot_sway = lambda t: (0.0, 0.0, 0.0)
     assert unrealizable_rms(make_reference(robot, motion, q_stand)) < 0.35 * unrealizable_rms(straight)
+
+
+@pytest.mark.parametrize("motion", ["trot_35", "trot_45"])
+def test_a_sample_at_a_contact_switch_takes_the_motion_after_it_however_t_rounds(robot, q_stand, motion):
+    """The trot's lateral acceleration jumps at each switch of the diagonal pairs (the support line
+    changes). A sample at a switch instant commands the 4 ms after it, so it must take that motion
+    whether its time falls a rounding error before or after the switch: live stamps (ns · 1e-9
+    from the reference generator's start) fell on the other side after ~300 s, and go1's learned
+    ε then cost 21 % more feedback effort."""
+    ref = make_reference(robot, motion, q_stand)
+    half = 0.5 * ref.period
+    for k in (20, 21, 1001, 1002, 12001):  # ~7 s, ~300 s and ~1 h after the start
+        t_switch = ref.t0 + k * half
+        after = ref.sample(t_switch + 1e-7).a
+        for t in (t_switch - 1e-12, t_switch, t_switch + 1e-12, round(t_switch * 1e9) * 1e-9):
+            a = ref.sample(t).a
+            assert np.allclose(a, after, atol=1e-3), (k, t - t_switch, np.abs(a - after).max())

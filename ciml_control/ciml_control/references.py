@@ -119,7 +119,10 @@ WALK_MARGIN = 0.06      # [m] distance of the CoM target from the support triang
 TROT_PERIOD = 0.6
 TROT_SWING = 0.27       # [s] per diagonal pair; 0.03 s four-foot support at each switch
 TROT_RAMP = 2.0         # [s] C² velocity ramp
-SWITCH_TOLERANCE = 1e-9  # [s] a sample this close to a contact switch is at the switch (float rounding of t)
+SWITCH_TOLERANCE = 1e-6
+"""[s] A sample this close to a contact switch is at the switch: a time in seconds from ns stamps
+carries rounding, and a clock that adds its step (MuJoCo's time += dt drifted 21 ns in 20 min)
+more; a control period is thousands of times longer."""
 BASE_ONLY_PERIOD = 5.0
 
 SPECS: dict[str, MotionSpec] = {

@@ -202,7 +202,7 @@ class MujocoBridge(Node):
     def on_reset(self, request, response):
         t = self.plant.time
         self.plant.reset()
-        self.plant.data.time = t  # keep /clock monotonic
+        self.plant.set_time(t)  # keep /clock monotonic
         self.last_command_time = -np.inf
         self._start_waiting("reset, waiting for /torque_command")
         self.health.count("resets")

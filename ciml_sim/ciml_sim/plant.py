@@ -260,6 +260,7 @@ class Plant:
         self._noise_start = -_NOISE_BLOCK
         self._meas_noise_i = _NOISE_BLOCK
         self._k = 0
+        self._clock = (0.0, 0)  # (time, steps) of the clock's origin: time = origin + steps since · dt
         self._forward_state: bytes | None = None
         self._actuators = joint_loop.Actuators(self.encoder_offset, self.limits, self._has_lag, self._alpha,
                                                np.zeros(nj), self._has_gain, self.gain, self.offset)
@@ -273,9 +274,21 @@ class Plant:
         """Set simulation time to 0 without touching the state (after a settling pre-roll);
         the held command's stamp moves with the clock."""
         self._command = self._command._replace(stamp=self._command.stamp - float(self.data.time))
-        self.data.time = 0.0
+        self.set_time(0.0)
         self._meas = None
         self._forward_state = None
+
+    def set_time(self, t: float) -> None:
+        """Simulation time t [s] now (the state untouched): the clock runs on from t."""
+        self._clock = (float(t), self._k)
+        self.data.time = float(t)
+
+    def _tick_clock(self) -> None:
+        """data.time from the step count: mj_step's time += dt drifts (−1 ns after 350 s, −21 ns
+        after 1,200 s), and a sample then falls on the other side of a gait's contact switch
+        from the instant it is for (references.SWITCH_TOLERANCE)."""
+        t0, k0 = self._clock
+        self.data.time = t0 + (self._k - k0) * float(self.model.opt.timestep)
 
     def set_command(self, u_ff: np.ndarray, q_target: np.ndarray, qd_target: np.ndarray, kp: np.ndarray,
                     kd: np.ndarray, damping_mode: bool = False, stamp: float | None = None) -> None:
@@ -380,6 +393,7 @@ class Plant:
             done += k
             self._k += k
         if n > 0:
+            self._tick_clock()
             self._meas = None
             self._forward_state = None
 
@@ -414,6 +428,7 @@ class Plant:
         """After joint_loop.closed_loop: the steps it ran, the measurement-noise position,
         the last command's stamp and rate flag."""
         self._k += physics_steps
+        self._tick_clock()
         if self._meas_noise_len and self._meas_noise_i < _NOISE_BLOCK:  # a block was in use
             self._meas_noise_i = meas_i
         self._command = self._command._replace(stamp=float(stamp), has_rate=bool(has_rate))

@@ -466,7 +466,8 @@ def test_learning_gate_pauses_on_a_fall_and_resumes_after_recovery():
 
 
 def test_learning_gate_checks_tracking_against_the_reference_of_the_same_stamp():
-    from ciml_learning.learning.learning_gate import NO_REFERENCE, TRACKING, GateConfig, LearningGate, ReferenceHistory
+    from ciml_learning.core.pairing import ReferenceHistory
+    from ciml_learning.learning.learning_gate import NO_REFERENCE, TRACKING, GateConfig, LearningGate
 
     q, stamps = _gate_stream(10)
     zeros_r, zeros_a = np.zeros(18), np.zeros(12)

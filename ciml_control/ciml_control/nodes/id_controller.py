@@ -82,9 +82,9 @@ from std_msgs.msg import Float64MultiArray, String
 from ciml_learning.core import conversions as cv
 from ciml_learning.core import topics
 from ciml_learning.core.errors import CimlError
+from ciml_learning.core.pairing import ReferenceHistory
 from ciml_learning.core.profile import load_profile
 from ciml_learning.core.projection import contact_invariant_basis
-from ciml_learning.learning.learning_gate import ReferenceHistory
 from ciml_learning.learning.rollback import (
     NOMINAL_SOURCE,
     WORSE_THAN_BEFORE,
@@ -164,6 +164,7 @@ class IdControllerNode(Node):
         # prediction, which a reference published ahead (reference_generator's lookahead) provides
         self.references = ReferenceHistory(0, HISTORY)
         self.predictions = ReferenceHistory(0, HISTORY)
+        self._set_lags(self.params)
         self.compute_times: deque = deque(maxlen=1000)
         self.prediction_lags: deque = deque(maxlen=1000)  # |reference stamp − its prediction's| [s]
         self.reference_lags: deque = deque(maxlen=1000)   # joint sample stamp − its reference's [s]
@@ -196,6 +197,12 @@ class IdControllerNode(Node):
                                        "base_kd_angular", "joint_lin_kp", "joint_lin_kd", "mu", "f_min",
                                        "feedback_contacts"})
 
+    def _set_lags(self, params: dict) -> None:
+        """The largest stamp distances of a step's reference and prediction (`max_reference_lag`,
+        `max_prediction_lag`)."""
+        self.references.max_age_ns = int(params["max_reference_lag"] * 1e9)
+        self.predictions.max_age_ns = int(params["max_prediction_lag"] * 1e9)
+
     def _apply_parameters(self, changes: dict) -> str | None:
         """Run-time sets: timeouts and switches at the next tick; gains, cone and contact set by
         rebuilding the controller (~20 ms, between two ticks of this single-threaded node)."""
@@ -209,6 +216,7 @@ class IdControllerNode(Node):
         if "max_variance_ratio" in changes:
             self.trust = TrustLaw(self.robot, changes["max_variance_ratio"])
         self.params = params
+        self._set_lags(params)
         self.state_timeout, self.reference_timeout = params["state_timeout"], params["reference_timeout"]
         self.reference_hold = params["reference_hold"]
         self.model_error_timeout, self.use_model_error = params["model_error_timeout"], params["use_model_error"]
@@ -294,7 +302,6 @@ class IdControllerNode(Node):
         if not self.use_model_error or not self._fresh(self.model_error, self.model_error_timeout, now):
             return np.zeros(self.robot.nv), NOMINAL_SOURCE
         # a prediction made for another instant of the gait is the wrong correction for this one
-        self.predictions.max_age_ns = int(self.params["max_prediction_lag"] * 1e9)
         found = self.predictions.at(ref_stamp)
         self.prediction_lags.append(abs(ref_stamp - (found or self.model_error)[1]) * 1e-9)
         if found is None:
@@ -343,7 +350,6 @@ class IdControllerNode(Node):
                 self.health.counts["reference_waits"] += 1
                 return
         assert base is not None and contacts is not None and reference is not None  # fresh or held: received
-        self.references.max_age_ns = int(self.params["max_reference_lag"] * 1e9)
         reference = self.references.at(stamp) or reference  # the sample's own instant, when published ahead
         self.reference_lags.append((stamp - reference[1]) * 1e-9)
         # a late reference (its node stalled, or restarts) is not a dead one: safe stop, not a fall

@@ -9,14 +9,16 @@ paired with every joint sample between two of its messages).
 
 The one home of this rule: loginputs.load_log applies it to a whole log (partner_indices),
 the state_filter node to one joint sample at a time (add_to_history, partner). A filtered state
-and the /reference of its instant pair by the nearest stamp instead (nearest; the online
-learner's tracking check: error_extractor). Pure module: numpy only.
+and the /reference of its instant pair by the nearest stamp instead (nearest, ReferenceHistory:
+the online learner's tracking check in error_extractor), as do id_controller's step and the
+reference and prediction of its instant. Pure module: numpy only.
 """
 from __future__ import annotations
 
 import bisect
 from collections import deque
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -93,3 +95,34 @@ def nearest(history: deque[tuple[int, object]], stamp: int, max_age_ns: int):
     best = min((j for j in (i - 1, i) if 0 <= j < len(history)), key=lambda j: abs(history[j][0] - stamp),
                default=None)
     return history[best] if best is not None and abs(history[best][0] - stamp) <= max_age_ns else None
+
+
+class ReferenceHistory:
+    """The recent samples (stamp [ns], value) of one stream stamped by the instant they are for
+    (/reference, /model_error/predicted), in stamp order, and the one of an instant: the nearest
+    stamp within `max_age_ns` (nearest). A stamp not after the newest is a restarted stream (or out
+    of order): the history starts over, never mixing two streams. error_extractor attaches the
+    reference of each learning sample's instant; id_controller takes each step's reference and
+    that reference's prediction."""
+
+    def __init__(self, max_age_ns: int, max_references: int = 500) -> None:
+        self.max_age_ns = int(max_age_ns)
+        self._references: deque[tuple[int, Any]] = deque(maxlen=max_references)
+        self.heard = 0
+
+    def add(self, stamp_ns: int, value: Any) -> None:
+        stamp_ns = int(stamp_ns)
+        if self._references and stamp_ns <= self._references[-1][0]:
+            self._references.clear()
+        self._references.append((stamp_ns, value))
+        self.heard += 1
+
+    @property
+    def newest(self) -> int | None:
+        """Stamp [ns] of the newest reference kept (None before the first)."""
+        return self._references[-1][0] if self._references else None
+
+    def at(self, stamp_ns: int) -> Any | None:
+        """The value of the reference nearest `stamp_ns` within max_age_ns, else None."""
+        found = nearest(self._references, int(stamp_ns), self.max_age_ns)
+        return None if found is None else found[1]

@@ -10,7 +10,7 @@ source. A (state, error) pair is learned only if, at its stamp,
   (physical_bounds.standing_height) and the base tilt (angle between the base's z axis and
   the vertical) ≤ `max_tilt`;
 - it tracks its reference (the /reference sample with the nearest stamp, within
-  `max_reference_age`: ReferenceHistory, kept by error_extractor, which sends it with the
+  `max_reference_age`: pairing.ReferenceHistory, kept by error_extractor, which sends it with the
   sample so that the learner reads no control-path topic): base position error
   ≤ `max_position_error`, attitude error (angle of R_refᵀR) ≤ `max_attitude_error`, RMS joint
   error ≤ `max_joint_error`. With no reference at all (learning from a replayed log) the
@@ -34,7 +34,6 @@ from typing import Any
 
 import numpy as np
 
-from ciml_learning.core.pairing import nearest
 from ciml_learning.core.physical_bounds import physical_bounds
 from ciml_learning.core.robot import RobotDescription
 
@@ -76,35 +75,6 @@ def attitude_error(quat_xyzw: np.ndarray, ref_xyzw: np.ndarray) -> float:
 
 MAX_REFERENCE_AGE = 0.02
 """[s] default largest stamp distance between a state and the reference of its instant."""
-
-
-class ReferenceHistory:
-    """The recent /reference samples (stamp [ns], value) of one stream, in stamp order, and the one
-    of a state's instant: the nearest stamp within `max_age_ns` (pairing.nearest). A stamp not
-    after the newest is a restarted stream (or out of order): the history starts over, never
-    mixing two streams. error_extractor keeps it and attaches the match to each LearningSample."""
-
-    def __init__(self, max_age_ns: int, max_references: int = 500) -> None:
-        self.max_age_ns = int(max_age_ns)
-        self._references: deque[tuple[int, Any]] = deque(maxlen=max_references)
-        self.heard = 0
-
-    def add(self, stamp_ns: int, value: Any) -> None:
-        stamp_ns = int(stamp_ns)
-        if self._references and stamp_ns <= self._references[-1][0]:
-            self._references.clear()
-        self._references.append((stamp_ns, value))
-        self.heard += 1
-
-    @property
-    def newest(self) -> int | None:
-        """Stamp [ns] of the newest reference kept (None before the first)."""
-        return self._references[-1][0] if self._references else None
-
-    def at(self, stamp_ns: int) -> Any | None:
-        """The value of the reference nearest `stamp_ns` within max_age_ns, else None."""
-        found = nearest(self._references, int(stamp_ns), self.max_age_ns)
-        return None if found is None else found[1]
 
 
 class AwaitReference:

@@ -5,7 +5,7 @@
   (q, q̇, q̈ of eq. 12, τ, τ̇) with its measured error (Φ̃' of eq. 11, Γ of eq. 14) in one
   message (/model_error/learning_samples), so no pairing of two streams is needed;
   SequenceGaps counts the samples lost on the way. The extractor attaches the /reference of
-  the sample's instant (learning_gate.ReferenceHistory, AwaitReference).
+  the sample's instant (pairing.ReferenceHistory, learning_gate.AwaitReference).
 - OnlineLearner feeds each valid pair, in increasing stamp order, to
   ModelSet.partial_fit_one with x = learning_inputs(q, q̇, q̈, τ, τ̇) and the measured Φ̃'
   turned into the set's targets Φ̃ = J'ᵀΦ̃' and leg coupling C with the contact-invariant

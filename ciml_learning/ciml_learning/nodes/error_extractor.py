@@ -15,7 +15,7 @@ which on a 2-core machine is the difference between keeping up at 250 Hz and not
 at most `batch_period` later.
 
 Each learning sample carries the /reference sample nearest its stamp (within `max_reference_age`;
-learning_gate.ReferenceHistory), for the learner's tracking check; a sample waits for the
+pairing.ReferenceHistory), for the learner's tracking check; a sample waits for the
 reference stream to pass its stamp (learning_gate.AwaitReference, at most `max_pair_age` of
 stamps). So the online learner reads no topic of the control path: a process killed while a
 control-path node writes to it can stall that node (docs/LIVE_GRAPH.md, "Transports"), and the
@@ -34,8 +34,9 @@ from ciml_learning.core import conversions as cv
 from ciml_learning.core import topics
 from ciml_learning.core.errors import CimlError
 from ciml_learning.core.extraction import extract
+from ciml_learning.core.pairing import ReferenceHistory
 from ciml_learning.core.profile import load_profile
-from ciml_learning.learning.learning_gate import AwaitReference, ReferenceHistory
+from ciml_learning.learning.learning_gate import AwaitReference
 from ciml_learning.ros.node_params import ERROR_EXTRACTOR
 from ciml_learning.ros.ros_common import STREAM_QOS, Health, declare_schema, run_node
 

@@ -325,7 +325,7 @@ def test_model_server_nominal_hot_swap_refusal_and_nan(tmp_path):
         ref = ReferenceState(s * 1e-9, q[row], v[row], a[row], np.ones(ROBOT.n_feet, bool))
         expected = predict_at_reference(ROBOT, served, ref, reference_torque)
         m = preds[s]
-        for field in ("rbd_error", "rbd_variance", "actuation_error", "actuation_variance"):
+        for field in ("rbd_error", "rbd_variance", "actuation_error", "actuation_variance", "generalized_variance"):
             np.testing.assert_allclose(getattr(m, field), getattr(expected, field), rtol=1e-12, atol=1e-12)
         np.testing.assert_array_equal(np.r_[m.rbd_observed, m.actuation_observed],
                                       np.r_[expected.rbd_observed, expected.actuation_observed])

@@ -526,6 +526,45 @@ def test_feedforward_only_publishes_the_learned_correction_and_commands_nothing(
 
 
 @pytest.mark.ros
+def test_the_trust_gate_works_in_the_coordinates_the_model_predicted():
+    """A model set predicts Φ̃ = J'ᵀΦ̃' and its variance: an entry of Φ̃ less certain than its prior is
+    not used, whatever the variance mapped to Φ̃' says (that map drops the covariances, and gated in
+    Φ̃' go1's uncertain base pitch torque passed). Without Φ̃'s variance the gate works in Φ̃'."""
+    import rclpy
+
+    from ciml_control.nodes.id_controller import IdControllerNode
+    from ciml_control.trust import GENERALIZED
+    from ciml_learning.core.dynamics import selection_matrix
+    from ciml_learning.core.projection import contact_invariant_basis
+
+    node, ctx = _in_process(IdControllerNode)
+    try:
+        node.pub.publish = lambda msg: None
+        rng = np.random.default_rng(0)
+        phi, gamma = rng.normal(scale=5.0, size=18), rng.normal(size=ROBOT.n_joints)
+        confident_r, confident_a = np.full(18, 1e-6), np.full(ROBOT.n_joints, 1e-6)
+        generalized = node.trust.prior_variance[GENERALIZED] * 1e-3
+        generalized[4] = 2.0 * node.trust.prior_variance[GENERALIZED][4]  # the base pitch torque: unknown
+        eps = {}
+        for k, gen in enumerate((generalized, None)):
+            ns = 10**9 + 4_000_000 * k
+            prediction = cv.model_error_msg(ROBOT, ns, "test", phi, np.ones(18, bool), gamma,
+                                            np.ones(ROBOT.n_joints, bool), confident_r, confident_a, gen)
+            gated_before = node.health.counts["epsilon_gated"]
+            _feed_standing(node, ROBOT, ns, model_error=prediction)
+            assert node.health.counts["epsilon_gated"] == gated_before + (gen is not None)
+            eps[k] = node.epsilon(node.reference[2], ns, node._now())[0]
+        basis = contact_invariant_basis(node.controller.desired_terms(node.reference[2])[2], ROBOT.leg_joints)
+        expected = basis.T @ phi - selection_matrix(ROBOT).T @ gamma
+        np.testing.assert_allclose(eps[1], expected, atol=1e-9)  # nothing gated in Φ̃'
+        expected[4] = 0.0  # Φ̃'s entry 4 gated; Γ does not reach the base rows
+        np.testing.assert_allclose(eps[0], expected, atol=1e-9)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+@pytest.mark.ros
 def test_model_error_predicted_as_a_feedforward_without_a_model():
     """/model_error/predicted as a user's controller reads it (docs/LIVE_GRAPH.md): one message per
     /reference, stamped with the reference's stamp, Γ by joint name in the robot's joint order [Nm],
@@ -550,6 +589,7 @@ def test_model_error_predicted_as_a_feedforward_without_a_model():
         assert not any(msg.actuation_observed) and not any(msg.rbd_observed)
         assert np.all(np.asarray(msg.actuation_error) == 0) and np.all(np.asarray(msg.rbd_error) == 0)
         assert np.all(np.asarray(msg.actuation_variance) > 0) and np.all(np.asarray(msg.rbd_variance) > 0)
+        assert len(msg.generalized_variance) == robot.nv and np.all(np.asarray(msg.generalized_variance) > 0)
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=ctx)

@@ -16,9 +16,10 @@ NR, NJ = len(ROBOT.rbd_error_names), ROBOT.n_joints
 def _message(rng, variances=True):
     phi, gamma = rng.normal(size=NR), rng.normal(size=NJ)
     obs_r, obs_a = rng.uniform(size=NR) > 0.5, rng.uniform(size=NJ) > 0.5
-    var_r, var_a = (rng.uniform(size=NR), rng.uniform(size=NJ)) if variances else (None, None)
-    msg = cv.model_error_msg(ROBOT, 7, "sgpr", phi, obs_r, gamma, obs_a, var_r, var_a)
-    return msg, (phi, obs_r, var_r, gamma, obs_a, var_a)
+    var_r, var_a, var_g = ((rng.uniform(size=NR), rng.uniform(size=NJ), rng.uniform(size=ROBOT.nv)) if variances
+                           else (None, None, None))
+    msg = cv.model_error_msg(ROBOT, 7, "sgpr", phi, obs_r, gamma, obs_a, var_r, var_a, var_g)
+    return msg, (phi, obs_r, var_r, gamma, obs_a, var_a, var_g)
 
 
 def _shuffle(msg, rng) -> None:
@@ -28,11 +29,14 @@ def _shuffle(msg, rng) -> None:
         setattr(msg, f, [getattr(msg, f)[i] for i in pr])
     for f in ("actuation_names", "actuation_error", "actuation_observed", "actuation_variance"):
         setattr(msg, f, [getattr(msg, f)[i] for i in pa])
+    if len(msg.generalized_variance):  # base entries in rbd_names' order of them, then the joints'
+        g = msg.generalized_variance
+        msg.generalized_variance = [g[i] for i in pr if i < 6] + [g[6 + i] for i in pa]
 
 
 def test_decodes_every_field_by_name_in_the_robots_orders():
     rng = np.random.default_rng(3)
-    msg, (phi, obs_r, var_r, gamma, obs_a, var_a) = _message(rng)
+    msg, (phi, obs_r, var_r, gamma, obs_a, var_a, var_g) = _message(rng)
     _shuffle(msg, rng)
     e = model_error_arrays(ROBOT, msg)
     assert e.source == "sgpr"
@@ -42,14 +46,16 @@ def test_decodes_every_field_by_name_in_the_robots_orders():
     np.testing.assert_array_equal(e.actuation_error, gamma)
     np.testing.assert_array_equal(e.actuation_observed, obs_a)
     np.testing.assert_array_equal(e.actuation_variance, var_a)
+    np.testing.assert_array_equal(e.generalized_variance, var_g)
 
 
 def test_missing_variances_are_infinite():
     msg, _ = _message(np.random.default_rng(4))
-    msg.rbd_variance, msg.actuation_variance = [], []
+    msg.rbd_variance, msg.actuation_variance, msg.generalized_variance = [], [], []
     e = model_error_arrays(ROBOT, msg)
     assert e.rbd_variance.shape == (NR,) and np.all(np.isinf(e.rbd_variance))
     assert e.actuation_variance.shape == (NJ,) and np.all(np.isinf(e.actuation_variance))
+    assert e.generalized_variance is None  # the gate then works in Φ̃' (a producer that does not send it)
 
 
 @pytest.mark.parametrize("field, value, match", [
@@ -58,6 +64,8 @@ def test_missing_variances_are_infinite():
     ("rbd_variance", -1.0, "rbd_variance"),
     ("rbd_variance", float("nan"), "rbd_variance"),
     ("actuation_variance", float("inf"), "actuation_variance"),
+    ("generalized_variance", -1.0, "generalized_variance"),
+    ("generalized_variance", float("nan"), "generalized_variance"),
 ])
 def test_rejects_non_finite_values_and_negative_variances(field, value, match):
     msg, _ = _message(np.random.default_rng(5))
@@ -85,6 +93,7 @@ def test_rejects_wrong_names_with_a_conversion_error(field, names):
     ("rbd_error", "rbd_error"), ("actuation_error", "actuation_error"),
     ("rbd_observed", "observed"), ("actuation_observed", "observed"),
     ("rbd_variance", "rbd_variance"), ("actuation_variance", "actuation_variance"),
+    ("generalized_variance", "generalized_variance"),
 ])
 def test_rejects_wrong_sizes(field, match):
     msg, _ = _message(np.random.default_rng(7))

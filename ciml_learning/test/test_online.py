@@ -300,13 +300,14 @@ def test_served_model_predicts_like_predict_one_and_refuses_bad_files(tmp_path):
     expected_torque = ReferenceTorque(ROBOT)
     for j in (k - 1, k):
         x = s["X"][j].copy()
-        rbd = learner.model_set.predict_one(x)[0]   # Φ̃ does not read the torque inputs
+        rbd, rbd_var = learner.model_set.predict_one(x)[:2]   # Φ̃ does not read the torque inputs
         x[-24:-12], x[-12:] = expected_torque(reference(s, j), rbd)
     _, _, gamma, gamma_var = learner.model_set.predict_one(x)
     assert np.abs(x[-12:]).max() > 1.0                       # τ̇_ref
     # published in the contact-invariant coordinates of /model_error/measured: Φ̃' = J'⁻ᵀΦ̃ (eq. 8)
     np.testing.assert_allclose(s["basis"][k].T @ pred.rbd_error, rbd, rtol=1e-9, atol=1e-9)
     assert np.abs(rbd).max() > 1.0
+    np.testing.assert_array_equal(pred.generalized_variance, rbd_var)  # Φ̃'s own, for the trust gate
     np.testing.assert_allclose(pred.actuation_error, gamma, rtol=1e-12, atol=1e-12)
     np.testing.assert_array_equal(pred.actuation_variance, gamma_var)
     assert pred.source == served.name and pred.fallback is None and pred.actuation_observed.all()

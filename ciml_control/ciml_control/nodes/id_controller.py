@@ -39,11 +39,13 @@ younger than `model_error_timeout` (counted: prediction_behind_reference, predic
 _p50_ms / _p99_ms) gives ε = J'ᵀ Φ̃' − Sᵀ Γ
 (eq. 17) with the contact-invariant basis at the reference configuration; otherwise ε = 0
 (nominal model: a model server that is late, restarted or absent never stops the controller).
-All 18 + 12 predicted entries pass the trust law
+All predicted entries pass the trust law
 (ciml_control.trust, the same as the headless closed loop's): an entry whose predictive
 variance exceeds `max_variance_ratio` × its prior variance is not used (counted:
-epsilon_gated, steps with a gated entry), and ε is clipped to the robot's physical bounds
-(m·g, m·g·leg span, torque limits; counted: epsilon_clipped, with a warning).
+epsilon_gated, steps with a gated entry) — the entries of Φ̃ = J'ᵀΦ̃' and Γ, the coordinates
+the model predicted in, when the prediction carries Φ̃'s variance (else those of Φ̃') — and ε
+is clipped to the robot's physical bounds (m·g, m·g·leg span, torque limits; counted:
+epsilon_clipped, with a warning).
 Outputs for a robot's own controllers: with `effort_command_topic` every command (damping too) is
 also published as ros2_control takes it — a std_msgs/Float64MultiArray of the joint-loop law's
 torque at the command's sample (conversions.commanded_torque, clipped to the limits; a
@@ -315,8 +317,14 @@ class IdControllerNode(Node):
         # the foot Jacobians at qᵈ come from the controller's own Pinocchio pass at the reference
         basis = contact_invariant_basis(self.controller.desired_terms(ref)[2], self.robot.leg_joints)
         self.health.counts["model_error_used"] += 1
-        trusted = self.trust.apply(prediction.rbd_error, prediction.rbd_variance, prediction.actuation_error,
-                                   prediction.actuation_variance, basis)
+        if prediction.generalized_variance is not None:
+            # gated in the coordinates the model predicted, Φ̃ = J'ᵀΦ̃' (the headless loop's law); in
+            # Φ̃' with its mapped prior the gate passed go1's uncertain base pitch torque (+7 % effort)
+            trusted = self.trust.apply(basis.T @ prediction.rbd_error, prediction.generalized_variance,
+                                       prediction.actuation_error, prediction.actuation_variance)
+        else:  # a model server that does not send Φ̃'s variance
+            trusted = self.trust.apply(prediction.rbd_error, prediction.rbd_variance, prediction.actuation_error,
+                                       prediction.actuation_variance, basis)
         if trusted.gated.any():
             self.health.counts["epsilon_gated"] += 1
         if trusted.clipped.any():

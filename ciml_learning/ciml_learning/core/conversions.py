@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ciml_learning.core.errors import CimlError
+from ciml_learning.core.physical_bounds import N_BASE
 from ciml_learning.core.robot import RobotDescription
 
 
@@ -244,7 +245,10 @@ def model_error_msg(
     actuation_observed: np.ndarray,
     rbd_variance: np.ndarray | None = None,
     actuation_variance: np.ndarray | None = None,
+    generalized_variance: np.ndarray | None = None,
 ):
+    """generalized_variance: Φ̃'s predictive variance (nv: the base wrench in robot.rbd_error_names
+    order, then robot.joint_names), if known."""
     from ciml_msgs.msg import ModelError
 
     nr, na = len(robot.rbd_error_names), robot.n_joints
@@ -260,6 +264,7 @@ def model_error_msg(
         actuation_observed=[bool(b) for b in actuation_observed],
         actuation_variance=(np.zeros(na) if actuation_variance is None
                             else np.asarray(actuation_variance, float)).tolist(),
+        generalized_variance=[] if generalized_variance is None else np.asarray(generalized_variance, float).tolist(),
     )
 
 
@@ -290,6 +295,7 @@ class ModelErrorArrays:
     actuation_error: np.ndarray
     actuation_observed: np.ndarray
     actuation_variance: np.ndarray
+    generalized_variance: np.ndarray | None = None  # Φ̃'s (nv: base wrench, then joints), if sent
 
 
 def _variance(values, perm: np.ndarray, what: str) -> np.ndarray:
@@ -309,7 +315,8 @@ def model_error_arrays(robot: RobotDescription, msg) -> ModelErrorArrays:
     exactly once). Wrong, missing or repeated names, wrong sizes of values or observed
     masks, non-finite errors and non-finite or negative variances raise ConversionError.
     An empty variance array (not sent) decodes as infinite: nothing is known about the
-    confidence (the controller's trust gate then rejects the prediction).
+    confidence (the controller's trust gate then rejects the prediction); an empty
+    generalized_variance as None (the gate then compares Φ̃' with its mapped prior).
     """
     perm_r = _by_name(msg.rbd_names, robot.rbd_error_names, "model_error: rbd")
     perm_a = _by_name(msg.actuation_names, robot.joint_names, "model_error: joint")
@@ -322,11 +329,18 @@ def model_error_arrays(robot: RobotDescription, msg) -> ModelErrorArrays:
         raise ConversionError(f"model_error: observed masks have {obs_r.size} and {obs_a.size} entries, "
                               f"expected {nr} and {nj}")
     check_finite("model_error", phi, gamma)
+    generalized = None
+    if len(msg.generalized_variance):
+        base = set(robot.rbd_error_names[:N_BASE])
+        perm_b = _by_name([n for n in msg.rbd_names if n in base], robot.rbd_error_names[:N_BASE], "model_error: base")
+        generalized = _variance(msg.generalized_variance, np.concatenate([perm_b, N_BASE + perm_a]),
+                                "generalized_variance")
     return ModelErrorArrays(
         source=str(msg.source),
         rbd_error=phi, rbd_observed=obs_r[perm_r], rbd_variance=_variance(msg.rbd_variance, perm_r, "rbd_variance"),
         actuation_error=gamma, actuation_observed=obs_a[perm_a],
         actuation_variance=_variance(msg.actuation_variance, perm_a, "actuation_variance"),
+        generalized_variance=generalized,
     )
 
 

@@ -205,6 +205,7 @@ class PredictedError:
     actuation_variance: np.ndarray
     actuation_observed: np.ndarray
     fallback: str | None = None    # why nominal was served ("no_model", "non_finite_prediction")
+    generalized_variance: np.ndarray | None = None  # of Φ̃ = J'ᵀΦ̃' (nv), the set's own coordinates
 
 
 NOMINAL = "nominal"
@@ -216,7 +217,8 @@ def nominal_prediction(robot: RobotDescription, fallback: str | None = None) -> 
     rbd_var = np.concatenate([out_scale[:N_BASE], np.full(3 * robot.n_feet, foot)]) ** 2
     nr, nj = len(robot.rbd_error_names), robot.n_joints
     return PredictedError(NOMINAL, np.zeros(nr), rbd_var, np.zeros(nr, bool),
-                          np.zeros(nj), out_scale[-nj:] ** 2, np.zeros(nj, bool), fallback)
+                          np.zeros(nj), out_scale[-nj:] ** 2, np.zeros(nj, bool), fallback,
+                          out_scale[:robot.nv] ** 2)
 
 
 def predict_at_reference(robot: RobotDescription, served: ServedModel | None, ref: ReferenceState,
@@ -228,7 +230,8 @@ def predict_at_reference(robot: RobotDescription, served: ServedModel | None, re
     reference_torque: the reference stream's ReferenceTorque (the caller's, so τ̇_ref runs on
     across a model swap; default: the served model's own).
     The set predicts Φ̃ = J'ᵀΦ̃'; Φ̃' = J'⁻ᵀΦ̃ with the basis at qᵈ (eq. 8), its variance
-    propagated assuming independent dimensions."""
+    propagated assuming independent dimensions; Φ̃'s own variance goes along (generalized_variance),
+    for the trust gate in the set's coordinates."""
     if served is None:
         return nominal_prediction(robot, "no_model")
     q = np.asarray(ref.q, float)
@@ -240,7 +243,7 @@ def predict_at_reference(robot: RobotDescription, served: ServedModel | None, re
     rbd, rbd_var, gamma, gamma_var = out
     inverse_basis_t = np.linalg.inv(contact_invariant_basis(jacobians, robot.leg_joints).T)
     phi, phi_var = inverse_basis_t @ rbd, inverse_basis_t ** 2 @ rbd_var
-    if not all(np.all(np.isfinite(z)) for z in (phi, phi_var, gamma, gamma_var)):
+    if not all(np.all(np.isfinite(z)) for z in (phi, phi_var, rbd_var, gamma, gamma_var)):
         return nominal_prediction(robot, "non_finite_prediction")
     return PredictedError(served.name, phi, phi_var, served.rbd_learned.copy(), gamma, gamma_var,
-                          served.actuation_learned.copy())
+                          served.actuation_learned.copy(), generalized_variance=rbd_var)

@@ -173,7 +173,7 @@ class ModelServerNode(Node):
             self.health.count(pred.fallback, f"{pred.fallback}: serving the nominal model")
         self.pub.publish(cv.model_error_msg(self.robot, stamp, pred.source, pred.rbd_error,
                                             pred.rbd_observed, pred.actuation_error, pred.actuation_observed,
-                                            pred.rbd_variance, pred.actuation_variance))
+                                            pred.rbd_variance, pred.actuation_variance, pred.generalized_variance))
         self.health.counts["predictions"] += 1
 
     def destroy_node(self) -> None:

@@ -121,8 +121,8 @@ TROT_SWING = 0.27       # [s] per diagonal pair; 0.03 s four-foot support at eac
 TROT_RAMP = 2.0         # [s] C² velocity ramp
 SWITCH_TOLERANCE = 1e-6
 """[s] A sample this close to a contact switch is at the switch: a time in seconds from ns stamps
-carries rounding, and a clock that adds its step (MuJoCo's time += dt drifted 21 ns in 20 min)
-more; a control period is thousands of times longer."""
+carries rounding, and a clock that adds its step drifts (MuJoCo's time += dt: 21 ns in 20 min);
+a control period is thousands of times longer."""
 BASE_ONLY_PERIOD = 5.0
 
 SPECS: dict[str, MotionSpec] = {
@@ -560,8 +560,7 @@ class GaitReference(Reference):
         half = 0.5 * P
         # interval k: [k·P/2, k·P/2 + TROT_SWING) after t0. ÿ jumps at each switch (the support line
         # changes), so a sample at a switch instant takes the motion that follows it (the 4 ms its
-        # command holds), whichever way the rounding of t falls: live stamps (ns · 1e-9) crossed
-        # from one side to the other after ~300 s and the learned ε cost go1 21 % more effort
+        # command holds), whichever way the rounding of t falls
         k = int(math.floor((tc + SWITCH_TOLERANCE) / half))
         tin = tc - k * half
         if tin < TROT_SWING - SWITCH_TOLERANCE:

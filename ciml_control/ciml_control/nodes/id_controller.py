@@ -318,8 +318,8 @@ class IdControllerNode(Node):
         basis = contact_invariant_basis(self.controller.desired_terms(ref)[2], self.robot.leg_joints)
         self.health.counts["model_error_used"] += 1
         if prediction.generalized_variance is not None:
-            # gated in the coordinates the model predicted, Φ̃ = J'ᵀΦ̃' (the headless loop's law); in
-            # Φ̃' with its mapped prior the gate passed go1's uncertain base pitch torque (+7 % effort)
+            # gated in the coordinates the model predicted, Φ̃ = J'ᵀΦ̃' (the headless loop's law): the
+            # variance mapped to Φ̃' has lost the covariances and hid go1's uncertain base pitch torque
             trusted = self.trust.apply(basis.T @ prediction.rbd_error, prediction.generalized_variance,
                                        prediction.actuation_error, prediction.actuation_variance)
         else:  # a model server that does not send Φ̃'s variance

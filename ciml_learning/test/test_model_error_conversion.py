@@ -56,6 +56,11 @@ def test_missing_variances_are_infinite():
     assert e.rbd_variance.shape == (NR,) and np.all(np.isinf(e.rbd_variance))
     assert e.actuation_variance.shape == (NJ,) and np.all(np.isinf(e.actuation_variance))
     assert e.generalized_variance is None  # the gate then works in Φ̃' (a producer that does not send it)
+    # a message of the definition before the field (a log read with its own schema)
+    from types import SimpleNamespace
+    older = SimpleNamespace(**{f: getattr(msg, f) for f in msg.get_fields_and_field_types()
+                               if f != "generalized_variance"})
+    assert model_error_arrays(ROBOT, older).generalized_variance is None
 
 
 @pytest.mark.parametrize("field, value, match", [

@@ -330,7 +330,7 @@ def model_error_arrays(robot: RobotDescription, msg) -> ModelErrorArrays:
                               f"expected {nr} and {nj}")
     check_finite("model_error", phi, gamma)
     generalized = None
-    if len(msg.generalized_variance):
+    if len(getattr(msg, "generalized_variance", ())):  # absent from a log recorded with the older definition
         base = set(robot.rbd_error_names[:N_BASE])
         perm_b = _by_name([n for n in msg.rbd_names if n in base], robot.rbd_error_names[:N_BASE], "model_error: base")
         generalized = _variance(msg.generalized_variance, np.concatenate([perm_b, N_BASE + perm_a]),

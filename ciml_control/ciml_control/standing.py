@@ -1,7 +1,8 @@
 """A standing controller: joint PD on a fixed posture plus gravity compensation with the
 weight shared by the stance feet (least-norm contact forces of the static balance).
 
-Used for the `stand` motion and as the controller's safe fallback. Static balance,
+The bridge's standing hold; its gravity compensation is the controller's fallback when the QP
+fails (the `stand` motion is a reference the controller tracks). Static balance,
 eq. (3) with q̈ = 0, q̇ = 0: Sᵀu + J_cᵀλ = g(q). The base rows fix the contact forces
 (least-norm solution), the joint rows then give u.
 """

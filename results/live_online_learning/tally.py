@@ -3,10 +3,10 @@
     python results/live_online_learning/tally.py A.json B.json ...
 
 Every run with learning in the files is compared, minute by minute, with the mean of the runs
-without learning in the same files (the baselines of one code version), by the benchmark's own
-`live_bench.learning_summary`; prints one Markdown row
-per run (seed, last-minute effort and cut, worst minute from the third on, falls, swaps,
-judged / unjudged, rolled back) and a summary line.
+without learning of its scenario in the same files (the baselines of one code version), by the
+benchmark's own `live_bench.learning_summary`; prints, per scenario, one Markdown row per run
+(seed, last-minute effort and cut, lowest cut from the second and from the third minute on, falls,
+swaps, judged / unjudged, rolled back) and a summary line.
 """
 from __future__ import annotations
 
@@ -33,26 +33,32 @@ def last(periods: list[dict], key: str) -> float:
 
 def main(paths: list[str]) -> None:
     all_runs = runs(paths)
-    summary = learning_summary(all_runs)["scenarios"]["default_gap"]  # the benchmark's own comparison
-    base = np.array([p["effort_without_nm"] for p in summary["per_period"]])
-    minutes = summary["periods_compared"]
-    print(f"baselines: {', '.join(str(r['seed']) for r in all_runs if not r['online'])}; per minute [Nm]: "
-          + ", ".join(f"{b:.2f}" for b in base))
-    print("\n| seed | commit | last minute [Nm] | last-minute cut | lowest cut, minutes 3–end | fell | swaps | "
-          "judged / unjudged | rolled back (worse than before) |\n|---|---|---|---|---|---|---|---|---|")
-    online = [r for r in all_runs if r["online"]]
-    cuts = summary["last_period_cut_pct_per_run"]
-    for r, last_cut in zip(online, cuts):
-        effort = np.array([p["effort_rms_nm"] for p in r["periods"][:minutes]])
-        p = r["periods"]
-        print(f"| {r['seed']} | {r['commit']} | {effort[-1]:.2f} | {last_cut:.1f} % | "
-              f"{100 * (1.0 - effort[2:] / base[2:]).min():.1f} % | "
-              f"{r.get('fell')} | {last(p, 'model_server.model_swaps'):.0f} | "
-              f"{last(p, 'id_controller.models_judged'):.0f} / {last(p, 'id_controller.models_unjudged'):.0f} | "
-              f"{last(p, 'id_controller.rollbacks_worse_than_before'):.0f} |")
-    print(f"\nruns with learning: {len(online)}; falls: {sum(bool(r.get('fell')) for r in all_runs)} in "
-          f"{len(all_runs)} runs; last-minute cut ≥ 30 %: {sum(c >= 30.0 for c in cuts)} of {len(cuts)} "
-          f"(range {min(cuts):.1f}–{max(cuts):.1f} %)")
+    for scenario, summary in learning_summary(all_runs)["scenarios"].items():
+        base = np.array([p["effort_without_nm"] for p in summary["per_period"]])
+        minutes = summary["periods_compared"]
+        these = [r for r in all_runs if r["scenario"] == scenario]
+        print(f"## {scenario}\n\nbaselines: {', '.join(str(r['seed']) for r in these if not r['online'])}; "
+              "per minute [Nm]: " + ", ".join(f"{b:.2f}" for b in base))
+        print("\n| seed | commit | last minute [Nm] | last-minute cut | lowest cut, minutes 2–end | lowest cut, "
+              "minutes 3–end | fell | swaps | judged / unjudged | rolled back (worse than before) |\n"
+              "|---|---|---|---|---|---|---|---|---|---|")
+        online = [r for r in these if r["online"]]
+        cuts = summary["last_period_cut_pct_per_run"]
+        lowest2 = []
+        for r, last_cut in zip(online, cuts):
+            effort = np.array([p["effort_rms_nm"] for p in r["periods"][:minutes]])
+            cut = 100 * (1.0 - effort / base)
+            lowest2.append(cut[1:].min())
+            p = r["periods"]
+            print(f"| {r['seed']} | {r['commit']} | {effort[-1]:.2f} | {last_cut:.1f} % | {cut[1:].min():.1f} % | "
+                  f"{cut[2:].min():.1f} % | {r.get('fell')} | {last(p, 'model_server.model_swaps'):.0f} | "
+                  f"{last(p, 'id_controller.models_judged'):.0f} / {last(p, 'id_controller.models_unjudged'):.0f} | "
+                  f"{last(p, 'id_controller.rollbacks_worse_than_before'):.0f} |")
+        print(f"\nruns with learning: {len(online)}; falls: {sum(bool(r.get('fell')) for r in these)} in "
+              f"{len(these)} runs; last-minute cut ≥ 30 %: {sum(c >= 30.0 for c in cuts)} of {len(cuts)} "
+              f"(range {min(cuts):.1f}–{max(cuts):.1f} %); every minute from the second ≥ 30 %: "
+              f"{sum(c >= 30.0 for c in lowest2)} of {len(cuts)}; a minute from the second worse than "
+              f"without learning: {sum(c < 0.0 for c in lowest2)}\n")
 
 
 if __name__ == "__main__":

@@ -190,9 +190,31 @@ def test_reference_torque_realises_the_reference_and_differentiates_within_a_con
     lam = np.linalg.lstsq(Jc.T, rest, rcond=None)[0]
     assert np.allclose(Jc.T @ lam, rest, atol=1e-8 * np.abs(rest).max())
     tau2, tau_dot2 = ref_torque(SimpleNamespace(t=0.004, q=q, v=v, a=1.1 * a, contacts=contacts), e)
-    assert np.allclose(tau_dot2, (tau2 - tau) / 0.004)
+    assert np.allclose(tau_dot2, (tau2 - tau) / 0.004)  # two calls of one schedule: their difference
     _, tau_dot3 = ref_torque(SimpleNamespace(t=0.008, q=q, v=v, a=a, contacts=~contacts | contacts), e)
     assert np.all(tau_dot3 == 0.0)  # across a change of the contact schedule
+
+
+def test_reference_torque_rate_is_the_slope_over_the_period_its_command_holds():
+    """τ̇_ref at t is the slope at t + Δ/2 (the command computed at t holds over [t, t + Δ]) of the
+    parabola through the last three τ_ref: exact for a τ_ref quadratic in time, on a uniform grid
+    and across a longer step; the backward difference would be off by c2·Δ per joint."""
+    from types import SimpleNamespace
+
+    from ciml_learning.core.dynamics import ReferenceTorque
+
+    n = ROBOT.n_joints
+    c0, c1, c2 = np.linspace(-5, 5, n), np.linspace(2, -3, n), np.linspace(40, -60, n)
+    ref_torque = ReferenceTorque(ROBOT)
+    ref_torque.torque = lambda q, v, a, contacts, e=None, fj=None: c0 + c1 * a[0] + c2 * a[0] ** 2  # a carries t here
+    q, v = np.zeros(ROBOT.nq), np.zeros(ROBOT.nv)
+    rates = {}
+    for t in (0.0, 0.004, 0.008, 0.012, 0.020):
+        rates[t] = ref_torque(SimpleNamespace(t=t, q=q, v=v, a=np.full(ROBOT.nv, t)))[1]
+    assert np.all(rates[0.0] == 0.0)
+    np.testing.assert_allclose(rates[0.004], c1 + c2 * 0.004, rtol=1e-9)  # two calls: their difference
+    for t, h in ((0.008, 0.004), (0.012, 0.004), (0.020, 0.008)):
+        np.testing.assert_allclose(rates[t], c1 + 2 * c2 * (t + h / 2), rtol=1e-9, atol=1e-9)
 
 
 def test_dataset_extracted_in_chunks_matches_the_whole_log(tmp_path, monkeypatch):

@@ -121,9 +121,9 @@ class ReferenceTorque:
     (zero-order hold over [t, t + Δ]): the slope at t + Δ/2 of the parabola through the last three
     calls' τ_ref, from the past alone, (2τ(t) − 3τ(t − Δ) + τ(t − 2Δ))/Δ on a uniform grid (Δ the
     last step). A backward difference is the slope half a period in the past, and a lagging
-    actuator's learned Γ(τ, τ̇) needs the one its command acts over: headless, go1's live-learned
-    models after 5, 7 and 10 minutes cost 2.5, 4.5 and 8.7 % less feedback effort (results/
-    live_online_learning/learning_order/). With only two calls of one contact schedule it is
+    actuator's learned Γ(τ, τ̇) needs the one its command acts over (go1, headless: 2–9 % less
+    feedback effort with the same models; results/live_online_learning/learning_order/).
+    With only two calls of one contact schedule it is
     their difference; zero on the first call, after a time jump > 50 ms or backwards, and across
     a change of the contact schedule (where τ_ref jumps and a difference would be an impulse).
     Stateful: one instance per reference stream.

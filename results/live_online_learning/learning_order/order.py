@@ -18,44 +18,22 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "go1_reference_eps"))
-from go1_log import learner_rows, learning_order  # noqa: E402
+from go1_log import learning_order  # noqa: E402
+from live_log import effort, learn, load  # noqa: E402
 
-from ciml_learning.core.profile import load_profile, profile_path  # noqa: E402
 from ciml_learning.learning.model_epsilon import EpsilonFunction  # noqa: E402
 from ciml_learning.learning.models import ModelSet  # noqa: E402
-from ciml_learning.learning.snapshot_gate import ValidationConfig  # noqa: E402
-from ciml_learning.logs.pipeline import load_dataset  # noqa: E402
-from ciml_sim.recorder import run_headless  # noqa: E402
-from ciml_sim.scenario import resolve_scenario  # noqa: E402
 
 name, scenario_name, bag, buffer, seed = sys.argv[1:6]
 minutes = [float(m) for m in sys.argv[6].split(",")]
-spec = os.path.join(HERE, "..", "go1_ciml_topics_profile.yaml") if name == "go1" else profile_path(name)
-profile = load_profile(spec)
-robot = profile.robot()
-scenario = resolve_scenario(scenario_name, robot)
-tg = load_dataset(robot, [bag], progress=False, profile=profile).targets
-rows = learner_rows(tg)
-t = tg.t - tg.t[0]
-held = np.array([ValidationConfig().held_back(int(round(s * 1e9))) for s in t])
-rows &= ~held
+robot, scenario, tg, t, rows = load(name, scenario_name, bag)
 order = learning_order(np.flatnonzero(rows), int(buffer), np.random.default_rng(int(seed)))
-
-
-def effort(ms) -> float:
-    fn = None if ms is None else EpsilonFunction(robot, ms)
-    return round(run_headless(robot, scenario, "trot_35", 30.0, 11, epsilon_fn=fn,
-                              progress=False).metrics()["rms_feedback_effort_nm"], 3)
-
-
 ms = ModelSet.for_robot(robot, "lwpr")
 start, out = 0, []
 for minute in minutes:
     end = int(np.sum(t[order] < 60.0 * minute)) if int(buffer) > 0 else int(np.searchsorted(t[order], 60.0 * minute))
-    part = order[start:end]
-    ms.partial_fit(tg.inputs[part], tg.generalized_error[part], tg.generalized_observed[part],
-                   tg.actuation_error[part], tg.valid[part], tg.leg_coupling[part], effort_valid=rows[part])
+    learn(ms, tg, rows, order[start:end])
     start = end
-    out.append(effort(ms))
+    out.append(effort(robot, scenario, EpsilonFunction(robot, ms)))
 print(f"{name} buffer {buffer} seed {seed}: effort after {','.join(f'{m:g}' for m in minutes)} min: {out}",
       flush=True)

@@ -20,31 +20,19 @@ import sys
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, "..", "go1_reference_eps"))
-from go1_log import learner_rows  # noqa: E402
+sys.path.insert(0, HERE)
+from live_log import effort, learn, load  # noqa: E402
 
 import ciml_sim.recorder as recorder  # noqa: E402
 from ciml_learning.core.dynamics import ReferenceTorque  # noqa: E402
-from ciml_learning.core.profile import load_profile, profile_path  # noqa: E402
 from ciml_learning.learning.model_epsilon import EpsilonFunction  # noqa: E402
 from ciml_learning.learning.models import ModelSet  # noqa: E402
-from ciml_learning.learning.snapshot_gate import ValidationConfig  # noqa: E402
-from ciml_learning.logs.pipeline import load_dataset  # noqa: E402
-from ciml_sim.scenario import resolve_scenario  # noqa: E402
 
 name, scenario_name, bag, minutes = sys.argv[1:5]
 modes = sys.argv[5:]
-spec = os.path.join(HERE, "..", "go1_ciml_topics_profile.yaml") if name == "go1" else profile_path(name)
-profile = load_profile(spec)
-robot = profile.robot()
-scenario = resolve_scenario(scenario_name, robot)
-tg = load_dataset(robot, [bag], progress=False, profile=profile).targets
-t = tg.t - tg.t[0]
-rows = learner_rows(tg) & ~np.array([ValidationConfig().held_back(int(round(s * 1e9))) for s in t])
-part = np.flatnonzero(rows & (t < 60.0 * float(minutes)))
+robot, scenario, tg, t, rows = load(name, scenario_name, bag)
 ms = ModelSet.for_robot(robot, "lwpr")
-ms.partial_fit(tg.inputs[part], tg.generalized_error[part], tg.generalized_observed[part],
-               tg.actuation_error[part], tg.valid[part], tg.leg_coupling[part], effort_valid=rows[part])
+learn(ms, tg, rows, np.flatnonzero(rows & (t < 60.0 * float(minutes))))
 DT = 1.0 / recorder.CONTROL_RATE
 current = {}
 make_reference = recorder.make_reference
@@ -87,6 +75,4 @@ class LeadTorque(ReferenceTorque):
 for mode in modes:
     fn = EpsilonFunction(robot, ms)
     fn.reference_torque = LeadTorque(robot, mode)
-    run = recorder.run_headless(robot, scenario, "trot_35", 30.0, 11, epsilon_fn=fn, progress=False)
-    print(f"{name} model of {minutes} min, τ̇_ref {mode}: effort {run.metrics()['rms_feedback_effort_nm']:.3f}",
-          flush=True)
+    print(f"{name} model of {minutes} min, τ̇_ref {mode}: effort {effort(robot, scenario, fn):.3f}", flush=True)

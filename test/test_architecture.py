@@ -296,6 +296,24 @@ def test_every_ciml_learning_module_sits_in_a_floor_and_imports_none_above_it():
     assert not found, "imports from a floor above (move the code down, or the caller up):\n" + "\n".join(found)
 
 
+def floor_graph() -> dict[tuple[str, str], int]:
+    """(importing floor, imported floor) → how many (module, module) imports join them."""
+    edges: dict[tuple[str, str], int] = {}
+    for m, path in MODULES.items():
+        a = _floor(m)
+        for b in [_floor(t) for t in {i.target for i in imports_of(path, me=m)}]:
+            if a is not None and b is not None and 0 <= a < len(FLOORS) and 0 <= b < len(FLOORS) and a != b:
+                edges[FLOORS[a], FLOORS[b]] = edges.get((FLOORS[a], FLOORS[b]), 0) + 1
+    return edges
+
+
+def test_the_floor_graph_of_architecture_md_is_the_code_s():
+    """docs/ARCHITECTURE.md §3 draws the imports between floors with their counts: as the code has them."""
+    with open(os.path.join(ROOT, "docs", "ARCHITECTURE.md"), encoding="utf-8") as f:
+        drawn = {(a, b): int(n) for a, n, b in re.findall(r"^  (\w+) -->\|(\d+)\| (\w+)$", f.read(), re.M)}
+    assert drawn == floor_graph(), "regenerate with results/house/import_graph.py HEAD"
+
+
 ROS_FLOORS = ("ros", "nodes")
 """The floors that may use the ROS client library; below them only rclpy.serialization (a bag's
 messages are CDR as rclpy writes them), so the algorithms run and are tested without a graph."""

@@ -86,6 +86,26 @@ def _ns(stamp) -> int:
 
 @pytest.mark.ros
 @pytest.mark.slow
+def test_inputs_silent_are_a_warning_whether_one_stops_or_all_do():
+    """The state filter's silence rule (live_inputs.input_silence): nothing before the first
+    message; one input quiet 2 s while another speaks; every input quiet once any has spoken (a
+    driver that died), which must not read as a quiet OK; all clear once messages flow again."""
+    from ciml_learning.logs.live_inputs import SILENT_AFTER, input_silence
+
+    def active(last_heard, now):
+        return {name: message for name, on, message in input_silence(last_heard, 0.0, now) if on}
+
+    assert active({"/joint_states": None, "/imu": None}, 60.0) == {}  # waiting, however long
+    assert active({"/joint_states": 9.9, "/imu": 9.9}, 10.0) == {}
+    one = active({"/joint_states": 9.9, "/imu": 10.0 - SILENT_AFTER}, 10.0)
+    assert list(one) == ["silent /imu"], one
+    never = active({"/joint_states": 9.9, "/imu": None}, 10.0)
+    assert list(never) == ["silent /imu"], never
+    stopped = active({"/joint_states": 5.0, "/imu": 4.0}, 5.0 + SILENT_AFTER + 0.5)
+    assert list(stopped) == ["inputs silent"], stopped
+    assert "2.5 s" in stopped["inputs silent"] and "/joint_states" in stopped["inputs silent"]
+
+
 def test_replayed_foreign_bag_teaches_the_online_learner_like_train(unitree_bag, tmp_path):
     from ciml_msgs.msg import ModelError, ModelUpdate
 

@@ -22,7 +22,7 @@ topics (pose + twist). Pure module: no rclpy.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -49,6 +49,9 @@ HISTORY = PENDING
 """Messages kept per role for pairing: as many as joint samples may wait (and ≥ 2.5 periods of a
 topic slower than the joint states)."""
 
+SILENT_AFTER = 2.0
+"""[s] an input topic without a message this long is silent (≥ 10 periods of a topic at 5 Hz)."""
+
 Reject = Callable[[str, "str | None"], None]
 """on_reject(event, reason): a dropped message or sample, for the node's /diagnostics (reason None:
 an expected start-up drop, counted only)."""
@@ -56,6 +59,27 @@ an expected start-up drop, counted only)."""
 
 class LiveInputError(CimlError):
     """The profile asks for something the live graph cannot read."""
+
+
+def input_silence(last_heard: Mapping[str, float | None], started: float, now: float,
+                  after: float = SILENT_AFTER) -> list[tuple[str, bool, str]]:
+    """The silence warnings of the inputs at `now`, as (condition, active, message); times [s] on one
+    monotonic clock, `last_heard[topic]` None before its first message, `started` when listening began.
+
+    One topic silent while another speaks (a driver that lost one sensor), or every input silent
+    once any was heard (a driver that stopped): both WARN, as a stopped stream must not read as a
+    quiet OK. Before the first message nothing is silent: the node waits (its own OK condition)."""
+    heard = [t for t in last_heard.values() if t is not None]
+    speaking = any(now - t < after for t in heard)
+    warnings = []
+    for topic, last in last_heard.items():
+        quiet = now - (last if last is not None else started)
+        warnings.append((f"silent {topic}", speaking and quiet >= after,
+                         f"no message on {topic} for {quiet:.1f} s while the other inputs speak"))
+    quiet = now - max(heard) if heard else 0.0
+    warnings.append(("inputs silent", bool(heard) and not speaking,
+                     f"no message on any input for {quiet:.1f} s ({', '.join(last_heard)})"))
+    return warnings
 
 
 class LiveInputs:

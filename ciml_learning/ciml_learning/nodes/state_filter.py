@@ -6,7 +6,8 @@ subscribes to the topics of the `robot` profile's input map (docs/ROBOT_PROFILE.
 states with foot entries, IMU, foot-force array and effort or LowCmd command for go1) and hands
 every message to LiveInputs, which reads it with load_log's readers and pairs each joint sample by
 ciml_learning.core.pairing's rule, as a log is read offline. Rejected messages and samples are counted
-on /diagnostics; a topic that stays silent while others speak is a WARN there. With
+on /diagnostics; a topic that stays silent while others speak, or every topic once any spoke, is
+a WARN there (live_inputs.input_silence). With
 `inputs: ciml` it reads CIML's own topics for any robot instead (the simulator bridge publishes
 those; the shipped launch file sets it). Output is aligned to the filter's delay (≈ 60 ms at any rate).
 
@@ -33,7 +34,7 @@ from ciml_learning.core.errors import CimlError
 from ciml_learning.core.filters import OnlineStateFilter
 from ciml_learning.core.profile import TORQUE_COMMAND, load_profile
 from ciml_learning.core.stamps import measure_rate
-from ciml_learning.logs.live_inputs import LiveInputs
+from ciml_learning.logs.live_inputs import LiveInputs, input_silence
 from ciml_learning.ros.node_params import STATE_FILTER
 from ciml_learning.ros.replay import message_class
 from ciml_learning.ros.ros_common import (
@@ -48,8 +49,6 @@ from ciml_learning.ros.ros_common import (
 
 RATE_SAMPLES = 32
 """Joint samples whose stamps set the filter's rate when the `rate` parameter is 0."""
-SILENT_AFTER = 2.0
-"""[s] wall clock: an input topic without a message this long while another input speaks is silent."""
 
 
 class StateFilterNode(Node):
@@ -99,15 +98,11 @@ class StateFilterNode(Node):
             self.process(*sample)
 
     def check_silent(self) -> None:
-        """WARN for each input topic silent SILENT_AFTER while another speaks; INFO while all wait."""
-        now = time.monotonic()
-        heard = [t for t in self.last_heard.values() if t is not None]
-        speaking = any(now - t < SILENT_AFTER for t in heard)
-        for topic, last in self.last_heard.items():
-            quiet = now - (last if last is not None else self.started)
-            self.health.condition(f"silent {topic}", speaking and quiet >= SILENT_AFTER,
-                                  message=f"no message on {topic} for {quiet:.1f} s while the other inputs speak")
-        self.health.condition("waiting", not heard, OK, f"waiting for {', '.join(self.last_heard)}")
+        """The inputs' silence warnings (wall clock); OK "waiting" before the first message."""
+        for name, active, message in input_silence(self.last_heard, self.started, time.monotonic()):
+            self.health.condition(name, active, message=message)
+        waiting = all(t is None for t in self.last_heard.values())
+        self.health.condition("waiting", waiting, OK, f"waiting for {', '.join(self.last_heard)}")
 
     def process(self, stamp: int, q: np.ndarray, v: np.ndarray, tau: np.ndarray, u: np.ndarray,
                 contacts: np.ndarray) -> None:

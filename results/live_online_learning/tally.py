@@ -5,7 +5,8 @@
 Every run with learning in the files is compared, minute by minute, with the mean of the runs
 without learning of its scenario in the same files (the baselines of one code version), by the
 benchmark's own `live_bench.learning_summary`; prints, per scenario, one Markdown row per run
-(seed, last-minute effort and cut, lowest cut from the second and from the third minute on, falls,
+(seed, last-minute effort and cut, lowest cut from the second and from the third minute on, the
+minute from which it stays ≥ 30 % below to the end, falls,
 swaps, judged / unjudged, rolled back) and a summary line.
 """
 from __future__ import annotations
@@ -40,25 +41,30 @@ def main(paths: list[str]) -> None:
         print(f"## {scenario}\n\nbaselines: {', '.join(str(r['seed']) for r in these if not r['online'])}; "
               "per minute [Nm]: " + ", ".join(f"{b:.2f}" for b in base))
         print("\n| seed | commit | last minute [Nm] | last-minute cut | lowest cut, minutes 2–end | lowest cut, "
-              "minutes 3–end | fell | swaps | judged / unjudged | rolled back (worse than before) |\n"
-              "|---|---|---|---|---|---|---|---|---|---|")
+              "minutes 3–end | ≥ 30 % from minute (to the end) | fell | swaps | judged / unjudged | "
+              "rolled back (worse than before) |\n"
+              "|---|---|---|---|---|---|---|---|---|---|---|")
         online = [r for r in these if r["online"]]
         cuts = summary["last_period_cut_pct_per_run"]
-        lowest2 = []
+        lowest2, held_from = [], []
         for r, last_cut in zip(online, cuts):
             effort = np.array([p["effort_rms_nm"] for p in r["periods"][:minutes]])
             cut = 100 * (1.0 - effort / base)
             lowest2.append(cut[1:].min())
+            below = np.flatnonzero(cut < 30.0)  # held: every minute after the last one under 30 %
+            held_from.append(int(below[-1]) + 2 if below.size else 1)
             p = r["periods"]
+            held = held_from[-1] if held_from[-1] <= minutes else "—"
             print(f"| {r['seed']} | {r['commit']} | {effort[-1]:.2f} | {last_cut:.1f} % | {cut[1:].min():.1f} % | "
-                  f"{cut[2:].min():.1f} % | {r.get('fell')} | {last(p, 'model_server.model_swaps'):.0f} | "
+                  f"{cut[2:].min():.1f} % | {held} | {r.get('fell')} | {last(p, 'model_server.model_swaps'):.0f} | "
                   f"{last(p, 'id_controller.models_judged'):.0f} / {last(p, 'id_controller.models_unjudged'):.0f} | "
                   f"{last(p, 'id_controller.rollbacks_worse_than_before'):.0f} |")
         print(f"\nruns with learning: {len(online)}; falls: {sum(bool(r.get('fell')) for r in these)} in "
               f"{len(these)} runs; last-minute cut ≥ 30 %: {sum(c >= 30.0 for c in cuts)} of {len(cuts)} "
               f"(range {min(cuts):.1f}–{max(cuts):.1f} %); every minute from the second ≥ 30 %: "
               f"{sum(c >= 30.0 for c in lowest2)} of {len(cuts)}; a minute from the second worse than "
-              f"without learning: {sum(c < 0.0 for c in lowest2)}\n")
+              f"without learning: {sum(c < 0.0 for c in lowest2)}; ≥ 30 % held to the end from minute "
+              f"{'/'.join(str(h) for h in held_from)}\n")
 
 
 if __name__ == "__main__":

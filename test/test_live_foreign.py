@@ -84,8 +84,6 @@ def _ns(stamp) -> int:
     return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
-@pytest.mark.ros
-@pytest.mark.slow
 def test_inputs_silent_are_a_warning_whether_one_stops_or_all_do():
     """The state filter's silence rule (live_inputs.input_silence): nothing before the first
     message; one input quiet 2 s while another speaks; every input quiet once any has spoken (a
@@ -106,6 +104,8 @@ def test_inputs_silent_are_a_warning_whether_one_stops_or_all_do():
     assert "2.5 s" in stopped["inputs silent"] and "/joint_states" in stopped["inputs silent"]
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_replayed_foreign_bag_teaches_the_online_learner_like_train(unitree_bag, tmp_path):
     from ciml_msgs.msg import ModelError, ModelUpdate
 

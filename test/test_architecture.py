@@ -327,6 +327,48 @@ def test_only_the_ros_floors_use_rclpy():
     assert not found, "rclpy outside ros/ and nodes/:\n" + "\n".join(found)
 
 
+NODE_START_UP_SCIPY = {"ciml_learning.nodes.state_filter": {"scipy.ndimage", "scipy.signal"}}
+"""The scipy subpackages a node's process loads before it spins: only the state filter's FIR
+design (scipy.signal.firls for the profile's rate; the filters' module also uses scipy.ndimage).
+Each costs a process 0.2–0.5 s of CPU at start-up, when every node of a graph starts at once on
+two cores; scipy itself is light (numba imports it)."""
+
+
+def node_modules() -> list[str]:
+    """The modules of the node classes that the packages register ("ciml.nodes" entry points)."""
+    found = []
+    for pkg in LAYERS:
+        with open(os.path.join(ROOT, pkg, "setup.py"), encoding="utf-8") as f:
+            block = re.search(r'"ciml\.nodes": \[(.*?)\]', f.read(), re.S)
+        found += re.findall(r"=\s*([\w.]+):", block.group(1)) if block else []
+    return found
+
+
+def loaded_at_import(module: str) -> set[str]:
+    """Every module a `import module` runs: its module-level imports, its packages', transitively."""
+    seen: set[str] = set()
+    todo = [module]
+    while todo:
+        m = todo.pop()
+        parts = m.split(".")
+        for name in [".".join(parts[:n]) for n in range(1, len(parts) + 1)]:
+            if name in seen:
+                continue
+            seen.add(name)
+            if name in MODULES:
+                todo += [i.target for i in imports_of(MODULES[name], me=name) if not i.local and not i.typing_only
+                         and i.kind == "statement"]
+    return seen
+
+
+def test_nodes_load_no_scipy_subpackage_they_do_not_need():
+    nodes = node_modules()
+    assert "ciml_sim.bridge_node" in nodes and "ciml_learning.nodes.state_filter" in nodes
+    found = {m: sorted(s for s in loaded_at_import(m) if s.startswith("scipy.")
+                       and s not in NODE_START_UP_SCIPY.get(m, set())) for m in nodes}
+    assert not any(found.values()), f"import them where they are used: {found}"
+
+
 def test_no_package_declares_a_package_above_it():
     for pkg in LAYERS:
         above = set(LAYERS[LAYERS.index(pkg) + 1:])

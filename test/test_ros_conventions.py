@@ -60,6 +60,28 @@ def test_health_condition_raised_then_cleared_returns_to_ok(node_in_private_cont
     assert health.status().level == bytes([OK])
 
 
+def test_health_publishes_at_the_first_spin_then_once_a_period(node_in_private_context):
+    """A monitor sees a node up as soon as it spins, not a publish period later."""
+    from ciml_learning.ros.executor import DirectExecutor
+    from ciml_learning.ros.ros_common import PUBLISH_PERIOD, Health
+
+    node = node_in_private_context
+    health = Health(node)
+    sent: list[float] = []
+    publish = health._pub.publish
+    health._pub.publish = lambda msg: (sent.append(time.monotonic()), publish(msg))
+    executor = DirectExecutor(context=node.context)
+    executor.add_node(node)
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 0.3:
+        executor.spin_once(timeout_sec=0.05)
+    assert len(sent) == 1 and sent[0] - t0 < 0.1, [t - t0 for t in sent]
+    while time.monotonic() - t0 < PUBLISH_PERIOD + 0.3:
+        executor.spin_once(timeout_sec=0.05)
+    assert len(sent) == 2, [t - t0 for t in sent]  # then the 1 Hz timer alone
+    executor.shutdown(timeout_sec=0)
+
+
 def start(exe: str, module: str, *ros_args: str) -> subprocess.Popen:
     """A node by its console script (or by its module before the venv was re-installed), with
     faulthandler on: a hung node shows its stacks on SIGABRT."""

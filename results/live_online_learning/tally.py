@@ -7,7 +7,8 @@ without learning of its scenario in the same files (the baselines of one code ve
 benchmark's own `live_bench.learning_summary`; prints, per scenario, one Markdown row per run
 (seed, last-minute effort and cut, lowest cut from the second and from the third minute on, the
 minute from which it stays ≥ 30 % below to the end, falls,
-swaps, judged / unjudged, rolled back) and a summary line.
+swaps, judged / unjudged, rolled back, the share of control steps with a gated ε entry in
+minutes 2–5) and a summary line.
 """
 from __future__ import annotations
 
@@ -32,6 +33,16 @@ def last(periods: list[dict], key: str) -> float:
     return float(periods[-1].get(key) or 0.0)
 
 
+def gated_share(periods: list[dict], first: int, end: int) -> float:
+    """Share of the controller's steps in minutes first..end (1-based) with an ε entry gated by
+    the trust law (variance above the prior: the model does not know there)."""
+    def at(k: int, key: str) -> float:
+        return float(periods[k - 1].get(key) or 0.0) if k >= 1 else 0.0
+    steps = at(end, "id_controller.commands") - at(first - 1, "id_controller.commands")
+    gated = at(end, "id_controller.epsilon_gated") - at(first - 1, "id_controller.epsilon_gated")
+    return gated / steps if steps else float("nan")
+
+
 def main(paths: list[str]) -> None:
     all_runs = runs(paths)
     for scenario, summary in learning_summary(all_runs)["scenarios"].items():
@@ -42,8 +53,8 @@ def main(paths: list[str]) -> None:
               "per minute [Nm]: " + ", ".join(f"{b:.2f}" for b in base))
         print("\n| seed | commit | last minute [Nm] | last-minute cut | lowest cut, minutes 2–end | lowest cut, "
               "minutes 3–end | ≥ 30 % from minute (to the end) | fell | swaps | judged / unjudged | "
-              "rolled back (worse than before) |\n"
-              "|---|---|---|---|---|---|---|---|---|---|---|")
+              "rolled back (worse than before) | ε gated, minutes 2–5 |\n"
+              "|---|---|---|---|---|---|---|---|---|---|---|---|")
         online = [r for r in these if r["online"]]
         cuts = summary["last_period_cut_pct_per_run"]
         lowest2, held_from = [], []
@@ -58,7 +69,7 @@ def main(paths: list[str]) -> None:
             print(f"| {r['seed']} | {r['commit']} | {effort[-1]:.2f} | {last_cut:.1f} % | {cut[1:].min():.1f} % | "
                   f"{cut[2:].min():.1f} % | {held} | {r.get('fell')} | {last(p, 'model_server.model_swaps'):.0f} | "
                   f"{last(p, 'id_controller.models_judged'):.0f} / {last(p, 'id_controller.models_unjudged'):.0f} | "
-                  f"{last(p, 'id_controller.rollbacks_worse_than_before'):.0f} |")
+                  f"{last(p, 'id_controller.rollbacks_worse_than_before'):.0f} | {100 * gated_share(p, 2, 5):.0f} % |")
         print(f"\nruns with learning: {len(online)}; falls: {sum(bool(r.get('fell')) for r in these)} in "
               f"{len(these)} runs; last-minute cut ≥ 30 %: {sum(c >= 30.0 for c in cuts)} of {len(cuts)} "
               f"(range {min(cuts):.1f}–{max(cuts):.1f} %); every minute from the second ≥ 30 %: "

@@ -76,6 +76,8 @@ SIGNAL_POLL_PERIOD = 0.1
 """[s] longest wait of a node process's executor: the most a SIGINT/SIGTERM waits to be seen."""
 PUBLISH_PERIOD = 1.0
 """[s] between /diagnostics messages of a node (diagnostic_updater's default rate)."""
+FIRST_PUBLISH_DELAY = 0.001
+"""[s] the first /diagnostics after the node starts spinning."""
 OK, WARN, ERROR = 0, 1, 2
 """diagnostic_msgs/DiagnosticStatus levels (the message field is a byte)."""
 
@@ -293,8 +295,8 @@ class PublishPeriods:
 
 
 class Health:
-    """The node's health on /diagnostics at 1 Hz: a level and a message that describe the
-    *current* conditions, and event counts as KeyValues.
+    """The node's health on /diagnostics at 1 Hz, the first as soon as the node spins: a level
+    and a message that describe the *current* conditions, and event counts as KeyValues.
 
     - `set(level, message)`: the node's mode ("torque control", "holding the standing pose: …").
     - `condition(key, active, level, message)`: a named condition, raised while `active`, gone
@@ -320,6 +322,13 @@ class Health:
         self._hardware_id = hardware_id
         self._pub = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         node.create_timer(PUBLISH_PERIOD, self.publish)
+        # the first status at the first spin, not a period later: a monitor (or a launch test)
+        # sees the node up as soon as its constructor has finished
+        self._first = node.create_timer(FIRST_PUBLISH_DELAY, self._publish_first)
+
+    def _publish_first(self) -> None:
+        self._first.cancel()  # cancelled, not destroyed: a callback does not destroy its own timer
+        self.publish()
 
     def count(self, event: str, warn: str | None = None, level: int = WARN) -> None:
         """Count one event; with `warn`, also log it (throttled) and hold it as a condition."""

@@ -39,7 +39,6 @@ import warnings
 from typing import ClassVar
 
 import numpy as np
-from scipy.linalg import cho_factor, solve_triangular
 
 from ciml_learning.learning.learners.base import Learner, LearnerError
 
@@ -236,7 +235,10 @@ class SparseGPR(Learner):
         return variance, lengthscale, noise, Z
 
     def _posterior(self, X, y, Z, variance, lengthscale, noise) -> None:
+        # GPy and scipy only to fit: the nodes that predict (model server, online learner) import
+        # this module and stay free of both
         import GPy
+        from scipy.linalg import cho_factor, solve_triangular
 
         m, d = Z.shape
         kern = GPy.kern.Matern32(d, variance=variance, lengthscale=lengthscale, ARD=True)

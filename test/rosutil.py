@@ -43,15 +43,20 @@ class Listener:
         rclpy.init(context=self.context)
         self.node = rclpy.create_node("test_listener", context=self.context)
         self.messages: dict[str, list] = {t: [] for t in subscriptions}
+        self.received: dict[str, list[float]] = {t: [] for t in subscriptions}  # time.monotonic() per message
         reliable = QoSProfile(depth=qos_depth, reliability=ReliabilityPolicy.RELIABLE)
         for topic, cls in subscriptions.items():
-            self.node.create_subscription(cls, topic, lambda m, t=topic: self.messages[t].append(m),
+            self.node.create_subscription(cls, topic, lambda m, t=topic: self._receive(t, m),
                                           (qos or {}).get(topic, reliable))
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._stop = False
         self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
+
+    def _receive(self, topic: str, message) -> None:
+        self.received[topic].append(time.monotonic())
+        self.messages[topic].append(message)
 
     def _spin(self) -> None:
         while not self._stop:

@@ -8,6 +8,7 @@ import pytest
 from rosutil import Listener, start_node, stop
 
 from ciml_control.conversions import reference_msg, reference_point
+from ciml_control.node_params import ID_CONTROLLER
 from ciml_control.references import make_reference, standing_configuration
 from ciml_learning.core import conversions as cv
 from ciml_learning.core.robot import load_robot
@@ -314,11 +315,16 @@ def test_id_controller_holds_a_late_reference_then_damps_a_dead_one():
         log = stop(node)
         listener.close()
     assert np.linalg.norm(last_ref.v[6:]) > 1e-3  # the held reference was moving
-    by_age = [(sent[cv.stamp_to_ns(m.header.stamp)], m) for m in cmds if cv.stamp_to_ns(m.header.stamp) in sent]
-    # ages by this sender's clock; the controller's are by receipt, later under load by the delivery
-    # latency (a CI run once saw a command 0.4 s after the last reference already damped)
-    held = [m for age, m in by_age if 0.15 <= age <= 0.3]
-    dead = [m for age, m in by_age if age >= 0.75]
+    hold = ID_CONTROLLER.defaults["reference_hold"]
+    received = listener.received["/torque_command"][:len(cmds)]
+    by_age = [(sent[cv.stamp_to_ns(m.header.stamp)], t - t_last, m) for m, t in zip(cmds, received)
+              if cv.stamp_to_ns(m.header.stamp) in sent]
+    # Held: the controller received the last reference after the test sent it (t_last) and made
+    # the command before the test received it, so a command received less than reference_hold
+    # after t_last answered a reference younger than that by the controller's clock, whatever
+    # the delivery delay; sent ≥ 0.15 s after it, that reference is the last one.
+    held = [m for age, since_last, m in by_age if age >= 0.15 and since_last < hold]
+    dead = [m for age, _, m in by_age if age >= 0.75]
     assert len(held) >= 20 and len(dead) >= 20, (len(held), len(dead), log[-800:])
     for m in held:
         arr = cv.torque_command_arrays(ROBOT, m)

@@ -58,7 +58,10 @@ def confusion_figure(confusion: dict[str, dict[str, int]]):
     cols += [c for c in (WRONG_PLACE, UNEXPLAINED, NOTHING) if c in named]
     m = np.array([[confusion[r].get(c, 0) for c in cols] for r in rows], float).reshape(len(rows), len(cols))
     fig, ax = plt.subplots(figsize=(1.2 + 0.45 * max(len(cols), 1), 1.2 + 0.4 * max(len(rows), 1)))
-    ax.imshow(m / np.maximum(m.sum(axis=1, keepdims=True), 1), cmap="Blues", vmin=0, vmax=1)
+    if m.size == 0:  # no case scored yet (a partial bench): an empty image has no extent
+        ax.text(0.5, 0.5, "no case scored", ha="center", va="center", transform=ax.transAxes)
+    else:
+        ax.imshow(m / np.maximum(m.sum(axis=1, keepdims=True), 1), cmap="Blues", vmin=0, vmax=1)
     for i, j in zip(*np.nonzero(m)):
         ax.text(j, i, f"{int(m[i, j])}", ha="center", va="center", fontsize=7)
     ax.set_xticks(range(len(cols)), cols, rotation=60, ha="right", fontsize=7)

@@ -144,6 +144,16 @@ def test_report_has_the_plots_and_the_tables(tmp_path):
     assert json.loads((tmp_path / "gap_bench.json").read_text())["summary"]["named_right"]["k"] == 2
 
 
+@pytest.mark.filterwarnings("error::UserWarning")
+def test_confusion_plot_of_no_scored_case_draws_without_a_singular_axis():
+    """A partial bench with no case scored yet still writes its confusion plot (matplotlib warns
+    of identical axis limits for an empty image: made an error here)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    assert gapplots.confusion_figure({}).axes[0].texts[0].get_text() == "no case scored"
+
+
 def test_cluster_address_parsing():
     assert cluster.parse_cluster("local:2") == "local:2"
     assert cluster.parse_cluster("tcp://10.0.0.5:8786") == "tcp://10.0.0.5:8786"

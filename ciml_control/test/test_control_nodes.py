@@ -316,8 +316,8 @@ def test_id_controller_holds_a_late_reference_then_damps_a_dead_one():
         listener.close()
     assert np.linalg.norm(last_ref.v[6:]) > 1e-3  # the held reference was moving
     hold = ID_CONTROLLER.defaults["reference_hold"]
-    received = listener.received["/torque_command"][:len(cmds)]
-    by_age = [(sent[cv.stamp_to_ns(m.header.stamp)], t - t_last, m) for m, t in zip(cmds, received)
+    by_age = [(sent[cv.stamp_to_ns(m.header.stamp)], t - t_last, m)
+              for m, t in zip(cmds, listener.received["/torque_command"])
               if cv.stamp_to_ns(m.header.stamp) in sent]
     # Held: the controller received the last reference after the test sent it (t_last) and made
     # the command before the test received it, so a command received less than reference_hold

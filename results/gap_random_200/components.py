@@ -4,12 +4,15 @@ diagnosed again, with each component of the std kept (diagnosis.json `std_compon
     python results/gap_random_200/components.py OUT_DIR [--jobs 2]
 
 OUT_DIR is a `ciml gap-bench --random` folder whose cases kept their bags (case_NN/train_*,
-heldout_*). Each such case is diagnosed again into case_NN/diagnosis_components (skipped when it is
-there), scored against its draw (draws.json) by the bench's own score_case, and per effect type the
-script prints: coverage of the 68 % and 95 % intervals, the median |error|/std, and per component
-its median share of the variance and the 68 % coverage the interval would have without it; then the
-coverage over all types if the misspecification bound counted as another number of standard
-deviations (in sample: a choice made from these cases must be checked on another draw).
+heldout_*). A case whose own diagnosis (case_NN/diagnosis, from a bench run since `std_components`
+exist) keeps the components is read as it is; the others are diagnosed again into
+case_NN/diagnosis_components (skipped when it is there). Each is scored against its draw
+(draws.json) by the bench's own score_case, and per effect type the script prints: coverage of the
+68 % and 95 % intervals, the median |error|/std, and per component its median share of the variance
+and the 68 % coverage the interval would have without it; then the coverage over all types if the
+misspecification bound counted as another number of standard deviations (in sample: a choice made
+from these cases must be checked on another draw), and per type with ≥ 20 parameters the coverage
+at each such scale with its Wilson 95 % interval.
 """
 from __future__ import annotations
 
@@ -25,10 +28,15 @@ import numpy as np
 
 from ciml_learning.core.robot import load_robot
 from ciml_learning.diagnosis.uncertainty import MISSPECIFICATION_SCALE, Z68, Z95
-from ciml_sim import gapbench
+from ciml_sim import gapbench, gapstats
 
 
 def diagnose(case: str) -> str:
+    own = os.path.join(case, "diagnosis")
+    if os.path.isfile(os.path.join(own, "diagnosis.json")):
+        effects = json.load(open(os.path.join(own, "diagnosis.json"), encoding="utf-8")).get("effects") or []
+        if all("std_components" in e for e in effects):
+            return own
     out = os.path.join(case, "diagnosis_components")
     if not os.path.isfile(os.path.join(out, "diagnosis.json")):
         bags = sorted(os.listdir(case))
@@ -47,7 +55,9 @@ def main() -> None:
     a = ap.parse_args()
     specs = json.load(open(os.path.join(a.out_dir, "draws.json"), encoding="utf-8"))["cases"]
     cases = [(i, os.path.join(a.out_dir, f"case_{i:02d}")) for i in range(1, len(specs) + 1)]
-    cases = [(i, c) for i, c in cases if os.path.isdir(os.path.join(c, "train_0"))]
+    # finished cases (score.json written) that kept their bags
+    cases = [(i, c) for i, c in cases
+             if os.path.isdir(os.path.join(c, "train_0")) and os.path.isfile(os.path.join(c, "score.json"))]
     with ThreadPoolExecutor(a.jobs) as pool:
         dirs = list(pool.map(lambda ic: diagnose(ic[1]), cases))
     robot = load_robot()
@@ -80,9 +90,32 @@ def main() -> None:
     rest = sum(np.asarray(total[n]) ** 2 for n in names if n != "misspecification")
     mis = np.asarray(total["misspecification"]) / MISSPECIFICATION_SCALE
     print("\n| misspecification scale | in 68 % | in 95 % |\n|---|---|---|")
-    for scale in (0.25, 0.33, 0.4, 0.5, 0.75, 1.0):
+    for scale in SCALES:
         sd = np.sqrt(rest + (scale * mis) ** 2)
         print(f"| {scale:g} | {np.mean(err <= Z68 * sd):.0%} | {np.mean(err <= Z95 * sd):.0%} |")
+    # per effect type with ≥ 20 parameters (the issue's bands hold for each), Wilson 95 % intervals
+    print("\n| type | n | " + " | ".join(f"scale {x:g}: in 68 % / in 95 %" for x in SCALES) + " |")
+    print("|---" * (2 + len(SCALES)) + "|")
+    for t, acc in sorted(by_type.items()) + [("all", total)]:
+        e = np.asarray(acc["error"])
+        if len(e) < 20:
+            continue
+        other = sum(np.asarray(acc[n]) ** 2 for n in names if n != "misspecification")
+        m = np.asarray(acc["misspecification"]) / MISSPECIFICATION_SCALE
+        cells = []
+        for scale in SCALES:
+            sd = np.sqrt(other + (scale * m) ** 2)
+            cells.append(" / ".join(_share(int(np.sum(e <= z * sd)), len(e)) for z in (Z68, Z95)))
+        print(f"| {t} | {len(e)} | " + " | ".join(cells) + " |")
+
+
+SCALES = (0.25, 0.33, 0.4, 0.5, 0.75, 1.0)
+
+
+def _share(k: int, n: int) -> str:
+    r = gapstats.rate(k, n)
+    return f"{100 * k / n:.0f} % [{100 * r['ci95'][0]:.0f}, {100 * r['ci95'][1]:.0f}]"
+
 
 
 def row_of(label: str, acc: dict, names: list[str]) -> str:

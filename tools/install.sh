@@ -74,6 +74,21 @@ if ! stamp_ok core "$h" || [ ! -f "$CORE" ]; then
   stamp_set core "$h"
 fi
 
+# The offline batch core (CMake, ciml_learning/cpp; Pinocchio headers from the pin wheel; ~2 min) into the
+# ciml_learning package folder: extraction's and the diagnosis's per-sample dynamics over whole batches.
+BATCH="$ROOT/ciml_learning/ciml_learning/libciml_learning_core.so"
+h=$(hash_of "$ROOT"/ciml_learning/cpp/* "$STAMPS/wheels")
+if ! stamp_ok batch "$h" || [ ! -f "$BATCH" ]; then
+  log "compiling the batch dynamics core (C++: Pinocchio)"
+  BUILD="$ROOT/build/batch_core"
+  CMEEL="$("$PY" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/cmeel.prefix"
+  mkdir -p "$BUILD"
+  (cmake -S "$ROOT/ciml_learning/cpp" -B "$BUILD" -DCMAKE_PREFIX_PATH="$CMEEL" -DCMAKE_BUILD_TYPE=Release \
+     > "$BUILD/cmake.log" 2>&1 && cmake --build "$BUILD" > "$BUILD/make.log" 2>&1) \
+    || { tail -30 "$BUILD"/*.log; log "batch dynamics core build failed, see $BUILD/*.log"; exit 1; }
+  stamp_set batch "$h"
+fi
+
 h=$(hash_of "$ROOT"/ciml_*/setup.py "$ROOT"/ciml_*/setup.cfg "$ROOT"/ciml_*/package.xml "$STAMPS/wheels" \
   $(find "$ROOT"/ciml_learning/config "$ROOT"/ciml_control/config "$ROOT"/ciml_sim/config "$ROOT"/ciml_sim/launch \
     -type f 2>/dev/null | sort))

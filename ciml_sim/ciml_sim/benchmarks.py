@@ -21,6 +21,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 
 from ciml_control.standing import StandingController
+from ciml_learning.cli.benchmarks import per_sample_floor
 from ciml_learning.core import conversions as cv
 from ciml_learning.core import topics
 from ciml_learning.core.errors import CimlError
@@ -243,7 +244,11 @@ def diagnosis_benchmark(n_samples: int = 50_000, seconds: float = 20.0, motion: 
         t0, c0 = time.perf_counter(), time.process_time()
         result = diagnose(robot, [bag] * (copies - n_ho), [bag] * n_ho, os.path.join(tmp, "out"), progress=False)
         elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
+        floor = per_sample_floor()
         return {"samples": copies * per_bag,
+                "us_per_sample": round(1e6 * elapsed / (copies * per_bag), 1), **floor,
+                "over_floor": round(1e6 * elapsed / (copies * per_bag) / floor["floor_us_per_sample"], 1),
+                "target_over_floor": 40.0,
                 "valid_samples": result["data"]["samples"] + result["data"]["heldout_samples"],
                 "diagnosis_s": round(elapsed, 2), "diagnosis_cpu_s": round(cpu, 2), "target_s": 120.0,
                 "effects": [e["type"] for e in result["effects"]]}

@@ -18,7 +18,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 
 from ciml_learning.core.dynamics import selection_matrix
 from ciml_learning.core.projection import (
@@ -169,20 +168,9 @@ class ExtractionResult:
 
 def dynamics_batch(robot: RobotDescription, q: np.ndarray, v: np.ndarray,
                    a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Nominal M q̈ + h (N × nv, RNEA) and foot Jacobians (N × n_feet × 3 × nv)."""
-    model = robot.model
-    data = model.createData()
-    n = len(q)
-    id_terms = np.empty((n, robot.nv))
-    jac = np.empty((n, robot.n_feet, 3, robot.nv))
-    frames = robot.foot_frame_ids
-    for k in range(n):
-        id_terms[k] = pin.rnea(model, data, q[k], v[k], a[k])
-        pin.computeJointJacobians(model, data, q[k])
-        pin.updateFramePlacements(model, data)
-        for i, f in enumerate(frames):
-            jac[k, i] = pin.getFrameJacobian(model, data, f, pin.LOCAL_WORLD_ALIGNED)[:3]
-    return id_terms, jac
+    """Nominal M q̈ + h (N × nv, RNEA) and foot Jacobians (N × n_feet × 3 × nv), one compiled
+    Pinocchio batch (core.batch_dynamics)."""
+    return robot.batch.inverse_dynamics(q, v, a)
 
 
 EXTRACTION_CHUNK = 4096

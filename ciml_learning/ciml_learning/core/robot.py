@@ -20,12 +20,16 @@ import os
 import sys
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TYPE_CHECKING
 from xml.etree import ElementTree
 
 import numpy as np
 import pinocchio as pin
 
 from ciml_learning.core.errors import CimlError
+
+if TYPE_CHECKING:
+    from ciml_learning.core.batch_dynamics import BatchDynamics
 
 BASE_DOF_NAMES: tuple[str, ...] = ("base_x", "base_y", "base_z", "base_roll", "base_pitch", "base_yaw")
 """Names of the 6 base coordinates of v (linear, then angular; base frame)."""
@@ -102,6 +106,14 @@ class RobotDescription:
     @property
     def n_feet(self) -> int:
         return len(self.foot_frames)
+
+    @cached_property
+    def batch(self) -> "BatchDynamics":
+        """The model in the compiled batch core (core.batch_dynamics), built at first use; the model
+        is not changed after construction (a modified robot is a new description)."""
+        from ciml_learning.core.batch_dynamics import BatchDynamics
+
+        return BatchDynamics(self)
 
     @cached_property
     def leg_names(self) -> tuple[str, ...]:

@@ -60,7 +60,6 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-import pinocchio as pin
 
 from ciml_learning.core.filters import filter_offline, lowpass_taps
 from ciml_learning.core.robot import RobotDescription
@@ -270,13 +269,12 @@ def generic_joint_basis(q_joints: np.ndarray, layout: "FeatureLayout", segment: 
 
 
 class RegressorEvaluator:
-    """Per-sample rigid-body regressors (Pinocchio) for a chunk of samples."""
+    """Per-sample rigid-body regressors (Pinocchio, compiled batches: core.batch_dynamics) for a chunk
+    of samples."""
 
     def __init__(self, robot: RobotDescription, layout: FeatureLayout) -> None:
         self.robot = robot
         self.layout = layout
-        self.model = robot.model
-        self.data = robot.model.createData()
         self.link_cols = [(10 * (link.joint - 1), link.params) for link in layout.links]
 
     def chunk(self, q: np.ndarray, v: np.ndarray, a: np.ndarray, contacts: np.ndarray, residual: np.ndarray,
@@ -291,10 +289,9 @@ class RegressorEvaluator:
         tau: the measured joint torques (the torque-sensor gain's Φ̃ part; None: zeros);
         joint_extra: effect_joint_regressors of these samples (None: zeros).
         """
-        r, lay, model, data = self.robot, self.layout, self.model, self.data
+        r, lay = self.robot, self.layout
         n, nv, nj = len(q), r.nv, r.n_joints
         E = np.zeros((n, nv, lay.n_rbd))
-        jac = np.empty((n, r.n_feet, 3, nv))
         jidx = np.arange(nj)
         E[:, 6 + jidx, lay.coulomb0 + jidx] = coulomb
         E[:, 6 + jidx, lay.viscous0 + jidx] = v[:, 6:]
@@ -312,18 +309,7 @@ class RegressorEvaluator:
             k, c0 = x.shape[2], lay.joint_feature0[t]
             for j in range(nj):
                 E[:, 6 + j, c0 + k * j:c0 + k * (j + 1)] = x[:, j]
-        frames = r.foot_frame_ids
-        Y = np.empty((n, nv, 10 * (model.njoints - 1)))
-        D = np.empty((n, nv, nv))
-        for k in range(n):  # the per-sample Pinocchio calls; everything else is batched below
-            qk = q[k]
-            pin.computeJointJacobians(model, data, qk)
-            pin.updateFramePlacements(model, data)
-            for i, f in enumerate(frames):
-                jac[k, i] = pin.getFrameJacobian(model, data, f, pin.LOCAL_WORLD_ALIGNED)[:3]
-            Y[k] = pin.computeJointTorqueRegressor(model, data, qk, v[k], a[k])
-            pin.computeRNEADerivatives(model, data, qk, v[k], a[k])
-            D[k] = data.dtau_dq
+        jac, Y, D = r.batch.regressors(q, v, a)  # the per-sample Pinocchio calls; the rest is batched below
         E[:, :, lay.root0:lay.root0 + 10] = Y[:, :, :10]
         for c, (col, params) in enumerate(self.link_cols):
             E[:, :, lay.link0 + c] = Y[:, :, col:col + 10] @ params
@@ -331,8 +317,8 @@ class RegressorEvaluator:
         E[:, :, lay.imu0:lay.imu0 + 2] = -D[:, :, 3:5]
         # encoder term: the stance feet's contact forces λ (least squares on r = −J_cᵀλ, per contact
         # pattern) through ∂J_c/∂q_j of each stance leg joint j
-        unit = np.eye(nv)
         patterns, which = np.unique(np.asarray(contacts, bool), axis=0, return_inverse=True)
+        items: list[tuple[np.ndarray, int, int, np.ndarray]] = []  # (samples, foot, joint, λ of each sample)
         for p_i, pattern in enumerate(patterns):
             stance = np.flatnonzero(pattern)
             if not len(stance):
@@ -340,12 +326,16 @@ class RegressorEvaluator:
             rows = np.flatnonzero(which.ravel() == p_i)
             JcT = jac[rows][:, stance].reshape(len(rows), -1, nv).transpose(0, 2, 1)  # m × nv × 3s
             lam = -(np.linalg.pinv(JcT) @ residual[rows][:, :, None])[:, :, 0].reshape(len(rows), -1, 3)
-            for k, lam_k in zip(rows, lam):
-                for s_i, foot in enumerate(stance):
-                    for j in r.leg_joints[foot]:
-                        pin.computeJointJacobiansTimeVariation(model, data, q[k], unit[6 + j])
-                        dJ = pin.getFrameJacobianTimeVariation(model, data, frames[foot], pin.LOCAL_WORLD_ALIGNED)
-                        E[k, :, lay.encoder0 + j] += dJ[:3].T @ lam_k[s_i]
+            for s_i, foot in enumerate(stance):
+                for j in r.leg_joints[foot]:
+                    items.append((rows, int(foot), j, lam[:, s_i]))
+        if items:
+            k = np.concatenate([x[0] for x in items])
+            joint = np.concatenate([np.full(len(x[0]), x[2]) for x in items])
+            prod = r.batch.jacobian_variation_products(
+                q, k, np.concatenate([np.full(len(x[0]), x[1]) for x in items]), 6 + joint,
+                np.concatenate([x[3] for x in items]))
+            E[k, :, lay.encoder0 + joint] += prod  # (sample, joint) pairs are distinct: a joint has one foot
         return E, jac
 
 

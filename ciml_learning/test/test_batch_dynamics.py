@@ -34,8 +34,8 @@ def test_inverse_dynamics_and_foot_jacobians_equal_pinocchio_per_sample(robot):
         pin.computeJointJacobians(robot.model, data, q[k])
         pin.updateFramePlacements(robot.model, data)
         for i, f in enumerate(robot.foot_frame_ids):
-            np.testing.assert_allclose(jac[k, i], pin.getFrameJacobian(robot.model, data, f, pin.LOCAL_WORLD_ALIGNED)[:3],
-                                       rtol=RTOL, atol=ATOL)
+            J = pin.getFrameJacobian(robot.model, data, f, pin.LOCAL_WORLD_ALIGNED)
+            np.testing.assert_allclose(jac[k, i], J[:3], rtol=RTOL, atol=ATOL)
 
 
 def test_regressors_equal_pinocchio_per_sample(robot):
@@ -61,7 +61,8 @@ def test_jacobian_variation_products_equal_pinocchio_per_item(robot):
     data = robot.model.createData()
     for i in range(25):
         pin.computeJointJacobiansTimeVariation(robot.model, data, q[sample[i]], np.eye(robot.nv)[dof[i]])
-        dJ = pin.getFrameJacobianTimeVariation(robot.model, data, robot.foot_frame_ids[foot[i]], pin.LOCAL_WORLD_ALIGNED)
+        frame = robot.foot_frame_ids[foot[i]]
+        dJ = pin.getFrameJacobianTimeVariation(robot.model, data, frame, pin.LOCAL_WORLD_ALIGNED)
         np.testing.assert_allclose(out[i], dJ[:3].T @ lam[i], rtol=RTOL, atol=ATOL)
 
 
@@ -77,3 +78,15 @@ def test_bad_shapes_and_indices_are_refused():
     with pytest.raises(BatchCoreError, match="status -2"):
         robot.batch.jacobian_variation_products(q, [0], [robot.n_feet], [6], np.zeros(3))
     assert robot.batch.inverse_dynamics(q[:0], v[:0], a[:0])[0].shape == (0, robot.nv)
+
+
+def test_a_robot_pickles_after_its_batch_core_was_used():
+    """Robots go to joblib and Dask workers by pickle: the core's handle stays behind and is rebuilt."""
+    import pickle
+
+    robot = load_robot()
+    q, v, a = _samples(robot, 2, 6)
+    tau = robot.batch.inverse_dynamics(q, v, a)[0]
+    copy = pickle.loads(pickle.dumps(robot))
+    assert "batch" not in vars(copy)
+    np.testing.assert_array_equal(copy.batch.inverse_dynamics(q, v, a)[0], tau)

@@ -33,3 +33,26 @@ def test_train_on_a_local_cluster_equals_the_local_run(tmp_path, capsys):
     assert main(["train", "--bag", bag, "--learner", "lwpr", "--out", str(tmp_path / "x"),
                  "--cluster", "tcp://127.0.0.1:9"]) == 1
     assert "no Dask scheduler answers" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_bags_read_on_processes_or_a_local_cluster_give_the_serial_dataset(tmp_path):
+    """pipeline.load_dataset's per-bag reads (cluster.bag_mapper: `--jobs` processes of `ciml diagnose`
+    and `ciml train`, or a LocalCluster): the dataset, bag order and counts of the serial read."""
+    from ciml_learning.learning.cluster import bag_mapper
+    from ciml_learning.logs.pipeline import LOG_COLUMNS, load_dataset
+
+    bags = []
+    for seed in (4, 5, 6):
+        bags.append(str(tmp_path / f"synthetic{seed}"))
+        write_synthetic_bag(ROBOT, bags[-1], seconds=1.5, seed=seed)
+    serial = load_dataset(ROBOT, bags, progress=False)
+    for mapper in (bag_mapper(2), bag_mapper(cluster="local:2")):
+        ds = load_dataset(ROBOT, bags, progress=False, map_bags=mapper)
+        assert ds.bags == serial.bags and ds.rejected == serial.rejected and ds.inputs == serial.inputs
+        np.testing.assert_array_equal(ds.bag_index, serial.bag_index)
+        for name in LOG_COLUMNS:
+            np.testing.assert_array_equal(getattr(ds.log, name), getattr(serial.log, name))
+        for name, x in vars(serial.targets).items():
+            np.testing.assert_array_equal(getattr(ds.targets, name), x)
+    assert bag_mapper(1) is None

@@ -379,7 +379,9 @@ def run_case(index: int, spec: dict, out_dir: str, scale: float = 1.0) -> dict:
         reference = ["--reference", *ref_bags["train"], *ref_bags["heldout"]]
     t1 = time.perf_counter()
     diag_dir = os.path.join(case, "diagnosis")
-    _ciml("diagnose", "--bag", *bags["train"], "--heldout", *bags["heldout"], *reference, "--out", diag_dir)
+    # the cases are what runs in parallel (jobs, cluster): each diagnosis reads its bags in its own process
+    _ciml("diagnose", "--jobs", "1", "--bag", *bags["train"], "--heldout", *bags["heldout"], *reference,
+          "--out", diag_dir)
     t2 = time.perf_counter()
     with open(os.path.join(diag_dir, "diagnosis.json"), encoding="utf-8") as f:
         diagnosis = json.load(f)
@@ -396,7 +398,7 @@ def run_case(index: int, spec: dict, out_dir: str, scale: float = 1.0) -> dict:
         # the reference re-recorded with the identified scenario ("the simulator you need"), compared again
         resim = _record_motions(case, os.path.join(diag_dir, "identified_scenario.yaml"), spec, scale,
                                 prefix="identified_")
-        _ciml("diagnose", "--bag", *bags["train"], "--heldout", *bags["heldout"],
+        _ciml("diagnose", "--jobs", "1", "--bag", *bags["train"], "--heldout", *bags["heldout"],
               "--reference", *resim["train"], *resim["heldout"], "--out", os.path.join(case, CLOSURE_DIR))
         scored["reference"].update(closure_scores(case))
         scored["closure_s"] = round(time.perf_counter() - t2, 1)

@@ -50,19 +50,25 @@ def extract(args: argparse.Namespace) -> int:
     return 0
 
 
+def _jobs(args: argparse.Namespace) -> int:
+    """--jobs checked and capped at the cores available (cli.args.cap_jobs)."""
+    from ciml_learning.cli.args import cap_jobs
+
+    if args.jobs == 0 or args.jobs < -1:
+        raise CimlError(f"--jobs must be a positive number of processes or -1 (all cores), got {args.jobs}")
+    return cap_jobs(args.jobs)
+
+
 def train(args: argparse.Namespace) -> int:
     """`ciml train --bag BAG... --learner lwpr|sgpr --out MODEL_DIR [--jobs N | --cluster ADDRESS]`."""
     from contextlib import nullcontext
 
-    from ciml_learning.cli.args import cap_jobs
     from ciml_learning.core.fileio import check_out_dir
     from ciml_learning.learning.cluster import joblib_on
     from ciml_learning.learning.model_files import is_model_dir
     from ciml_learning.learning.training import train_from_bags
 
-    if args.jobs == 0 or args.jobs < -1:
-        raise CimlError(f"--jobs must be a positive number of processes or -1 (all cores), got {args.jobs}")
-    args.jobs = cap_jobs(args.jobs)
+    args.jobs = _jobs(args)
     check_out_dir(args.out, is_model_dir, "model")  # refused before the training, not after
     robot = robot_from_args(args)
     t0 = time.perf_counter()
@@ -101,7 +107,7 @@ def diagnose(args: argparse.Namespace) -> int:
 
     robot = robot_from_args(args)
     result = run(robot, args.bag, args.heldout, args.out, progress=True, profile=profile_from_args(args),
-                 reference=getattr(args, "reference", None))
+                 reference=getattr(args, "reference", None), jobs=_jobs(args), cluster=args.cluster)
     print(f"diagnosis: {os.path.join(args.out, 'diagnosis.json')}")
     print(f"report:    {os.path.join(args.out, 'report.html')}")
     for line in answers(result):

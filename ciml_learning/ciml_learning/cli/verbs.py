@@ -49,6 +49,13 @@ def _diagnose(s: argparse.ArgumentParser) -> None:
                    help="logs of the same robot to compare with (e.g. the simulator's): also names what "
                         "distinguishes --bag from them (effects in one only, parameters that differ)")
     s.add_argument("--out", type=ca.path, required=True, help="output directory (diagnosis.json, report.html)")
+    s.add_argument("--jobs", type=ca.jobs, default=-1,
+                   help="bags read and filtered in parallel (joblib processes; -1: all cores; at most the cores "
+                        "available)")
+    s.add_argument("--cluster", type=ca.cluster_address, metavar="ADDRESS",
+                   help="read and filter the bags on a Dask scheduler (tcp://HOST:8786) or on local:N, a "
+                        "LocalCluster of N processes on 127.0.0.1, instead of --jobs (README: running on a Dask "
+                        "cluster)")
     s.add_argument("--publish", type=ca.finite(0, 3600, " s"), nargs="?", const=5.0, default=None, metavar="SECONDS",
                    help="then publish the summary once on /gap_diagnosis (ciml_msgs/GapDiagnosis, transient local) "
                         "and keep it available for SECONDS (default 5)")

@@ -107,6 +107,11 @@ class RobotDescription:
     def n_feet(self) -> int:
         return len(self.foot_frames)
 
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state.pop("batch", None)  # a handle into the compiled core, rebuilt at first use where it is unpickled
+        return state
+
     @cached_property
     def batch(self) -> "BatchDynamics":
         """The model in the compiled batch core (core.batch_dynamics), built at first use; the model

@@ -44,6 +44,7 @@ from ciml_learning.diagnosis.report import render_report
 from ciml_learning.diagnosis.shrink import project_stuck, residual_series, residuals, shrink, stuck_ss
 from ciml_learning.diagnosis.uncertainty import Z68, Z95
 from ciml_learning.effects import EFFECTS
+from ciml_learning.learning.cluster import bag_mapper
 from ciml_learning.logs.pipeline import load_dataset
 
 FORMAT_VERSION = 1
@@ -260,12 +261,14 @@ def _unmodelled_entry(layout: FeatureLayout, dataset, samples: np.ndarray, cand,
 
 def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str] | None = None,
              out_dir: str | None = None, progress: bool = True, report: bool = True, profile=None,
-             reference: Sequence[str] | None = None) -> dict:
+             reference: Sequence[str] | None = None, jobs: int = 1, cluster: str | None = None) -> dict:
     """Run the diagnosis; write DIR/diagnosis.json (atomically) and DIR/report.html if out_dir.
 
     profile: the robot profile the bags are read through (None: CIML's own topics).
     reference: bags of the same robot to compare with (e.g. the simulator's logs of the same motions):
-    they are diagnosed too, and what distinguishes the bags from them is added (reference.py)."""
+    they are diagnosed too, and what distinguishes the bags from them is added (reference.py).
+    jobs, cluster: where the bags are read and filtered (cluster.bag_mapper: `jobs` local processes, or a
+    Dask cluster; the results are the same)."""
     t_start = time.perf_counter()
     bags = [str(b) for b in bags]
     if not bags:
@@ -276,10 +279,11 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
         if not os.path.exists(b):
             raise DiagnosisError(f"bag not found: {b}")
     _say(progress, f"reading {len(bags)} bag(s)")
-    ds_id = load_dataset(robot, bags, progress=progress, profile=profile)
+    map_bags = bag_mapper(jobs, cluster)
+    ds_id = load_dataset(robot, bags, progress=progress, profile=profile, map_bags=map_bags)
     if heldout:
         _say(progress, f"reading {len(heldout)} held-out bag(s)")
-        ds_ho = load_dataset(robot, [str(b) for b in heldout], progress=progress, profile=profile)
+        ds_ho = load_dataset(robot, [str(b) for b in heldout], progress=progress, profile=profile, map_bags=map_bags)
         id_idx = np.arange(len(ds_id.targets.t))
         ho_idx = np.arange(len(ds_ho.targets.t))
         how = "held-out bags given with --heldout"
@@ -403,7 +407,8 @@ def diagnose(robot: RobotDescription, bags: Sequence[str], heldout: Sequence[str
         from ciml_learning.diagnosis.reference import compare, reference_summary
 
         _say(progress, f"diagnosing {len(reference)} reference bag(s) against the nominal model")
-        ref = diagnose(robot, [str(r) for r in reference], None, None, progress=progress, report=False, profile=profile)
+        ref = diagnose(robot, [str(r) for r in reference], None, None, progress=progress, report=False, profile=profile,
+                       jobs=jobs, cluster=cluster)
         result["reference"] = reference_summary(ref, [str(r) for r in reference])
         result["reference_comparison"] = compare(result, ref)
     _check_finite(result)

@@ -16,10 +16,13 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ciml_learning.core.errors import CimlError
 from ciml_learning.core.version import package_version
+
+if TYPE_CHECKING:
+    from ciml_learning.logs.pipeline import BagMap
 
 LOCAL_PREFIX = "local:"
 CONNECT_TIMEOUT = 10.0
@@ -152,3 +155,11 @@ def run_all(fn: Callable[[Any], Any], items: Sequence[Any], jobs: int = 1, clust
                                  f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else 'interrupted'})",
                                  results) from err
     return results
+
+
+def bag_mapper(jobs: int = 1, cluster: str | None = None) -> BagMap | None:
+    """How pipeline.load_dataset maps its per-bag reads (map_bags): run_all on `cluster`, or with `jobs`
+    local processes (−1: every core); None (one bag after the other, in this process) for jobs 1."""
+    if cluster is None and jobs == 1:
+        return None
+    return lambda fn, items: run_all(fn, items, jobs, cluster)

@@ -19,12 +19,13 @@ from ciml_learning.learning.models import ModelSet
 def train_from_bags(robot, bags: Sequence[str], learner: str, n_jobs: int = -1, progress: bool = True,
                     params: dict | None = None, profile=None) -> ModelSet:
     """`ciml train`: read (through the robot profile), filter and extract the bags
-    (pipeline.load_dataset), then fit a model set on the valid samples. Provenance goes to
+    (pipeline.load_dataset; the bags on n_jobs processes), then fit a model set on the valid samples. Provenance goes to
     model_set.training_."""
+    from ciml_learning.learning.cluster import bag_mapper
     from ciml_learning.logs.pipeline import load_dataset
 
     t0 = time.perf_counter()
-    ds = load_dataset(robot, bags, progress=progress, profile=profile)
+    ds = load_dataset(robot, bags, progress=progress, profile=profile, map_bags=bag_mapper(n_jobs))
     tg = ds.targets
     ms = ModelSet.for_robot(robot, learner, params)
     t1 = time.perf_counter()

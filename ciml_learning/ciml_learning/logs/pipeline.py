@@ -1,8 +1,9 @@
 """Bags → filtered logs → contact-invariant targets: the path every verb shares."""
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -80,30 +81,50 @@ class _LogJoiner:
                            segment_rate_hz=rates)
 
 
-def load_dataset(robot: RobotDescription, bags: Sequence[str], progress: bool = True, profile=None) -> Dataset:
+BagMap = Callable[[Callable[[Any], Any], Sequence[Any]], list[Any]]
+"""How load_dataset maps its per-bag work: map(fn, items) → [fn(item) …] in item order, e.g. on local
+processes or a Dask cluster (learning.cluster.bag_mapper); fn is the module-level read_filtered."""
+
+
+def read_filtered(item: tuple[RobotDescription, str, Any]) -> tuple[dict, list[str], dict[str, int], FilteredLog]:
+    """One bag (robot, path, profile) read through the profile and filtered (offline, zero-phase, for
+    its measured rate): its inputs entry, warnings, rejected counts and filtered log. Each bag is
+    independent of the others: a process pool or a Dask worker can run it."""
+    robot, bag, profile = item
+    raw = load_log(robot, bag, profile)
+    info = {"bag": str(bag), "rate_hz": raw.rate_hz, "u_observed": raw.u_observed, "sources": raw.sources,
+            "stamp_report": raw.stamp_report, "torque_command_correlation": raw.torque_command_correlation}
+    try:
+        log = filter_state_log(raw.t, raw.q, raw.v, raw.tau, raw.u, raw.contacts, fs=raw.rate_hz)
+    except ValueError as err:
+        raise BagError(f"bag {bag}: {err}") from err
+    return info, list(raw.warnings), dict(raw.rejected), log
+
+
+def load_dataset(robot: RobotDescription, bags: Sequence[str], progress: bool = True, profile=None,
+                 map_bags: BagMap | None = None) -> Dataset:
     """Read (through the robot profile; None: CIML's own topics), filter (offline,
     zero-phase, designed for each log's measured rate) and extract every bag; raise if
-    nothing is valid."""
+    nothing is valid. map_bags: how the bags are read and filtered (read_filtered per bag, e.g. on
+    several cores or a cluster); None: one after the other, one bag's raw log in memory at a time."""
     joiner, inputs, warnings = _LogJoiner(), [], []
     rejected: dict[str, int] = {}
-    iterator = bags
-    if progress and len(bags) > 1:
-        from tqdm import tqdm
+    items = [(robot, str(b), profile) for b in bags]
+    if map_bags is not None and len(items) > 1:
+        per_bag = iter(map_bags(read_filtered, items))
+    else:
+        iterator = items
+        if progress and len(bags) > 1:
+            from tqdm import tqdm
 
-        iterator = tqdm(bags, desc="read+filter", unit="bag", leave=False)
-    for bag in iterator:
-        raw = load_log(robot, bag, profile)
-        for k, c in raw.rejected.items():
+            iterator = tqdm(items, desc="read+filter", unit="bag", leave=False)
+        per_bag = (read_filtered(item) for item in iterator)
+    for info, bag_warnings, bag_rejected, filtered in per_bag:
+        for k, c in bag_rejected.items():
             rejected[k] = rejected.get(k, 0) + c
-        inputs.append({"bag": str(bag), "rate_hz": raw.rate_hz, "u_observed": raw.u_observed,
-                       "sources": raw.sources, "stamp_report": raw.stamp_report,
-                       "torque_command_correlation": raw.torque_command_correlation})
-        warnings += [w for w in raw.warnings if w not in warnings]
-        try:
-            joiner.add(filter_state_log(raw.t, raw.q, raw.v, raw.tau, raw.u, raw.contacts, fs=raw.rate_hz))
-        except ValueError as err:
-            raise BagError(f"bag {bag}: {err}") from err
-        del raw  # one bag's raw log at a time
+        inputs.append(info)
+        warnings += [w for w in bag_warnings if w not in warnings]
+        joiner.add(filtered)
     log = joiner.join()
     # eq. (11) per sample, in chunks (extraction.EXTRACTION_CHUNK): its per-sample intermediates are
     # freed chunk by chunk. Filtering cannot be streamed this way: the zero-phase filters need whole

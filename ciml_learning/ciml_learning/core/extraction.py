@@ -28,6 +28,7 @@ from ciml_learning.core.projection import (
     leg_coupling,
 )
 from ciml_learning.core.robot import RobotDescription
+from ciml_learning.core.threads import in_order
 
 N_LEARNING_INPUTS_BASE = 2  # roll, pitch
 
@@ -211,9 +212,13 @@ def extract(
     if n <= chunk:
         return _extract_chunk(robot, gamma, **rows)
     out = {"t": rows["t"], "contacts": rows["contacts"]}  # passed through, as in one chunk
-    for start in range(0, n, chunk):
-        part = _extract_chunk(robot, gamma, **{k: x[start:start + chunk] for k, x in rows.items()})
-        for name, x in vars(part).items():
+
+    def part(start: int) -> ExtractionResult:
+        return _extract_chunk(robot, gamma, **{k: x[start:start + chunk] for k, x in rows.items()})
+
+    starts = range(0, n, chunk)
+    for start, result in zip(starts, in_order(part, starts)):  # the chunks on the process's cores (core.threads)
+        for name, x in vars(result).items():
             if name in ("t", "contacts"):
                 continue
             if name not in out:

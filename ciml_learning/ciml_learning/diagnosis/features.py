@@ -15,6 +15,7 @@ import numpy as np
 from ciml_learning.core.extraction import observation_operators
 from ciml_learning.core.projection import contact_invariant_bases
 from ciml_learning.core.robot import RobotDescription
+from ciml_learning.core.threads import in_order
 from ciml_learning.diagnosis.candidates import (
     N_ACT,
     FeatureLayout,
@@ -92,12 +93,15 @@ def build_rows(robot: RobotDescription, layout: FeatureLayout, dataset, samples:
         from tqdm import tqdm
 
         bar = tqdm(total=len(samples), desc=desc, unit="sample", leave=False, mininterval=0.5)
-    for c_i, idx in enumerate(chunks):
+    def regressors(idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A chunk's features E, operators O of eq. (11) and rows Φ̃' = O E (run on a worker thread)."""
         E, jac = ev.chunk(log.q[idx], log.v[idx], log.a[idx], log.contacts[idx], targets.residual[idx], coulomb[idx],
                           u_dot[idx], generic[idx], log.tau[idx], {t: x[idx] for t, x in joint_extra.items()})
         basis = contact_invariant_bases(jac, robot.leg_joints)
         O, _ = observation_operators(jac, basis, log.contacts[idx])
-        phi = O @ E  # batched matmul (BLAS), = einsum("nij,njf->nif")
+        return E, O, O @ E  # batched matmul (BLAS), = einsum("nij,njf->nif")
+
+    for c_i, (idx, (E, O, phi)) in enumerate(zip(chunks, in_order(regressors, chunks))):
         for i, cols in enumerate(np.any(E != 0.0, axis=0)):  # Σ_n E[n, i]ᵀ E[n, i] on the features coordinate i loads
             Ei = E[:, i, cols]
             raw_G[i][np.ix_(cols, cols)] += Ei.T @ Ei

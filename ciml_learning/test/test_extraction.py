@@ -14,8 +14,17 @@ from ciml_learning.core.extraction import (
     extract,
     learning_input_names,
     learning_inputs,
+    observation_operators,
+    observe,
 )
-from ciml_learning.core.projection import DEFAULT_GAMMA, contact_invariant_basis, contact_jacobian, projector
+from ciml_learning.core.projection import (
+    DEFAULT_GAMMA,
+    contact_invariant_bases,
+    contact_invariant_basis,
+    contact_jacobian,
+    leg_coupling,
+    projector,
+)
 from ciml_learning.core.robot import load_robot
 
 ROBOT = load_robot()
@@ -113,6 +122,68 @@ def test_near_singular_leg_gives_finite_bounded_error():
     # |Φ̃'| ≤ |r| / γ-scale: bounded by the regularisation, not divergent
     r = np.linalg.norm(res.residual[0])
     assert np.linalg.norm(res.rbd_error[0]) < 10 * r / DEFAULT_GAMMA
+
+
+def test_eq11_operator_bases_and_leg_coupling_equal_their_textbook_forms():
+    """The compiled core's J' (eq. 8, γ-clamped), eq. (11) operator and leg coupling against the
+    formulas written out in numpy: (P_c J_uᵀ)⁺ P_c with the pseudo-inverse, U max(Σ, γ) Vᵀ and
+    C_i = J_i,baseᵀ B_i⁻ᵀ; near-singular legs included (the clamp's branch)."""
+    rng = np.random.default_rng(13)
+    states = [random_state(rng)[0] for _ in range(16)]
+    for k in (3, 9):
+        states[k][7 + 3 * (k % 4) + 2] = 0.01 * (k % 4 - 1.5)  # a near-straight knee
+    q = np.array(states)
+    dyn = RigidBodyDynamics(ROBOT)
+    J = np.array([dyn.foot_jacobians(x) for x in q])
+    contacts = np.array(CONFIGS)
+    basis = contact_invariant_bases(J, ROBOT.leg_joints)
+    ops, mask = observation_operators(J, basis, contacts)
+    r = rng.normal(scale=50.0, size=(len(q), ROBOT.nv))
+    phi, phi_mask = observe(J, basis, contacts, r)
+    C = leg_coupling(basis, ROBOT.leg_joints)
+    clamped = 0
+    for k, config in enumerate(contacts):
+        expected = np.zeros((ROBOT.nv, ROBOT.nv))
+        expected[:6, :6] = np.eye(6)
+        expected[6:] = J[k].reshape(-1, ROBOT.nv)
+        for i, leg in enumerate(ROBOT.leg_joints):
+            cols = 6 + np.array(leg)
+            U, s, Vt = np.linalg.svd(J[k, i][:, cols])
+            clamped += s[-1] < DEFAULT_GAMMA
+            expected[6 + 3 * i:9 + 3 * i, cols] = (U * np.maximum(s, DEFAULT_GAMMA)) @ Vt
+        np.testing.assert_allclose(basis[k], expected, rtol=0, atol=1e-12)
+        unconstrained = np.concatenate([np.arange(6)] + [6 + 3 * i + np.arange(3) for i in np.flatnonzero(~config)])
+        P = projector(contact_jacobian(J[k], config))
+        textbook = np.zeros((ROBOT.nv, ROBOT.nv))
+        textbook[unconstrained] = np.linalg.pinv(P @ basis[k][unconstrained].T) @ P
+        np.testing.assert_allclose(ops[k], textbook, rtol=0, atol=1e-9 * np.abs(textbook).max())
+        assert np.array_equal(mask[k], np.isin(np.arange(ROBOT.nv), unconstrained))
+        np.testing.assert_allclose(phi[k], ops[k] @ r[k], rtol=0, atol=1e-9 * np.abs(phi[k]).max())
+        assert np.array_equal(phi_mask[k], mask[k])
+        for i, leg in enumerate(ROBOT.leg_joints):
+            rows = basis[k, 6 + 3 * i:9 + 3 * i]
+            np.testing.assert_allclose(C[k][:, list(leg)], rows[:, :6].T @ np.linalg.inv(rows[:, 6 + np.array(leg)]).T,
+                                       rtol=0, atol=1e-9 * np.abs(C[k]).max())
+    assert clamped >= 2  # the clamp's branch ran
+
+
+def test_samples_that_are_not_finite_are_refused_not_the_log():
+    """A sample whose state or acceleration is not finite (a NaN reaching J', eq. 11's solve or
+    the residual) is refused, invalid and unobserved; the chunk is not (numpy's batched SVD raised
+    for all of it), and every other sample is exactly the number it has alone."""
+    rng = np.random.default_rng(17)
+    rows = [random_state(rng) + (rng.normal(size=ROBOT.nv), rng.normal(scale=30.0, size=12)) for _ in range(12)]
+    q, v, a, tau = (np.array(x) for x in zip(*rows))
+    q[2, 7 + 4] = np.nan  # a joint angle: NaN Jacobians, J' and operator
+    a[5, 0] = np.inf  # the residual only
+    contacts = np.array(CONFIGS[:12])
+    res = extract(ROBOT, q, v, a, tau, tau, contacts)
+    assert np.flatnonzero(~res.valid).tolist() == [2, 5]
+    assert np.all(np.isfinite(res.rbd_error)) and not res.rbd_observed[[2, 5]].any()
+    for k in np.flatnonzero(res.valid):
+        alone = extract(ROBOT, q[k:k + 1], v[k:k + 1], a[k:k + 1], tau[k:k + 1], tau[k:k + 1], contacts[k:k + 1])
+        np.testing.assert_array_equal(res.rbd_error[k], alone.rbd_error[0])
+        np.testing.assert_array_equal(res.leg_coupling[k], alone.leg_coupling[0])
 
 
 def test_projector_removes_contact_forces():

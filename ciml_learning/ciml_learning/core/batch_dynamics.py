@@ -7,7 +7,8 @@ extraction's dynamics). The C++ side (ciml_learning/cpp/batch_core.cpp, compiled
 tools/install.sh against the pin wheel's headers) runs the very same Pinocchio algorithms over a
 whole batch; the model is passed as Pinocchio's own archive, so it is the robot's model, whatever
 was loaded. Each call builds its own pinocchio::Data and ctypes releases the GIL, so threads may
-share a robot's BatchDynamics.
+share a robot's BatchDynamics. The same library holds the contact-invariant projection's per-sample
+linear algebra (bound here, called by core.projection and core.extraction).
 """
 from __future__ import annotations
 
@@ -47,6 +48,12 @@ def library() -> ctypes.CDLL:
     lib.ciml_batch_regressors.argtypes = [_P, _I, _P, _P, _P, _P, _P, _P]
     lib.ciml_batch_jacobian_variation_products.restype = _I
     lib.ciml_batch_jacobian_variation_products.argtypes = [_P, _I, _P, _P, _P, _P, _I, _P, _P]
+    lib.ciml_contact_invariant_bases.restype = _I
+    lib.ciml_contact_invariant_bases.argtypes = [_I, _I, _I, _P, _P, ctypes.c_double, _P]
+    lib.ciml_observe.restype = _I
+    lib.ciml_observe.argtypes = [_I, _I, _I, _P, _P, _P, _P, _P, _P]
+    lib.ciml_leg_coupling.restype = _I
+    lib.ciml_leg_coupling.argtypes = [_I, _I, _I, _P, _P, _P]
     return lib
 
 
@@ -57,8 +64,15 @@ def _rows(x: np.ndarray, width: int, what: str) -> np.ndarray:
     return x
 
 
-def _ptr(x: np.ndarray) -> int:
+def address(x: np.ndarray) -> int:
+    """The data pointer of a C-contiguous array, for the core's functions."""
     return x.ctypes.data
+
+
+def check(status: int, what: str) -> None:
+    """Raise BatchCoreError on a core function's non-zero status."""
+    if status != 0:
+        raise BatchCoreError(f"the batch dynamics core failed in {what} (status {status})")
 
 
 class BatchDynamics:
@@ -67,7 +81,7 @@ class BatchDynamics:
     def __init__(self, robot: RobotDescription) -> None:
         lib = library()
         feet = np.array(robot.foot_frame_ids, dtype=np.int64)
-        handle = lib.ciml_batch_new(robot.model.saveToString().encode(), _ptr(feet), feet.size)
+        handle = lib.ciml_batch_new(robot.model.saveToString().encode(), address(feet), feet.size)
         if not handle:
             raise BatchCoreError("the batch dynamics core could not load the robot model")
         self.handle = int(handle)
@@ -80,10 +94,6 @@ class BatchDynamics:
             self._free(self.handle)
             self.handle = 0
 
-    def _check(self, status: int, what: str) -> None:
-        if status != 0:
-            raise BatchCoreError(f"the batch dynamics core failed in {what} (status {status})")
-
     def inverse_dynamics(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per sample: RNEA(q, v, a) = M q̈ + h (N × nv) and the feet's linear Jacobians
         (N × n_feet × 3 × nv, LOCAL_WORLD_ALIGNED)."""
@@ -93,8 +103,8 @@ class BatchDynamics:
             raise BatchCoreError(f"q, v, a have {n}, {len(v)}, {len(a)} rows")
         tau = np.empty((n, self.nv))
         jac = np.empty((n, self.n_feet, 3, self.nv))
-        self._check(library().ciml_batch_inverse_dynamics(self.handle, n, _ptr(q), _ptr(v), _ptr(a), _ptr(tau),
-                                                          _ptr(jac)), "inverse_dynamics")
+        check(library().ciml_batch_inverse_dynamics(self.handle, n, address(q), address(v), address(a),
+                                                    address(tau), address(jac)), "inverse_dynamics")
         return tau, jac
 
     def regressors(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -107,8 +117,8 @@ class BatchDynamics:
         jac = np.empty((n, self.n_feet, 3, self.nv))
         Y = np.empty((n, self.nv, self.n_inertial))
         D = np.empty((n, self.nv, self.nv))
-        self._check(library().ciml_batch_regressors(self.handle, n, _ptr(q), _ptr(v), _ptr(a), _ptr(jac), _ptr(Y),
-                                                    _ptr(D)), "regressors")
+        check(library().ciml_batch_regressors(self.handle, n, address(q), address(v), address(a), address(jac),
+                                              address(Y), address(D)), "regressors")
         return jac, Y, D
 
     def jacobian_variation_products(self, q: np.ndarray, sample: np.ndarray, foot: np.ndarray, dof: np.ndarray,
@@ -123,7 +133,8 @@ class BatchDynamics:
         if len(foot) != m or len(dof) != m:
             raise BatchCoreError(f"sample, foot, dof have {m}, {len(foot)}, {len(dof)} entries")
         out = np.empty((m, self.nv))
-        self._check(library().ciml_batch_jacobian_variation_products(
-            self.handle, m, _ptr(sample), _ptr(foot), _ptr(dof), _ptr(q), len(q), _ptr(lam), _ptr(out)),
+        check(library().ciml_batch_jacobian_variation_products(
+            self.handle, m, address(sample), address(foot), address(dof), address(q), len(q), address(lam),
+            address(out)),
             "jacobian_variation_products")
         return out

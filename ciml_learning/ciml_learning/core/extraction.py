@@ -10,8 +10,8 @@ Per sample, with r = Sᵀτ − M q̈ − h (all nominal model):
 
 Implementation of (11): with the QR decomposition J_cᵀ = [Q_c Q_u][R; 0], P_c = Q_u Q_uᵀ
 and, because J'ᵀ = [J_uᵀ J_cᵀ] is invertible, Q_uᵀ J_uᵀ is square and invertible, so
-(P_c J_uᵀ)⁺ P_c r = (Q_uᵀ J_uᵀ)⁻¹ Q_uᵀ r — the same number, one small solve. Samples are
-grouped by contact configuration and solved as batches.
+(P_c J_uᵀ)⁺ P_c r = (Q_uᵀ J_uᵀ)⁻¹ Q_uᵀ r — the same number, one small solve per sample, in
+the compiled core (core.batch_dynamics's library: ciml_observe).
 """
 from __future__ import annotations
 
@@ -19,14 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ciml_learning.core.batch_dynamics import BatchCoreError, address, check, library
 from ciml_learning.core.dynamics import selection_matrix
-from ciml_learning.core.projection import (
-    DEFAULT_GAMMA,
-    basis_columns,
-    contact_invariant_bases,
-    generalized_rbd_error,
-    leg_coupling,
-)
+from ciml_learning.core.projection import DEFAULT_GAMMA, contact_invariant_bases, generalized_rbd_error, leg_coupling
 from ciml_learning.core.robot import RobotDescription
 from ciml_learning.core.threads import in_order
 
@@ -79,25 +74,28 @@ def combined_error(basis: np.ndarray | None, rbd: np.ndarray, gamma: np.ndarray,
     return (rbd if basis is None else basis.T @ rbd) - S.T @ gamma
 
 
-def _operator_blocks(foot_jacobians: np.ndarray, basis: np.ndarray, contacts: np.ndarray):
-    """Per contact configuration: (sample indices, unconstrained entries, Q_uᵀ J_uᵀ, Q_uᵀ);
-    the operator of eq. (11) is (Q_uᵀ J_uᵀ)⁻¹ Q_uᵀ."""
-    n, n_feet, _, nv = foot_jacobians.shape
-    contacts = np.asarray(contacts, dtype=bool)
-    configs, inverse = np.unique(contacts, axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    for ci, config in enumerate(configs):
-        idx = np.flatnonzero(inverse == ci)
-        constrained, unconstrained = basis_columns(config)
-        JuT = np.transpose(basis[idx[:, None], unconstrained[None, :], :], (0, 2, 1))  # N × nv × n_u, one gather
-        if len(constrained) == 0:
-            QuT = np.broadcast_to(np.eye(nv), (len(idx), nv, nv))
-        else:
-            JcT = np.transpose(foot_jacobians[idx][:, config].reshape(len(idx), -1, nv), (0, 2, 1))
-            Q, _ = np.linalg.qr(JcT, mode="complete")
-            QuT = np.transpose(Q[:, :, JcT.shape[2]:], (0, 2, 1))  # orthonormal basis of null(J_c)
-        # Q_uᵀ J_uᵀ is square and invertible (module docstring)
-        yield idx, unconstrained, QuT @ JuT, QuT
+def _eq11(foot_jacobians: np.ndarray, basis: np.ndarray, contacts: np.ndarray,
+          generalized_force: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. (11) per sample in the core: Φ̃' (N × nv) of the forces, or with None the operators
+    (N × nv × nv); and the observed mask (N × nv)."""
+    jac = np.ascontiguousarray(foot_jacobians, dtype=float)
+    n, n_feet, _, nv = jac.shape
+    basis = np.ascontiguousarray(basis, dtype=float)
+    on = np.ascontiguousarray(contacts, dtype=np.uint8)
+    if basis.shape != (n, nv, nv) or on.shape != (n, n_feet):
+        raise BatchCoreError(f"eq. (11) got J {jac.shape}, J' {basis.shape}, contacts {on.shape}")
+    out = np.empty((n, nv) if generalized_force is not None else (n, nv, nv))
+    mask = np.empty((n, nv), dtype=np.uint8)
+    if generalized_force is None:
+        r_address = None
+    else:
+        r = np.ascontiguousarray(generalized_force, dtype=float)
+        if r.shape != (n, nv):
+            raise BatchCoreError(f"eq. (11) got forces {r.shape}, expected {(n, nv)}")
+        r_address = address(r)
+    check(library().ciml_observe(n, n_feet, nv, address(jac), address(basis), address(on), r_address,
+                                 address(out), address(mask)), "observe")
+    return out, mask.view(bool)
 
 
 def observation_operators(
@@ -109,27 +107,13 @@ def observation_operators(
     O_k is linear in r, so the diagnosis passes candidate generalized forces through
     the very same operator as the measured error.
     """
-    n, _, _, nv = foot_jacobians.shape
-    ops = np.zeros((n, nv, nv))
-    mask = np.zeros((n, nv), dtype=bool)
-    for idx, unconstrained, A, QuT in _operator_blocks(foot_jacobians, basis, contacts):
-        ops[np.ix_(idx, unconstrained, np.arange(nv))] = np.linalg.solve(A, QuT)
-        mask[np.ix_(idx, unconstrained)] = True
-    return ops, mask
+    return _eq11(foot_jacobians, basis, contacts, None)
 
 
 def observe(foot_jacobians: np.ndarray, basis: np.ndarray, contacts: np.ndarray,
             generalized_force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eq. (11) applied to a batch of generalized forces (N × nv): (Φ̃' (N × 18), mask)."""
-    n, _, _, nv = foot_jacobians.shape
-    phi = np.zeros((n, nv))
-    mask = np.zeros((n, nv), dtype=bool)
-    for idx, unconstrained, A, QuT in _operator_blocks(foot_jacobians, basis, contacts):
-        # one vector solve per sample, cheaper than forming the operator
-        rhs = np.einsum("nij,nj->ni", QuT, generalized_force[idx])
-        phi[np.ix_(idx, unconstrained)] = np.linalg.solve(A, rhs[..., None])[..., 0]
-        mask[np.ix_(idx, unconstrained)] = True
-    return phi, mask
+    return _eq11(foot_jacobians, basis, contacts, generalized_force)
 
 
 @dataclass
@@ -176,9 +160,9 @@ def dynamics_batch(robot: RobotDescription, q: np.ndarray, v: np.ndarray,
 
 EXTRACTION_CHUNK = 4096
 """Samples extract() solves at once. Its intermediates are per sample and large (foot Jacobians,
-J', the QR of J_cᵀ and the eq. (11) operator blocks: some 7 KB a sample, four times the result),
-so chunks bound them to about 30 MB whatever the log's length; the numbers do not depend on the
-chunk (every sample is solved on its own)."""
+J' and the result's own rows: some 6 KB a sample, three times the result), so chunks bound them
+to about 30 MB whatever the log's length; the numbers do not depend on the chunk (every sample is
+solved on its own)."""
 
 
 def extract(

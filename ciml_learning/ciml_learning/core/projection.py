@@ -4,10 +4,15 @@
                                  P_c J_cᵀ = 0 (Aghili 2005), so λ_c drops out of eq. (3).
     J'ᵀ = [J_0ᵀ, J_1ᵀ, …]        contact-invariant basis, J_0 = [I_6, 0], J_i the linear
                                  foot Jacobians; Φ̃ = J'ᵀ Φ̃'  (eq. 8).
+
+The per-sample linear algebra of J' and of the leg coupling runs in the compiled core
+(core.batch_dynamics; numpy's stacked 3 × 3 routines cost more in their wrappers than in the work).
 """
 from __future__ import annotations
 
 import numpy as np
+
+from ciml_learning.core.batch_dynamics import BatchCoreError, address, check, library
 
 DEFAULT_GAMMA = 0.02
 """Smallest singular value [m/rad] kept in a leg's joint block ∂p_foot/∂q_leg.
@@ -38,6 +43,15 @@ def projector(J_c: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
     return np.eye(nv) - np.linalg.pinv(J_c, rcond=rcond) @ J_c
 
 
+def leg_joint_indices(leg_joints: tuple[tuple[int, ...], ...]) -> np.ndarray:
+    """The feet's leg joints (n_feet × 3, int64), each foot's three joints as indices into the
+    robot's joints: the core's layout. Foot i owns rows 6+3i … 8+3i of J'."""
+    legs = np.asarray(leg_joints, dtype=np.int64)
+    if legs.ndim != 2 or legs.shape[1] != 3:
+        raise BatchCoreError(f"the contact-invariant basis needs three joints per leg, got {leg_joints}")
+    return np.ascontiguousarray(legs)
+
+
 def contact_invariant_bases(
     foot_jacobians: np.ndarray, leg_joints: tuple[tuple[int, ...], ...], gamma: float = DEFAULT_GAMMA
 ) -> np.ndarray:
@@ -47,16 +61,14 @@ def contact_invariant_bases(
     is invertible iff every leg's joint block B_i = ∂p_i/∂q_leg,i is. Singular values
     of B_i below `gamma` are raised to `gamma` (exact wherever σ_min(B_i) ≥ γ).
     """
-    n, n_feet, _, nv = foot_jacobians.shape
-    basis = np.zeros((n, nv, nv))
-    basis[:, :6, :6] = np.eye(6)
-    basis[:, 6:6 + 3 * n_feet, :] = foot_jacobians.reshape(n, 3 * n_feet, nv)
-    cols = [6 + np.asarray(leg) for leg in leg_joints]
-    # every leg's block in one SVD call (a prediction per reference computes one basis: 4 calls cost 4×)
-    blocks = np.stack([foot_jacobians[:, i][:, :, c] for i, c in enumerate(cols)], axis=1)  # n × n_feet × 3 × 3
-    for k, i in zip(*np.nonzero(np.linalg.svd(blocks, compute_uv=False)[..., -1] < gamma)):
-        U, s, Vt = np.linalg.svd(blocks[k, i])  # rare: full SVD only where needed
-        basis[k, 6 + 3 * i:9 + 3 * i, cols[i]] = ((U * np.maximum(s, gamma)) @ Vt).T
+    jac = np.ascontiguousarray(foot_jacobians, dtype=float)
+    n, n_feet, three, nv = jac.shape
+    legs = leg_joint_indices(leg_joints)
+    if three != 3 or len(legs) != n_feet:
+        raise BatchCoreError(f"foot Jacobians {jac.shape} do not match {len(legs)} legs")
+    basis = np.empty((n, nv, nv))
+    check(library().ciml_contact_invariant_bases(n, n_feet, nv, address(jac), address(legs), float(gamma),
+                                                 address(basis)), "contact_invariant_bases")
     return basis
 
 
@@ -67,19 +79,6 @@ def contact_invariant_basis(
     return contact_invariant_bases(foot_jacobians[None], leg_joints, gamma)[0]
 
 
-def basis_columns(contacts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Column indices of J'ᵀ that are constrained (feet in contact) and unconstrained.
-
-    Base columns (0–5) are always unconstrained; foot i owns columns 6+3i … 8+3i.
-    Returns (constrained, unconstrained) index arrays.
-    """
-    contacts = np.asarray(contacts, dtype=bool)
-    foot_cols = [np.arange(6 + 3 * i, 9 + 3 * i) for i in range(len(contacts))]
-    constrained = np.concatenate([c for c, on in zip(foot_cols, contacts) if on] or [np.zeros(0, int)])
-    unconstrained = np.concatenate([np.arange(6)] + [c for c, on in zip(foot_cols, contacts) if not on])
-    return constrained.astype(int), unconstrained.astype(int)
-
-
 def leg_coupling(basis: np.ndarray, leg_joints: tuple[tuple[int, ...], ...]) -> np.ndarray:
     """C (N × 6 × n_j): how each leg joint's rigid-body error reaches the base rows of Φ̃'.
 
@@ -88,15 +87,11 @@ def leg_coupling(basis: np.ndarray, leg_joints: tuple[tuple[int, ...], ...]) -> 
     contributes J_i,baseᵀ φ_i = C_i e_i to the base rows of J'ᵀΦ̃' (eq. 8): C_i = J_i,baseᵀ B_i⁻ᵀ.
     C_i is invariant to the base's yaw (both blocks rotate with it).
     """
-    n = len(basis)
-    n_j = basis.shape[-1] - 6
-    C = np.zeros((n, 6, n_j))
-    for i, leg in enumerate(leg_joints):
-        rows = slice(6 + 3 * i, 9 + 3 * i)
-        B = basis[:, rows][:, :, 6 + np.asarray(leg)]
-        J_base = basis[:, rows, :6]
-        # C_iᵀ = B_i⁻¹ J_i,base
-        C[:, :, np.asarray(leg)] = np.transpose(np.linalg.solve(B, J_base), (0, 2, 1))
+    basis = np.ascontiguousarray(basis, dtype=float)
+    n, nv, _ = basis.shape
+    legs = leg_joint_indices(leg_joints)
+    C = np.empty((n, 6, nv - 6))
+    check(library().ciml_leg_coupling(n, len(legs), nv, address(basis), address(legs), address(C)), "leg_coupling")
     return C
 
 

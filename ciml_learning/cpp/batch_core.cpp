@@ -17,6 +17,7 @@
 #include <vector>
 
 #include <Eigen/Dense>
+#include <Eigen/Eigenvalues>
 #include <Eigen/SVD>
 #include <pinocchio/multibody.hpp>
 #include <pinocchio/algorithm/frames.hpp>
@@ -184,6 +185,11 @@ CIML_API int64_t ciml_contact_invariant_bases(int64_t n, int64_t n_feet, int64_t
       for (int r = 0; r < 3; ++r)
         for (int c = 0; c < 3; ++c) block(r, c) = B(6 + 3 * i + r, 6 + leg[c]);
       if (!block.allFinite()) continue;
+      // Most blocks are far from singular: the closed-form eigenvalues of BᵀB (~0.1 µs, against
+      // ~1 µs for the SVD) show it; only within a factor 2 of γ² does the SVD decide.
+      Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> gram;
+      gram.computeDirect(block.transpose() * block, Eigen::EigenvaluesOnly);
+      if (gram.eigenvalues().minCoeff() >= 2 * gamma * gamma) continue;
       const Eigen::JacobiSVD<Eigen::Matrix3d> svd(block, Eigen::ComputeFullU | Eigen::ComputeFullV);
       if (svd.singularValues().minCoeff() >= gamma) continue;  // exact: the block as it is
       block = svd.matrixU() * svd.singularValues().cwiseMax(gamma).asDiagonal() * svd.matrixV().transpose();

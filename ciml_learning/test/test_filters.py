@@ -12,6 +12,7 @@ from ciml_learning.core.filters import (
     filter_offline,
     filter_state_log,
     lowpass_taps,
+    quaternion_continuity,
 )
 
 FS = 250.0
@@ -65,6 +66,29 @@ def test_contact_change_mask_marks_half_a_window_each_side():
     ok = contact_change_mask(c, half_window=15)
     assert not ok[35:65].any()
     assert ok[:35].all() and ok[65:].all()
+
+
+def test_vectorised_masks_and_signs_equal_their_sample_by_sample_definitions():
+    """contact_change_mask and quaternion_continuity are written without a per-sample loop; here
+    they meet their definitions, sample by sample: a sample is masked iff a change between k−1 and
+    k lies within [k − h, k + h) of it; a quaternion is flipped iff its dot with the previous
+    *output* is negative (exact zero dots included)."""
+    rng = np.random.default_rng(4)
+    for trial in range(200):
+        n = int(rng.integers(0, 50))
+        c = rng.random((n, 4)) < rng.uniform(0.02, 0.98)
+        changes = [k for k in range(1, n) if (c[k] != c[k - 1]).any()]
+        for h in (0, 1, 4, 15, 60):
+            expected = np.array([not any(k - h <= i < k + h for k in changes) for i in range(n)], dtype=bool)
+            assert np.array_equal(contact_change_mask(c, h), expected), (trial, h)
+        q = rng.normal(size=(n, 4))
+        if n > 4:
+            q[rng.integers(0, n, 3)] = [1.0, 0, 0, 0]
+            q[rng.integers(0, n)] = [0, 1.0, 0, 0]  # dots exactly 0 with its [1, 0, 0, 0] neighbours
+        out = quaternion_continuity(q)
+        for k in range(n):
+            flip = k > 0 and float(np.dot(q[k], out[k - 1])) < 0
+            assert np.array_equal(out[k], -q[k] if flip else q[k]), (trial, k)
 
 
 def test_state_log_flags_non_finite_gaps_and_edges():

@@ -121,22 +121,27 @@ def contact_change_mask(contacts: np.ndarray, half_window: int = delay_samples()
     """
     contacts = np.asarray(contacts, dtype=bool)
     n = len(contacts)
-    change = np.zeros(n, dtype=bool)
-    if n > 1:
-        change[1:] = np.any(contacts[1:] != contacts[:-1], axis=1)
-    bad = np.zeros(n, dtype=bool)
-    for k in np.flatnonzero(change):
-        # the change happens between k−1 and k; both sides within half a window are affected
-        bad[max(0, k - half_window): min(n, k + half_window)] = True
-    return ~bad
+    change = np.flatnonzero(np.any(contacts[1:] != contacts[:-1], axis=1)) + 1 if n > 1 else np.zeros(0, int)
+    # the change happens between k−1 and k; both sides within half a window are affected:
+    # [k − half_window, k + half_window) for every change k, as a running count of open intervals
+    edges = np.zeros(n + 1, dtype=np.int64)
+    np.add.at(edges, np.maximum(change - half_window, 0), 1)
+    np.add.at(edges, np.minimum(change + half_window, n), -1)
+    return np.cumsum(edges[:n]) <= 0
 
 
 def quaternion_continuity(quat_xyzw: np.ndarray) -> np.ndarray:
     """Flip quaternion signs so consecutive samples are in the same hemisphere (for filtering)."""
     q = np.array(quat_xyzw, dtype=float)
-    for k in range(1, len(q)):
-        if np.dot(q[k], q[k - 1]) < 0:
-            q[k] = -q[k]
+    if len(q) < 2:
+        return q
+    # sample k is flipped iff its dot with sample k−1 *as output* is negative: the output sign is
+    # the parity of the raw negative dots since the last raw dot that is 0 or NaN (which restarts it)
+    dots = np.einsum("ij,ij->i", q[1:], q[:-1])
+    negative = np.concatenate([[0], np.cumsum(dots < 0)])
+    restart = np.concatenate([[0], np.where((dots < 0) | (dots > 0), 0, np.arange(1, len(q)))])
+    flips = negative - negative[np.maximum.accumulate(restart)]
+    q[flips % 2 == 1] *= -1.0
     return q
 
 
@@ -185,7 +190,7 @@ def fill_short_gaps(t: np.ndarray, signals: list[np.ndarray], contacts: np.ndarr
     """
     n = len(t)
     inserts = []
-    for k in range(1, n):
+    for k in np.flatnonzero(np.diff(t) > max_gap_factor / fs) + 1:  # missing_samples is 0 elsewhere
         m = missing_samples(t[k] - t[k - 1], fs, max_gap_factor)
         if m > 0 and all(np.all(np.isfinite(x[k - 1])) and np.all(np.isfinite(x[k])) for x in signals):
             inserts.append((k, m))

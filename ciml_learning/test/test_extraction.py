@@ -186,6 +186,18 @@ def test_samples_that_are_not_finite_are_refused_not_the_log():
         np.testing.assert_array_equal(res.leg_coupling[k], alone.leg_coupling[0])
 
 
+def test_a_robot_with_joints_beyond_its_legs_is_refused_not_solved():
+    """J' is square only for a floating base and three joints per foot: an extra joint (an arm, a
+    spine) is a one-line error, not a silently truncated eq. (11)."""
+    from ciml_learning.core.batch_dynamics import BatchCoreError
+
+    J = np.zeros((2, 4, 3, ROBOT.nv + 2))
+    with pytest.raises(BatchCoreError, match="three joints"):
+        contact_invariant_bases(J, ROBOT.leg_joints)
+    with pytest.raises(BatchCoreError, match="eq. \\(11\\)"):
+        observe(J, np.zeros((2, ROBOT.nv + 2, ROBOT.nv + 2)), np.ones((2, 4), bool), np.zeros((2, ROBOT.nv + 2)))
+
+
 def test_projector_removes_contact_forces():
     rng = np.random.default_rng(5)
     q, _ = random_state(rng)

@@ -82,7 +82,7 @@ def _eq11(foot_jacobians: np.ndarray, basis: np.ndarray, contacts: np.ndarray,
     n, n_feet, _, nv = jac.shape
     basis = np.ascontiguousarray(basis, dtype=float)
     on = np.ascontiguousarray(contacts, dtype=np.uint8)
-    if basis.shape != (n, nv, nv) or on.shape != (n, n_feet):
+    if basis.shape != (n, nv, nv) or on.shape != (n, n_feet) or nv != 6 + 3 * n_feet:
         raise BatchCoreError(f"eq. (11) got J {jac.shape}, J' {basis.shape}, contacts {on.shape}")
     out = np.empty((n, nv) if generalized_force is not None else (n, nv, nv))
     mask = np.empty((n, nv), dtype=np.uint8)

@@ -64,8 +64,9 @@ def contact_invariant_bases(
     jac = np.ascontiguousarray(foot_jacobians, dtype=float)
     n, n_feet, three, nv = jac.shape
     legs = leg_joint_indices(leg_joints)
-    if three != 3 or len(legs) != n_feet:
-        raise BatchCoreError(f"foot Jacobians {jac.shape} do not match {len(legs)} legs")
+    if three != 3 or len(legs) != n_feet or nv != 6 + 3 * n_feet:
+        raise BatchCoreError(f"foot Jacobians {jac.shape} do not match {len(legs)} legs of three joints "
+                             "and nothing else (J' is square only then)")
     basis = np.empty((n, nv, nv))
     check(library().ciml_contact_invariant_bases(n, n_feet, nv, address(jac), address(legs), float(gamma),
                                                  address(basis)), "contact_invariant_bases")

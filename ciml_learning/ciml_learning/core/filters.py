@@ -190,7 +190,7 @@ def fill_short_gaps(t: np.ndarray, signals: list[np.ndarray], contacts: np.ndarr
     """
     n = len(t)
     inserts = []
-    for k in np.flatnonzero(np.diff(t) > max_gap_factor / fs) + 1:  # missing_samples is 0 elsewhere
+    for k in (np.flatnonzero(np.diff(t) > max_gap_factor / fs) + 1).tolist():  # missing_samples is 0 elsewhere
         m = missing_samples(t[k] - t[k - 1], fs, max_gap_factor)
         if m > 0 and all(np.all(np.isfinite(x[k - 1])) and np.all(np.isfinite(x[k])) for x in signals):
             inserts.append((k, m))

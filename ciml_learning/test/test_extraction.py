@@ -194,7 +194,7 @@ def test_a_robot_with_joints_beyond_its_legs_is_refused_not_solved():
     J = np.zeros((2, 4, 3, ROBOT.nv + 2))
     with pytest.raises(BatchCoreError, match="three joints"):
         contact_invariant_bases(J, ROBOT.leg_joints)
-    with pytest.raises(BatchCoreError, match="eq. \\(11\\)"):
+    with pytest.raises(BatchCoreError, match="three joints"):
         observe(J, np.zeros((2, ROBOT.nv + 2, ROBOT.nv + 2)), np.ones((2, 4), bool), np.zeros((2, ROBOT.nv + 2)))
 
 

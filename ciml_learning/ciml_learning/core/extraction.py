@@ -21,7 +21,13 @@ import numpy as np
 
 from ciml_learning.core.batch_dynamics import BatchCoreError, address, check, library
 from ciml_learning.core.dynamics import selection_matrix
-from ciml_learning.core.projection import DEFAULT_GAMMA, contact_invariant_bases, generalized_rbd_error, leg_coupling
+from ciml_learning.core.projection import (
+    DEFAULT_GAMMA,
+    contact_invariant_bases,
+    generalized_rbd_error,
+    leg_coupling,
+    require_square_basis,
+)
 from ciml_learning.core.robot import RobotDescription
 from ciml_learning.core.threads import in_order
 
@@ -82,7 +88,8 @@ def _eq11(foot_jacobians: np.ndarray, basis: np.ndarray, contacts: np.ndarray,
     n, n_feet, _, nv = jac.shape
     basis = np.ascontiguousarray(basis, dtype=float)
     on = np.ascontiguousarray(contacts, dtype=np.uint8)
-    if basis.shape != (n, nv, nv) or on.shape != (n, n_feet) or nv != 6 + 3 * n_feet:
+    require_square_basis(n_feet, nv)
+    if basis.shape != (n, nv, nv) or on.shape != (n, n_feet):
         raise BatchCoreError(f"eq. (11) got J {jac.shape}, J' {basis.shape}, contacts {on.shape}")
     out = np.empty((n, nv) if generalized_force is not None else (n, nv, nv))
     mask = np.empty((n, nv), dtype=np.uint8)

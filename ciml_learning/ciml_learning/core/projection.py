@@ -52,6 +52,14 @@ def leg_joint_indices(leg_joints: tuple[tuple[int, ...], ...]) -> np.ndarray:
     return np.ascontiguousarray(legs)
 
 
+def require_square_basis(n_feet: int, nv: int) -> None:
+    """J' is square (eq. 8, 11) only for a floating base and three joints per foot, nothing else:
+    an extra joint (an arm, a spine) is refused, not solved with a truncated basis."""
+    if nv != 6 + 3 * n_feet:
+        raise BatchCoreError(f"{nv} velocity coordinates are not a floating base and three joints for each "
+                             f"of {n_feet} feet: the contact-invariant basis J' needs exactly that")
+
+
 def contact_invariant_bases(
     foot_jacobians: np.ndarray, leg_joints: tuple[tuple[int, ...], ...], gamma: float = DEFAULT_GAMMA
 ) -> np.ndarray:
@@ -64,9 +72,9 @@ def contact_invariant_bases(
     jac = np.ascontiguousarray(foot_jacobians, dtype=float)
     n, n_feet, three, nv = jac.shape
     legs = leg_joint_indices(leg_joints)
-    if three != 3 or len(legs) != n_feet or nv != 6 + 3 * n_feet:
-        raise BatchCoreError(f"foot Jacobians {jac.shape} do not match {len(legs)} legs of three joints "
-                             "and nothing else (J' is square only then)")
+    if three != 3 or len(legs) != n_feet:
+        raise BatchCoreError(f"foot Jacobians {jac.shape} do not match {len(legs)} legs")
+    require_square_basis(n_feet, nv)
     basis = np.empty((n, nv, nv))
     check(library().ciml_contact_invariant_bases(n, n_feet, nv, address(jac), address(legs), float(gamma),
                                                  address(basis)), "contact_invariant_bases")

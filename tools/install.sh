@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Installs everything CIML needs into ./.venv, idempotently:
 #   system tools (apt, only when missing) -> venv + pinned wheels -> ciml_msgs (rosidl, CMake)
-#   -> the controller core (C++, CMake) -> the three ament_python packages (editable)
-#   -> ros2-run layout (lib/<pkg>/<exe>).
+#   -> side by side: the controller core and the batch core (C++, CMake), and the three ament_python
+#      packages (editable, ros2-run layout lib/<pkg>/<exe>) with the learners' numba kernels.
 # Each step is skipped when the files it depends on have not changed (hash stamps).
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -55,59 +55,60 @@ if ! stamp_ok msgs "$h"; then
    cmake "$ROOT/ciml_msgs" -DCMAKE_INSTALL_PREFIX="$VENV" -DPython3_EXECUTABLE="$PY" \
          -DBUILD_TESTING=OFF -DCMAKE_BUILD_TYPE=Release > cmake.log 2>&1 && \
    CMAKE_PREFIX_PATH="$VENV" AMENT_PREFIX_PATH="$VENV" PATH="$VENV/bin:$PATH" \
-   make -j"$(nproc)" install > make.log 2>&1) || { log "ciml_msgs build failed, see $BUILD/*.log"; tail -30 "$BUILD"/*.log; exit 1; }
+   make -j"$(nproc)" install > make.log 2>&1) || { log "ciml_msgs build failed, see $BUILD/*.log"; tail -n 30 "$BUILD"/*.log; exit 1; }
   stamp_set msgs "$h"
 fi
 
-# The controller's C++ core (CMake, ciml_control/cpp; Pinocchio + proxsuite headers from the cmeel wheels;
-# ~2.5 min) into the ciml_control package folder; CMake itself rebuilds only what changed.
-CORE="$ROOT/ciml_control/ciml_control/libciml_control_core.so"
-h=$(hash_of "$ROOT"/ciml_control/cpp/* "$STAMPS/wheels")
-if ! stamp_ok core "$h" || [ ! -f "$CORE" ]; then
-  log "compiling the controller core (C++: Pinocchio, proxsuite)"
-  BUILD="$ROOT/build/control_core"
-  CMEEL="$("$PY" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/cmeel.prefix"
-  mkdir -p "$BUILD"
-  (cmake -S "$ROOT/ciml_control/cpp" -B "$BUILD" -DCMAKE_PREFIX_PATH="$CMEEL" -DCMAKE_BUILD_TYPE=Release \
-     > "$BUILD/cmake.log" 2>&1 && cmake --build "$BUILD" > "$BUILD/make.log" 2>&1) \
-    || { tail -30 "$BUILD"/*.log; log "controller core build failed, see $BUILD/*.log"; exit 1; }
-  stamp_set core "$h"
-fi
+# The two C++ cores (CMake; Pinocchio and proxsuite headers from the cmeel wheels) into their Python
+# package folders: the controller's step (ciml_control/cpp, ~2.5 min) and the offline batch core
+# (ciml_learning/cpp, ~2 min: extraction's and the diagnosis's per-sample dynamics over batches).
+# CMake itself rebuilds only what changed.
+CMEEL="$("$PY" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/cmeel.prefix"
+build_core() {  # stamp  source-folder  library  what
+  local h; h=$(hash_of "$ROOT/$2"/* "$STAMPS/wheels")
+  stamp_ok "$1" "$h" && [ -f "$ROOT/$3" ] && return 0
+  log "compiling $4"
+  local build="$ROOT/build/$1_core"
+  mkdir -p "$build"
+  (cmake -S "$ROOT/$2" -B "$build" -DCMAKE_PREFIX_PATH="$CMEEL" -DCMAKE_BUILD_TYPE=Release \
+     > "$build/cmake.log" 2>&1 && cmake --build "$build" > "$build/make.log" 2>&1) \
+    || { tail -n 30 "$build"/*.log; log "$4 failed, see $build/*.log"; return 1; }
+  stamp_set "$1" "$h"
+}
 
-# The offline batch core (CMake, ciml_learning/cpp; Pinocchio headers from the pin wheel; ~2 min) into the
-# ciml_learning package folder: extraction's and the diagnosis's per-sample dynamics over whole batches.
-BATCH="$ROOT/ciml_learning/ciml_learning/libciml_learning_core.so"
-h=$(hash_of "$ROOT"/ciml_learning/cpp/* "$STAMPS/wheels")
-if ! stamp_ok batch "$h" || [ ! -f "$BATCH" ]; then
-  log "compiling the batch dynamics core (C++: Pinocchio)"
-  BUILD="$ROOT/build/batch_core"
-  CMEEL="$("$PY" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/cmeel.prefix"
-  mkdir -p "$BUILD"
-  (cmake -S "$ROOT/ciml_learning/cpp" -B "$BUILD" -DCMAKE_PREFIX_PATH="$CMEEL" -DCMAKE_BUILD_TYPE=Release \
-     > "$BUILD/cmake.log" 2>&1 && cmake --build "$BUILD" > "$BUILD/make.log" 2>&1) \
-    || { tail -30 "$BUILD"/*.log; log "batch dynamics core build failed, see $BUILD/*.log"; exit 1; }
-  stamp_set batch "$h"
-fi
+install_packages() {
+  local h; h=$(hash_of "$ROOT"/ciml_*/setup.py "$ROOT"/ciml_*/setup.cfg "$ROOT"/ciml_*/package.xml "$STAMPS/wheels" \
+    $(find "$ROOT"/ciml_learning/config "$ROOT"/ciml_control/config "$ROOT"/ciml_sim/config "$ROOT"/ciml_sim/launch \
+      -type f 2>/dev/null | sort))
+  if ! stamp_ok pkgs "$h"; then
+    log "installing ciml_learning, ciml_control, ciml_sim (editable)"
+    mkdir -p "$ROOT/build"
+    "$PY" -m pip install -q --no-deps --no-build-isolation \
+      -e "$ROOT/ciml_learning" -e "$ROOT/ciml_control" -e "$ROOT/ciml_sim" > "$ROOT/build/pip-editable.log" 2>&1 \
+      || { cat "$ROOT/build/pip-editable.log"; return 1; }
+    "$PY" "$ROOT/tools/ament_layout.py" "$ROOT" "$VENV" ciml_learning ciml_control ciml_sim || return 1
+    stamp_set pkgs "$h"
+  fi
+  # The learners' numba kernels, compiled once into numba's cache (__pycache__ beside the sources), so that the
+  # first live graph's online learner starts at once: compiled on first use they took 144 s beside a running graph
+  h=$(hash_of "$ROOT"/ciml_learning/ciml_learning/learning/learners/*.py "$STAMPS/wheels")
+  if ! stamp_ok kernels "$h"; then
+    log "compiling the learners' kernels (numba cache)"
+    "$PY" -c 'from ciml_learning.learning.online import warm_up; from ciml_learning.core.profile import load_profile
+warm_up(load_profile("hyq").robot())' || { log "compiling the learners' kernels failed"; return 1; }
+    stamp_set kernels "$h"
+  fi
+}
 
-h=$(hash_of "$ROOT"/ciml_*/setup.py "$ROOT"/ciml_*/setup.cfg "$ROOT"/ciml_*/package.xml "$STAMPS/wheels" \
-  $(find "$ROOT"/ciml_learning/config "$ROOT"/ciml_control/config "$ROOT"/ciml_sim/config "$ROOT"/ciml_sim/launch \
-    -type f 2>/dev/null | sort))
-if ! stamp_ok pkgs "$h"; then
-  log "installing ciml_learning, ciml_control, ciml_sim (editable)"
-  mkdir -p "$ROOT/build"
-  "$PY" -m pip install -q --no-deps --no-build-isolation \
-    -e "$ROOT/ciml_learning" -e "$ROOT/ciml_control" -e "$ROOT/ciml_sim" > "$ROOT/build/pip-editable.log" 2>&1 \
-    || { cat "$ROOT/build/pip-editable.log"; exit 1; }
-  "$PY" "$ROOT/tools/ament_layout.py" "$ROOT" "$VENV" ciml_learning ciml_control ciml_sim
-  stamp_set pkgs "$h"
-fi
-# The learners' numba kernels, compiled once into numba's cache (__pycache__ beside the sources), so that the
-# first live graph's online learner starts at once: compiled on first use they took 144 s beside a running graph
-h=$(hash_of "$ROOT"/ciml_learning/ciml_learning/learning/learners/*.py "$STAMPS/wheels")
-if ! stamp_ok kernels "$h"; then
-  log "compiling the learners' kernels (numba cache)"
-  "$PY" -c 'from ciml_learning.learning.online import warm_up; from ciml_learning.core.profile import load_profile
-warm_up(load_profile("hyq").robot())' || { log "compiling the learners' kernels failed"; exit 1; }
-  stamp_set kernels "$h"
-fi
+# The cores and the packages do not depend on each other, and each core is one translation unit (a
+# single-threaded build): side by side they take the longest one's time instead of the sum.
+pids=()
+build_core control ciml_control/cpp ciml_control/ciml_control/libciml_control_core.so \
+  "the controller core (C++: Pinocchio, proxsuite)" & pids+=($!)
+build_core batch ciml_learning/cpp ciml_learning/ciml_learning/libciml_learning_core.so \
+  "the batch dynamics core (C++: Pinocchio)" & pids+=($!)
+install_packages & pids+=($!)
+failed=0
+for pid in "${pids[@]}"; do wait "$pid" || failed=1; done
+[ "$failed" = 0 ] || exit 1
 log "ready: $VENV"

@@ -18,11 +18,17 @@ install:
 demo: install
 	@tools/demo.sh
 
+# Two phases: the tests without a ROS graph on every core (a file per worker, so a module's fixture
+# is built once), then the ROS tests one at a time (a graph needs both cores of this machine; beside
+# other tests it slows more than they gain). Both phases run; the first failure's code is returned.
+PYTEST_PHASES = $(PY) -m pytest -q -n auto --dist loadfile -m "not ros$(1)"; a=$$?; \
+	$(PY) -m pytest -q -m "ros$(1)"; b=$$?; exit $$(( a ? a : b ))
+
 test: install
-	$(PY) -m pytest -q
+	$(call PYTEST_PHASES,)
 
 test-fast: install
-	$(PY) -m pytest -q -m "not slow"
+	$(call PYTEST_PHASES, and not slow)
 
 bench: install
 	.venv/bin/ciml bench --out out/bench.json

@@ -92,6 +92,7 @@ class RunResult:
     controller: str = ""
     wall_time: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)          # wall seconds per stage
+    python_ticks: int = 0   # control ticks run step by step in Python (the rest ran compiled)
     epsilon_trust: dict[str, int] = field(default_factory=dict)      # ticks with ε gated / clipped (trust law)
 
     def metrics(self) -> dict:
@@ -211,6 +212,7 @@ def run_headless(
 
     def python_tick(k: int, ref, logs, writer) -> bool:
         """One tick step by step; True if the robot fell (then no command is applied)."""
+        result.python_ticks += 1
         t0 = time.perf_counter()
         m = plant.measure()
         t1 = time.perf_counter()

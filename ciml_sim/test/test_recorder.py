@@ -217,7 +217,8 @@ def test_compiled_closed_loop_runs_the_step_by_step_ticks(scenario):
     stepwise = run_headless(ROBOT, scen, "trot_35", 1.2, seed=3, progress=False,
                             epsilon_fn=lambda ref: np.zeros(ROBOT.nv))
     assert compiled.timings["compiled_s"] > 0 and stepwise.timings["compiled_s"] == 0
-    assert stepwise.timings["controller_s"] > 20 * compiled.timings["controller_s"]
+    # the compiled loop hands back only a few ticks (the noise blocks'); counted, not timed
+    assert stepwise.python_ticks > 20 * max(compiled.python_ticks, 1)
     _same_runs(compiled, stepwise)
 
 

@@ -11,7 +11,7 @@ from ciml_learning.diagnosis.candidates import N_ACT, FeatureLayout, link_inerti
 from ciml_learning.diagnosis.effects import feature_coefficients
 from ciml_learning.diagnosis.features import Rows, grams
 from ciml_learning.diagnosis.identification import Model, parameter_uncertainty, physical_parameters, select
-from ciml_learning.effects import CATALOGUE, EFFECTS, EffectTypeError, effect_type
+from ciml_learning.effects import CATALOGUE, EFFECTS, EffectTypeError, Refinement, effect_type
 from ciml_learning.effects.base import COULOMB_SMOOTHING
 from ciml_learning.effects.joint_stribeck_friction import STRIBECK_VELOCITIES
 
@@ -56,6 +56,29 @@ def test_registry_round_trip_of_every_catalogue_type():
             assert np.allclose(p[k], v, rtol=1e-9), (e["type"], k, p[k], v)
     with pytest.raises(EffectTypeError, match="valid: payload"):
         effect_type("stiction")
+
+
+def test_refined_by_names_what_a_candidates_matrix_depends_on():
+    """The layout keeps a candidate's A (FeatureLayout.block) unless its type names the Refinement field it
+    reads: every other type's A is the same under any refinement, and each named field changes its type's A."""
+    one = Refinement()
+    other = Refinement(np.array([0.2, -0.1, 0.05]), {j: 0.7 for j in ROBOT.joint_names},
+                       {c.label: 0.3 for c in LAYOUT.candidates})
+    seen = set()
+    for c in LAYOUT.candidates:
+        if not c.in_catalogue:
+            continue
+        a, b = (LAYOUT.matrix(c, *r) for r in (one, other))
+        refined_by = EFFECTS[c.type].refined_by
+        if refined_by is None:
+            assert np.array_equal(a, b), c.label
+            rows, kept = LAYOUT.block(c, *other)
+            assert LAYOUT.block(c) is LAYOUT.block(c) and np.array_equal(kept, a[rows]), c.label
+        elif not np.array_equal(a, b):
+            seen.add(c.type)
+            rows, fresh = LAYOUT.block(c, *other)
+            assert np.array_equal(fresh, b[rows]) and LAYOUT.block(c, *other) is not LAYOUT.block(c, *other)
+    assert seen == {t for t in CATALOGUE if EFFECTS[t].refined_by is not None}
 
 
 def _friction_rows(rng, truth: dict, n: int = 4000, noise: float = 0.05) -> Rows:

@@ -121,6 +121,7 @@ class FeatureLayout:
     names: list[str] = field(default_factory=list)
     n_rbd: int = 0
     joint_feature0: dict[str, int] = field(default_factory=dict)  # first column of a type's joint features
+    _blocks: dict = field(default_factory=dict, init=False, repr=False, compare=False)  # block()'s memo
 
     def __post_init__(self) -> None:
         nj = self.robot.n_joints
@@ -216,6 +217,24 @@ class FeatureLayout:
             for k, f in enumerate(cand.features):
                 A[f, k] = 1.0
         return A
+
+    def block(self, cand: Candidate, payload_com: np.ndarray | None = None,
+              lag_scale: dict[str, float] | None = None,
+              nonlinear: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, A[rows]): the features a candidate loads (a few of the ~300) and its matrix there.
+        Kept for a candidate whose A does not depend on the model's bilinear parts
+        (EffectType.refined_by is None): the selection fits ~10⁴ candidate sets of the same ~150."""
+        kind = EFFECTS.get(cand.type) if cand.in_catalogue else None
+        fixed = kind is None or kind.refined_by is None
+        if fixed and cand in self._blocks:
+            return self._blocks[cand]
+        A = self.matrix(cand, payload_com, lag_scale, nonlinear)
+        rows = np.flatnonzero(np.any(A != 0.0, axis=1))
+        out = (rows, A[rows])
+        if fixed:
+            out[1].flags.writeable = False
+            self._blocks[cand] = out
+        return out
 
 
 def coulomb_regressor(v_joints: np.ndarray, segment: np.ndarray | None, fs: "float | np.ndarray" = 250.0,

@@ -129,10 +129,21 @@ class Model:
     nonlinear: dict[str, float] = field(default_factory=dict)  # candidate label → its non-linear parameter
 
     def matrix(self) -> np.ndarray:
-        if not self.candidates:
-            return np.zeros((self.layout.n_features, 0))
-        return np.hstack([self.layout.matrix(c, self.payload_com, self.lag_scale, self.nonlinear)
-                          for c in self.candidates])
+        rows, A_rows = self.compact_matrix()
+        A = np.zeros((self.layout.n_features, A_rows.shape[1]))
+        A[rows] = A_rows
+        return A
+
+    def compact_matrix(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, A[rows]): the features some candidate loads, and the model's A there."""
+        blocks = [self.layout.block(c, self.payload_com, self.lag_scale, self.nonlinear) for c in self.candidates]
+        rows = np.unique(np.concatenate([r for r, _ in blocks])) if blocks else np.zeros(0, int)
+        A = np.zeros((len(rows), sum(c.n_params for c in self.candidates)))
+        k = 0
+        for r, B in blocks:
+            A[np.searchsorted(rows, r), k:k + B.shape[1]] = B
+            k += B.shape[1]
+        return rows, A
 
     def feature_theta(self) -> np.ndarray:
         """Coefficients on the feature columns (A θ)."""
@@ -152,6 +163,12 @@ class Model:
         return Model(self.layout, list(cands), np.concatenate(theta) if theta else np.zeros(0), self.payload_com,
                      self.lag_scale, self.sampling, {c.label: self.nonlinear[c.label] for c in cands
                                                      if c.label in self.nonlinear})
+
+    def warm_start(self) -> dict[str, Any]:
+        """fit_model's `start` from this model: its non-linear parameters and its payload's CoM."""
+        payload = next((k for k in self.candidates if k.type == "payload"), None)
+        extra = {payload.label: self.payload_com} if payload is not None and self.payload_com is not None else {}
+        return {**self.nonlinear, **extra}
 
     def params_of(self, cand: Candidate) -> np.ndarray:
         i = self.candidates.index(cand)
@@ -177,9 +194,7 @@ NONLINEAR_XTOL = 0.005
 def _solve(model: Model, G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
     """θ of the model's current A (bounded least squares); returns the objective θᵀHθ − 2cᵀθ
     (the training residual up to a constant)."""
-    A = model.matrix()
-    rows = np.flatnonzero(np.any(A != 0.0, axis=1))  # a candidate loads a few of the ~300 features
-    A = A[rows]
+    rows, A = model.compact_matrix()  # a candidate loads a few of the ~300 features
     H, g = A.T @ G[np.ix_(rows, rows)] @ A, A.T @ c[rows]
     model.theta = bounded_least_squares(H, g, lo, hi)
     return float(model.theta @ H @ model.theta - 2 * g @ model.theta)
@@ -211,16 +226,18 @@ def _search_nonlinear(model: Model, cand: Candidate, G: np.ndarray, c: np.ndarra
 
 def fit_model(layout: FeatureLayout, cands: list[Candidate], G: np.ndarray, c: np.ndarray,
               refine_payload: int = 3, sampling: CommandSampling | None = None,
-              start: dict[str, float] | None = None) -> Model:
+              start: dict[str, Any] | None = None) -> Model:
     """Fit the parameters of a candidate set on weighted Grams (G = Σ w_d G_d, c = Σ w_d c_d).
 
-    Two terms are bilinear and refined by refitting (refine iterations): a payload's point-mass
-    rotational inertia depends on its CoM; the all-joint lag's coefficient on a joint with an
-    identified torque gain is T/g_j. A non-linear parameter (Stribeck velocity) is then fitted by a
-    1-D search (_search_nonlinear; `start`: label → a warm start)."""
+    Two terms are bilinear and refined by refitting (at most refine_payload times, until they change
+    by less than REFINE_TOL): a payload's point-mass rotational inertia depends on its CoM; the all-joint
+    lag's coefficient on a joint with an identified torque gain is T/g_j. A non-linear parameter
+    (Stribeck velocity) is then fitted by a 1-D search (_search_nonlinear). `start`: label → a warm start
+    (a non-linear parameter's value, the payload's CoM)."""
     model = Model(layout, list(cands), np.zeros(sum(k.n_params for k in cands)), sampling=sampling)
     if not cands:
         return model
+    start = start or {}
     lo, hi = _bounds(model.candidates)
     payload = next((k for k in cands if k.type == "payload"), None)
     gains = [k for k in cands if k.type == "torque_gain"]
@@ -229,8 +246,11 @@ def fit_model(layout: FeatureLayout, cands: list[Candidate], G: np.ndarray, c: n
     nonlinear = [k for k in cands if _nonlinear_range(k) is not None]
     for k in nonlinear:
         _, p_lo, p_hi = _nonlinear_range(k)  # type: ignore[misc]
-        model.nonlinear[k.label] = (start or {}).get(k.label) or float(np.sqrt(p_lo * p_hi))
+        model.nonlinear[k.label] = start.get(k.label) or float(np.sqrt(p_lo * p_hi))
+    if payload is not None and start.get(payload.label) is not None:
+        model.payload_com = np.asarray(start[payload.label], float)
     for _ in range(1 + refine):
+        before = (model.payload_com, model.lag_scale)
         _solve(model, G, c, lo, hi)
         if coupled:
             model.lag_scale = {str(k.joint): float(1.0 - model.params_of(k)[0]) for k in gains}
@@ -242,9 +262,25 @@ def fit_model(layout: FeatureLayout, cands: list[Candidate], G: np.ndarray, c: n
                 com = p[1:4] / p[0]
                 n = np.linalg.norm(com)
                 model.payload_com = com if n <= MAX_PAYLOAD_LEVER else com * (MAX_PAYLOAD_LEVER / n)
+        if _refined(before, (model.payload_com, model.lag_scale)):
+            break
     for k in nonlinear:
-        _search_nonlinear(model, k, G, c, lo, hi, (start or {}).get(k.label))
+        _search_nonlinear(model, k, G, c, lo, hi, start.get(k.label))
     return model
+
+
+REFINE_TOL = 1e-5
+"""[m of CoM, or of a lag's 1/g_j] a bilinear term that changes less than this in a refit is refined."""
+
+
+def _refined(before: tuple, after: tuple) -> bool:
+    """The bilinear terms (payload CoM, lag scales) the last fit used are those it gives (within REFINE_TOL)."""
+    (com0, lag0), (com1, lag1) = before, after
+    if (com0 is None) != (com1 is None) or (lag0 is None) != (lag1 is None):
+        return False
+    if com0 is not None and np.max(np.abs(com1 - com0)) > REFINE_TOL:
+        return False
+    return lag0 is None or max(abs(lag1[j] - lag0[j]) for j in lag1) <= REFINE_TOL
 
 
 def _nonlinear_at_bound(model: Model, cand: Candidate) -> bool:
@@ -417,13 +453,15 @@ def relevance_function(rows: Rows, train: Grams):
     raw_rms = np.sqrt(np.maximum(rows.raw_signal, 0) / n) if rows.raw_signal is not None else None
 
     def relevance(model: Model, cand: Candidate) -> float:
-        t = lay.matrix(cand, model.payload_com, model.lag_scale, model.nonlinear) @ model.params_of(cand)
+        loaded, B = lay.block(cand, model.payload_com, model.lag_scale, model.nonlinear)
+        t = np.zeros(lay.n_features)
+        t[loaded] = B @ model.params_of(cand)
         if cand.kind == "rbd":
             if rows.raw_G is None:
                 return np.inf
             nz = np.flatnonzero(t[:lay.n_rbd])  # the few features the candidate loads
             tr = t[nz]
-            size = np.sqrt(np.maximum(np.einsum("f,ifg,g->i", tr, rows.raw_G[:, nz][:, :, nz], tr), 0) / n)
+            size = np.sqrt(np.maximum(np.einsum("f,ifg,g->i", tr, rows.raw_G[:, nz[:, None], nz], tr), 0) / n)
             assert raw_rms is not None  # raw_signal and raw_G are recorded together
             return float(np.max(size / np.maximum(raw_rms, 1e-9)))
         best = 0.0
@@ -459,12 +497,15 @@ class _Problem:
         self.Gt, self.ct, _ = train.weighted(wk)
         self.Gh, self.ch, self.sh = heldout.weighted(wk)
         self.rows = float(heldout.n[dims].sum())
-        self.start: dict[str, float] = {}  # warm starts of the non-linear parameters (fit_model)
+        self.start: dict[str, Any] = {}  # warm starts of the non-linear parameters and the payload's CoM (fit_model)
 
     def fit(self, cands: list[Candidate]) -> Model:
         m = fit_model(self.layout, cands, self.Gt, self.ct, start=self.start)
         for label, v in m.nonlinear.items():
             self.start.setdefault(label, v)
+        payload = next((k for k in cands if k.type == "payload"), None)
+        if payload is not None and m.payload_com is not None:
+            self.start[payload.label] = m.payload_com  # the last fit's: the next set differs by one effect
         return m
 
     def ss(self, model: Model) -> float:
@@ -1023,7 +1064,7 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
         G[np.ix_(feats, feats)] = Gs
         c[feats] = cs
         return _flatten(physical_parameters(fit_model(layout, model.candidates, G, c, sampling=model.sampling,
-                                                      start=model.nonlinear)))
+                                                      start=model.warm_start())))
 
     draws = unc.block_bootstrap(Gb, cb, fit, n_boot, seed)
     sampling = unc.bootstrap_std(draws, len(Gb))
@@ -1031,7 +1072,7 @@ def parameter_uncertainty(selection: Selection, rows: Rows, heldout: Grams | Non
     reproduction = np.zeros_like(flat)
     if heldout is not None and np.any(heldout.n > 0):
         Gh, ch, _ = heldout.weighted(selection.fitted_with)
-        m_ho = fit_model(layout, model.candidates, Gh, ch, sampling=model.sampling, start=model.nonlinear)
+        m_ho = fit_model(layout, model.candidates, Gh, ch, sampling=model.sampling, start=model.warm_start())
         reproduction = np.abs(_flatten(physical_parameters(m_ho)) - flat) / np.sqrt(2.0)
     conversion = np.zeros_like(flat)
     misspecification = np.zeros_like(flat)

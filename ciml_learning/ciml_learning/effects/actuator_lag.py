@@ -46,6 +46,8 @@ class ActuatorLag(EffectType):
                                          joints=tuple(robot.joint_names))))
         return out
 
+    refined_by = "lag_scale"
+
     def matrix(self, layout, cand, A, refinement):
         A[list(cand.features), 0] = 1.0
         if len(cand.joints) > 1 and refinement.lag_scale:  # the all-joint lag: c_j = T/g_j

@@ -154,6 +154,8 @@ class EffectType:
     """θ names that may rest at their null bound (0) while the effect is there (the main one may not)."""
     joint_feature_count: ClassVar[int] = 0
     """Per-joint joint-torque feature columns this type adds to the layout (joint_features)."""
+    refined_by: ClassVar[str | None] = None
+    """The Refinement field its `matrix` reads (None: a candidate's A is fixed, and the layout keeps it)."""
 
     # --- scenario side -----------------------------------------------------------------------
     def check(self, params: dict) -> str | None:

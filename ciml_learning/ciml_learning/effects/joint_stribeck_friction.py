@@ -71,6 +71,8 @@ class JointStribeckFriction(EffectType):
                                       joint=name, group=f"joint_friction_level:{name}"))
                 for j, name in enumerate(layout.robot.joint_names)]
 
+    refined_by = "nonlinear"
+
     def matrix(self, layout, cand, A, refinement):
         A[cand.features[0], 1] = 1.0
         v = (refinement.nonlinear or {}).get(cand.label, math.sqrt(STRIBECK_VELOCITIES[0] * STRIBECK_VELOCITIES[-1]))

@@ -51,6 +51,8 @@ class Payload(EffectType):
                                       *self.theta_bounds(layout.robot, None),
                                       tuple(range(layout.root0, layout.root0 + 10))))]
 
+    refined_by = "payload_com"
+
     def matrix(self, layout, cand, A, refinement):
         r0 = layout.root0
         A[r0, 0] = 1.0

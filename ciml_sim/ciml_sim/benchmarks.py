@@ -227,10 +227,13 @@ def rate_benchmark(seconds: float = 8.0, publish_rate: float = 250.0) -> dict:
         rclpy.try_shutdown(context=ctx)
 
 
-def diagnosis_benchmark(n_samples: int = 50_000, seconds: float = 20.0, motion: str = "walk_35") -> dict:
+def diagnosis_benchmark(n_samples: int = 50_000, seconds: float = 20.0, motion: str = "walk_35",
+                        jobs: int = 1) -> dict:
     """Diagnosis of n_samples (250 Hz) end to end: bag reading, filtering, extraction, regressors,
     selection, bootstrap, report. One simulated bag of the default gap scenario (this package's
-    recorder, not timed) is given repeatedly, 80 % as identification and 20 % as held-out bags."""
+    recorder, not timed) is given repeatedly, 80 % as identification and 20 % as held-out bags.
+    jobs: processes reading the bags (`ciml diagnose --jobs`, whose default −1 is every core; 1 keeps
+    the figures comparable with earlier runs)."""
     robot = load_robot()
     scenario = load_scenario(os.path.join(scenario_dir(), "default_gap.yaml"), robot)
     tmp = tempfile.mkdtemp(prefix="ciml_diag_bench_")
@@ -242,10 +245,11 @@ def diagnosis_benchmark(n_samples: int = 50_000, seconds: float = 20.0, motion: 
         copies = max(2, int(round(n_samples / per_bag)))
         n_ho = max(1, copies // 5)
         t0, c0 = time.perf_counter(), time.process_time()
-        result = diagnose(robot, [bag] * (copies - n_ho), [bag] * n_ho, os.path.join(tmp, "out"), progress=False)
+        result = diagnose(robot, [bag] * (copies - n_ho), [bag] * n_ho, os.path.join(tmp, "out"), progress=False,
+                          jobs=jobs)
         elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
         floor = per_sample_floor()
-        return {"samples": copies * per_bag,
+        return {"samples": copies * per_bag, "jobs": jobs,
                 "us_per_sample": round(1e6 * elapsed / (copies * per_bag), 1), **floor,
                 "over_floor": round(1e6 * elapsed / (copies * per_bag) / floor["floor_us_per_sample"], 1),
                 "target_over_floor": 40.0,

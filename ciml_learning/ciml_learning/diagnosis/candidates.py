@@ -224,16 +224,16 @@ class FeatureLayout:
         """(rows, A[rows]): the features a candidate loads (a few of the ~300) and its matrix there.
         Kept for a candidate whose A does not depend on the model's bilinear parts
         (EffectType.refined_by is None): the selection fits ~10⁴ candidate sets of the same ~150."""
-        kind = EFFECTS.get(cand.type) if cand.in_catalogue else None
-        fixed = kind is None or kind.refined_by is None
-        if fixed and cand in self._blocks:
-            return self._blocks[cand]
+        kept = self._blocks.get(id(cand))  # by identity (hashing a candidate's fields costs more than A)
+        if kept is not None and kept[0] is cand:
+            return kept[1]
         A = self.matrix(cand, payload_com, lag_scale, nonlinear)
         rows = np.flatnonzero(np.any(A != 0.0, axis=1))
         out = (rows, A[rows])
-        if fixed:
+        kind = EFFECTS.get(cand.type) if cand.in_catalogue else None
+        if kind is None or kind.refined_by is None:
             out[1].flags.writeable = False
-            self._blocks[cand] = out
+            self._blocks[id(cand)] = (cand, out)  # the candidate kept alive with it: its id stays its own
         return out
 
 

@@ -166,13 +166,17 @@ class Model:
 
     def warm_start(self) -> dict[str, Any]:
         """fit_model's `start` from this model: its non-linear parameters and its payload's CoM."""
-        payload = next((k for k in self.candidates if k.type == "payload"), None)
+        payload = _payload(self.candidates)
         extra = {payload.label: self.payload_com} if payload is not None and self.payload_com is not None else {}
         return {**self.nonlinear, **extra}
 
     def params_of(self, cand: Candidate) -> np.ndarray:
         i = self.candidates.index(cand)
         return self.theta[self.slices()[i]]
+
+
+def _payload(cands: list[Candidate]) -> Candidate | None:
+    return next((k for k in cands if k.type == "payload"), None)
 
 
 def _bounds(cands: list[Candidate]) -> tuple[np.ndarray, np.ndarray]:
@@ -239,7 +243,7 @@ def fit_model(layout: FeatureLayout, cands: list[Candidate], G: np.ndarray, c: n
         return model
     start = start or {}
     lo, hi = _bounds(model.candidates)
-    payload = next((k for k in cands if k.type == "payload"), None)
+    payload = _payload(cands)
     gains = [k for k in cands if k.type == "torque_gain"]
     coupled = bool(gains) and any(k.type == "actuator_lag" and len(k.joints) > 1 for k in cands)
     refine = refine_payload if (payload is not None or coupled) else 0
@@ -503,7 +507,7 @@ class _Problem:
         m = fit_model(self.layout, cands, self.Gt, self.ct, start=self.start)
         for label, v in m.nonlinear.items():
             self.start.setdefault(label, v)
-        payload = next((k for k in cands if k.type == "payload"), None)
+        payload = _payload(cands)
         if payload is not None and m.payload_com is not None:
             self.start[payload.label] = m.payload_com  # the last fit's: the next set differs by one effect
         return m
